@@ -1,0 +1,38 @@
+"""Error types. Each carries one line a user can act on: the file, field, line or guest PC."""
+
+
+class RetrosimError(Exception):
+    """Base class for every error retrosim reports to a user (the CLI prints str(e) and exits 2)."""
+
+
+class AssemblerError(RetrosimError):
+    """The assembler rejected a kernel source; the message is `file:line: message`."""
+
+
+class AssemblerMissing(RetrosimError):
+    """No usable assembler was found; the message says how to get one."""
+
+
+class LoadError(RetrosimError):
+    """An ELF object could not be loaded (unknown relocation, undefined symbol, layout overflow)."""
+
+
+class UnknownSymbol(LoadError):
+    """An entry point or data symbol that the object does not define."""
+
+
+class GuestFault(RetrosimError):
+    """The guest touched unmapped memory or executed an invalid instruction."""
+
+    def __init__(self, message: str, pc: int, address: int | None = None):
+        super().__init__(message)
+        self.pc = pc
+        self.address = address
+
+
+class RunawayKernel(GuestFault):
+    """The guest exceeded its instruction budget (an endless loop, or a budget set too low)."""
+
+
+class ArgumentError(RetrosimError):
+    """A kernel was called with the wrong number or kind of arguments."""

@@ -1,0 +1,64 @@
+"""The kernel catalogue: .S files under kernels/ and the entry points they declare.
+
+A kernel source declares each cdecl entry point in a structured comment, so the harness can list
+kernels and check argument counts without parsing assembly:
+
+    # @entry fp16z_span(zbuf, fbuf, count, z, dz, colour) -> pixels written
+
+The names are documentation; the count is enforced by :meth:`sim.emu.Machine.call`.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+KERNELS_ENV = "RETROSIM_KERNELS"
+_ENTRY = re.compile(r"^\s*#\s*@entry\s+(?P<name>[A-Za-z_.$][\w.$]*)\s*\((?P<args>[^)]*)\)\s*(?:->\s*(?P<ret>.*?))?\s*$")
+
+
+@dataclass(frozen=True)
+class EntryPoint:
+    name: str
+    args: tuple[str, ...]
+    returns: str
+    line: int
+
+    def signature(self) -> str:
+        ret = f" -> {self.returns}" if self.returns else ""
+        return f"{self.name}({', '.join(self.args)}){ret}"
+
+
+def kernels_root() -> Path:
+    env = os.environ.get(KERNELS_ENV)
+    return Path(env) if env else Path(__file__).resolve().parent.parent / "kernels"
+
+
+def entry_points(source: str | os.PathLike) -> dict[str, EntryPoint]:
+    """The entry points a source file declares with `# @entry` comments, in file order."""
+    found: dict[str, EntryPoint] = {}
+    text = Path(source).read_text(encoding="utf-8", errors="replace")
+    for lineno, line in enumerate(text.splitlines(), 1):
+        m = _ENTRY.match(line)
+        if m:
+            args = tuple(a.strip() for a in m["args"].split(",") if a.strip())
+            found[m["name"]] = EntryPoint(m["name"], args, m["ret"] or "", lineno)
+    return found
+
+
+def catalogue(root: Path | None = None) -> dict[Path, dict[str, EntryPoint]]:
+    """Every kernel source under `root` (default: the repository's kernels/), sorted by path."""
+    root = root or kernels_root()
+    return {p: entry_points(p) for p in sorted(root.rglob("*.S"))}
+
+
+def resolve(name: str | os.PathLike) -> Path:
+    """A kernel given as a path, or as a path relative to kernels/ (with or without .S)."""
+    p = Path(name)
+    candidates = [p, kernels_root() / p, kernels_root() / p.with_suffix(".S")]
+    for c in candidates:
+        if c.is_file():
+            return c
+    return p  # let the caller report the missing file with the name the user gave

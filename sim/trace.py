@@ -1,0 +1,226 @@
+"""Native execution traces: the PC stream and every data memory access, recorded without Python.
+
+Two numba ``cfunc`` callbacks are registered with Unicorn's C ``uc_hook_add`` (one UC_HOOK_CODE,
+one UC_HOOK_MEM_READ|WRITE). They write into one preallocated uint64 buffer, so tracing costs a C
+call per instruction and per access, never a Python frame. When the buffer is nearly full the code
+hook stops the emulator *before* the instruction runs; the runner drains the buffer into a
+:class:`Trace` and resumes at the same PC, so traces of any length are exact.
+
+Buffer layout (uint64 words)::
+
+    [0] instructions recorded   [1] instruction capacity
+    [2] accesses recorded       [3] access capacity
+    [4] overflow flag (an access arrived with no room; must stay 0)
+    [5] instruction limit for this run segment (at most the capacity)
+    [HEADER : HEADER+icap]             executed PCs
+    [HEADER+icap : HEADER+icap+2*acap] access pairs: addr | size << 32 | write << 40, instruction index
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numba import carray, cfunc, types
+from unicorn import UC_HOOK_CODE, UC_HOOK_MEM_READ, UC_HOOK_MEM_WRITE, UC_MEM_WRITE
+from unicorn.unicorn_py3.unicorn import uclib
+
+HEADER = 8
+# Room kept for the accesses of one instruction (FSAVE/FRSTOR/PUSHA make many); the code hook stops
+# the run before an instruction could overflow the access area.
+ACCESS_SLACK = 256
+_U64 = np.uint64
+
+_uc_emu_stop = uclib.uc_emu_stop
+
+
+@cfunc(types.void(types.voidptr, types.uint64, types.uint32, types.voidptr))
+def _on_code(uc, address, size, user_data):
+    head = carray(user_data, HEADER, np.uint64)
+    n, icap, m, acap = head[0], head[1], head[2], head[3]
+    if n >= head[5] or m + ACCESS_SLACK > acap:
+        _uc_emu_stop(uc)  # this instruction has not run; it is recorded when the run resumes
+        return
+    buf = carray(user_data, HEADER + icap, np.uint64)
+    buf[HEADER + n] = address
+    head[0] = n + 1
+
+
+@cfunc(types.void(types.voidptr, types.int32, types.uint64, types.int32, types.int64, types.voidptr))
+def _on_access(uc, kind, address, size, value, user_data):
+    head = carray(user_data, HEADER, np.uint64)
+    n, icap, m, acap = head[0], head[1], head[2], head[3]
+    if m >= acap:
+        head[4] = 1
+        return
+    buf = carray(user_data, HEADER + icap + 2 * acap, np.uint64)
+    at = HEADER + icap + 2 * m
+    write = np.uint64(1) if kind == UC_MEM_WRITE else np.uint64(0)
+    buf[at] = (address & np.uint64(0xFFFFFFFF)) | (np.uint64(size) << np.uint64(32)) | (write << np.uint64(40))
+    buf[at + 1] = n - 1  # the access belongs to the instruction recorded last
+    head[2] = m + 1
+
+
+@dataclass(frozen=True)
+class Trace:
+    """A dynamic trace of one guest run.
+
+    Invariants (checked by :meth:`validate`):
+    - ``pc`` (uint32) lists executed instruction addresses in execution order, one per instruction
+      (each iteration of a REP string instruction counts as one execution);
+    - ``mem_addr`` (uint32), ``mem_size`` (uint8, bytes), ``mem_write`` (bool) and ``mem_insn``
+      (uint32) have one entry per data access in program order; instruction fetches are not accesses;
+    - ``mem_insn[k]`` is the index in ``pc`` of the instruction that made access k: non-decreasing,
+      and below ``len(pc)``.
+    """
+
+    pc: np.ndarray
+    mem_addr: np.ndarray
+    mem_size: np.ndarray
+    mem_write: np.ndarray
+    mem_insn: np.ndarray
+
+    @property
+    def instructions(self) -> int:
+        return int(self.pc.size)
+
+    @property
+    def accesses(self) -> int:
+        return int(self.mem_addr.size)
+
+    @property
+    def reads(self) -> int:
+        return int(self.accesses - np.count_nonzero(self.mem_write))
+
+    @property
+    def writes(self) -> int:
+        return int(np.count_nonzero(self.mem_write))
+
+    def validate(self) -> None:
+        n = self.mem_addr.size
+        expect = {"pc": np.uint32, "mem_addr": np.uint32, "mem_size": np.uint8, "mem_write": np.bool_, "mem_insn": np.uint32}
+        for name, dtype in expect.items():
+            arr = getattr(self, name)
+            if arr.dtype != dtype or arr.ndim != 1:
+                raise ValueError(f"trace field {name}: expected 1-D {np.dtype(dtype)}, got {arr.ndim}-D {arr.dtype}")
+            if name != "pc" and arr.size != n:
+                raise ValueError(f"trace field {name}: {arr.size} entries, mem_addr has {n}")
+        if n:
+            if np.any(np.diff(self.mem_insn.astype(np.int64)) < 0):
+                raise ValueError("trace field mem_insn: not in program order")
+            if int(self.mem_insn[-1]) >= self.pc.size:
+                raise ValueError("trace field mem_insn: names an instruction past the end of pc")
+            if np.any(self.mem_size == 0):
+                raise ValueError("trace field mem_size: zero-byte access")
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the trace as .npz, atomically (an interrupted write leaves any old file intact)."""
+        path = Path(path)
+        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=path.parent or ".")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez_compressed(f, **{k: getattr(self, k) for k in _FIELDS})
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> Trace:
+        with np.load(path) as data:
+            trace = cls(**{k: data[k] for k in _FIELDS})
+        trace.validate()
+        return trace
+
+    @classmethod
+    def concatenate(cls, parts: list[Trace]) -> Trace:
+        if not parts:
+            return cls.empty()
+        offsets = np.cumsum([0] + [p.pc.size for p in parts[:-1]]).astype(np.uint32)
+        return cls(
+            pc=np.concatenate([p.pc for p in parts]),
+            mem_addr=np.concatenate([p.mem_addr for p in parts]),
+            mem_size=np.concatenate([p.mem_size for p in parts]),
+            mem_write=np.concatenate([p.mem_write for p in parts]),
+            mem_insn=np.concatenate([p.mem_insn + off for p, off in zip(parts, offsets)]),
+        )
+
+    @classmethod
+    def empty(cls) -> Trace:
+        return cls(np.zeros(0, np.uint32), np.zeros(0, np.uint32), np.zeros(0, np.uint8),
+                   np.zeros(0, np.bool_), np.zeros(0, np.uint32))
+
+
+_FIELDS = ("pc", "mem_addr", "mem_size", "mem_write", "mem_insn")
+
+
+class NativeTracer:
+    """Owns the trace buffer and the two native hooks on one Unicorn engine."""
+
+    def __init__(self, uc, instruction_capacity: int = 1 << 20, access_capacity: int = 1 << 20):
+        self.uc = uc
+        self.icap = int(instruction_capacity)
+        self.acap = int(access_capacity) + ACCESS_SLACK
+        self.buffer = np.zeros(HEADER + self.icap + 2 * self.acap, dtype=np.uint64)
+        self.buffer[1], self.buffer[3], self.buffer[5] = self.icap, self.acap, self.icap
+        self._handles: list[ctypes.c_size_t] = []
+        self.recorded = 0  # instructions recorded since the last reset (all drained chunks)
+        self._parts: list[Trace] = []
+        self.active = False
+
+    def attach(self) -> None:
+        if self.active:
+            return
+        ptr = ctypes.c_void_p(self.buffer.ctypes.data)
+        for kind, fn in ((UC_HOOK_CODE, _on_code), (UC_HOOK_MEM_READ | UC_HOOK_MEM_WRITE, _on_access)):
+            handle = ctypes.c_size_t()
+            err = uclib.uc_hook_add(self.uc._uch, ctypes.byref(handle), kind, ctypes.c_void_p(fn.address), ptr,
+                                    ctypes.c_uint64(1), ctypes.c_uint64(0))
+            if err:
+                raise RuntimeError(f"uc_hook_add failed with Unicorn error {err}")
+            self._handles.append(handle)
+        self.uc.ctl_flush_tb()  # blocks translated before the hooks existed would run uninstrumented
+        self.active = True
+
+    def detach(self) -> None:
+        for handle in self._handles:
+            uclib.uc_hook_del(self.uc._uch, handle)
+        self._handles.clear()
+        self.uc.ctl_flush_tb()  # and blocks translated with them would keep calling them
+        self.active = False
+
+    def limit(self, instructions: int) -> None:
+        """Stop the next run segment after at most `instructions` more recorded instructions."""
+        self.buffer[5] = max(0, min(self.icap, int(instructions)))
+
+    def drain(self) -> None:
+        """Move the buffer's contents into an immutable chunk and empty the buffer."""
+        b = self.buffer
+        if b[4]:
+            raise RuntimeError("native trace lost memory accesses (buffer overflow)")
+        n, m = int(b[0]), int(b[2])
+        pcs = b[HEADER:HEADER + n].astype(np.uint32)
+        pairs = b[HEADER + self.icap:HEADER + self.icap + 2 * m].reshape(m, 2)
+        packed = pairs[:, 0]
+        self._parts.append(Trace(
+            pc=pcs,
+            mem_addr=(packed & _U64(0xFFFFFFFF)).astype(np.uint32),
+            mem_size=((packed >> _U64(32)) & _U64(0xFF)).astype(np.uint8),
+            mem_write=((packed >> _U64(40)) & _U64(1)).astype(np.bool_),
+            mem_insn=pairs[:, 1].astype(np.uint32),
+        ))
+        self.recorded += n
+        b[0] = b[2] = 0
+
+    def take(self) -> Trace:
+        """The whole trace since the last take, as one validated :class:`Trace`."""
+        self.drain()
+        trace = Trace.concatenate(self._parts)
+        self._parts.clear()
+        self.recorded = 0
+        trace.validate()
+        return trace
