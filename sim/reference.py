@@ -120,10 +120,13 @@ def zf32_span(zbuf: np.ndarray, fbuf: np.ndarray, z: float, dz: float, colour: i
     compared exactly with the stored float, and stored rounded to nearest single."""
     if not x87_extended_available():
         raise RuntimeError("the zf32 reference needs numpy.longdouble to be the x87 80-bit format")
+    if zbuf.size == 0:
+        return 0
     steps = np.full(zbuf.size, np.longdouble(np.float32(dz)), dtype=np.longdouble)
     steps[0] = np.longdouble(np.float32(z))
     depth = np.cumsum(steps)  # sequential adds, each rounded to 64 bits, like the FADD chain
     passed = depth < zbuf.astype(np.longdouble)  # NaN compares false: unordered fails, as in the kernel
-    zbuf[passed] = depth[passed].astype(np.float32)
+    with np.errstate(over="ignore"):  # FST rounds an out-of-range value to infinity, as here
+        zbuf[passed] = depth[passed].astype(np.float32)
     fbuf[passed] = colour & 0xFFFF
     return int(np.count_nonzero(passed))
