@@ -35,7 +35,8 @@ class Assembler:
     version: str
 
     def argv(self, source: Path, output: Path) -> list[str]:
-        return [*self.command, "-o", str(output), str(source)]
+        # -I: `.include "x"` resolves next to the source, wherever the assembler is started
+        return [*self.command, "-I", str(source.parent), "-o", str(output), str(source)]
 
 
 def _first_line(argv: list[str]) -> str:

@@ -204,7 +204,8 @@ class Machine:
     def _on_rdtsc(self, uc_handle, user_data) -> int:
         pc = self.uc.reg_read(X.UC_X86_REG_EIP)
         tr = self._tracer
-        done = tr.recorded + int(tr.buffer[0]) if tr is not None and tr.active else None
+        # the code hook has already recorded this RDTSC itself: count only what ran before it
+        done = tr.recorded + int(tr.buffer[0]) - 1 if tr is not None and tr.active else None
         value = self.rdtsc(RdtscEvent(pc, done)) if self.rdtsc else (done or 0)
         self.uc.reg_write(X.UC_X86_REG_EAX, value & 0xFFFFFFFF)
         self.uc.reg_write(X.UC_X86_REG_EDX, (value >> 32) & 0xFFFFFFFF)

@@ -9,7 +9,7 @@
 
 # @entry fp16z_convert(z) -> EAX = EDX after the conversion (DX holds the 16-bit float); ECX, EDX as the caller preset them
 .globl fp16z_convert
-.p2align 4
+.p2align 4, 0xCC                  # entry on a 16-byte fetch block (int3 fill)
 fp16z_convert:
     mov     eax, [esp+4]
     bsr     ecx, eax
@@ -21,7 +21,7 @@ fp16z_convert:
 # @entry fp16z_convert_array(src, dst, count, edx_in, ecx_in) -> EAX = count; dst[i] = full EDX after converting src[i]
 # EDX and ECX are set to edx_in and ecx_in before every conversion, so each result is independent.
 .globl fp16z_convert_array
-.p2align 4
+.p2align 4, 0xCC                  # entry on a 16-byte fetch block (int3 fill)
 fp16z_convert_array:
     push    esi
     push    edi

@@ -9,7 +9,7 @@
 
 # @entry fp16z_span(zbuf, fbuf, count, z, dz, colour) -> EAX = z after the span
 .globl fp16z_span
-.p2align 4
+.p2align 4, 0xCC                  # entry on a 16-byte fetch block (int3 fill)
 fp16z_span:
     push    ebx
     push    esi
@@ -24,7 +24,8 @@ fp16z_span:
     lea     esi, [esi+ebp*2]
     neg     ebp
     jz      .Ldone
-.p2align 4
+    jmp     .Lpixel                  # skip the padding: it is never executed
+.p2align 4, 0xCC                  # loop entry on a 16-byte fetch block
 .Lpixel:
     bsr     ecx, eax
     shrd    edx, eax, cl

@@ -5,7 +5,7 @@
 
 # @entry z16_span(zbuf, fbuf, count, z, dz, colour) -> EAX = z after the span
 .globl z16_span
-.p2align 4
+.p2align 4, 0xCC                  # entry on a 16-byte fetch block (int3 fill)
 z16_span:
     push    ebx
     push    esi
@@ -21,7 +21,8 @@ z16_span:
     lea     esi, [esi+ecx*2]
     neg     ecx
     jz      .Ldone
-.p2align 4
+    jmp     .Lpixel                  # skip the padding: it is never executed
+.p2align 4, 0xCC                  # loop entry on a 16-byte fetch block
 .Lpixel:
     mov     edx, eax
     shr     edx, 16

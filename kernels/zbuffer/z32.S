@@ -6,7 +6,7 @@
 
 # @entry z32_span(zbuf, fbuf, count, z, dz, colour) -> EAX = z after the span
 .globl z32_span
-.p2align 4
+.p2align 4, 0xCC                  # entry on a 16-byte fetch block (int3 fill)
 z32_span:
     push    ebx
     push    esi
@@ -22,7 +22,8 @@ z32_span:
     lea     esi, [esi+ecx*2]
     neg     ecx
     jz      .Ldone
-.p2align 4
+    jmp     .Lpixel                  # skip the padding: it is never executed
+.p2align 4, 0xCC                  # loop entry on a 16-byte fetch block
 .Lpixel:
     cmp     eax, [edi+ecx*4]
     jae     .Lhidden

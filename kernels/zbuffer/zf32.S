@@ -7,7 +7,7 @@
 
 # @entry zf32_span(zbuf, fbuf, count, z, dz, colour) -> EAX = pixels written; z and dz are float32
 .globl zf32_span
-.p2align 4
+.p2align 4, 0xCC                  # entry on a 16-byte fetch block (int3 fill)
 zf32_span:
     push    ebx
     push    esi
@@ -24,7 +24,8 @@ zf32_span:
     lea     esi, [esi+ecx*2]
     neg     ecx
     jz      .Ldone
-.p2align 4
+    jmp     .Lpixel                  # skip the padding: it is never executed
+.p2align 4, 0xCC                  # loop entry on a 16-byte fetch block
 .Lpixel:
     fcom    dword ptr [edi+ecx*4]
     fnstsw  ax
