@@ -218,7 +218,7 @@ class Machine:
         comparison only). `regs` preloads registers (e.g. to study an uninitialised EDX)."""
         declared = self.entries.get(entry)
         if declared is not None and len(args) != len(declared.args):
-            raise ArgumentError(f"{self.image.path}:{declared.line}: {declared.signature()} takes "
+            raise ArgumentError(f"{self.image.path}:{declared.line}: {declared.signature(returns=False)} takes "
                                 f"{len(declared.args)} argument(s), {len(args)} given")
         start = self.symbol(entry)
         words = [arg_word(a, i) for i, a in enumerate(args)]

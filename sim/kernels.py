@@ -26,8 +26,8 @@ class EntryPoint:
     returns: str
     line: int
 
-    def signature(self) -> str:
-        ret = f" -> {self.returns}" if self.returns else ""
+    def signature(self, returns: bool = True) -> str:
+        ret = f" -> {self.returns}" if self.returns and returns else ""
         return f"{self.name}({', '.join(self.args)}){ret}"
 
 

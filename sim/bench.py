@@ -1,0 +1,55 @@
+"""Speed benchmark: the same Z-buffer workload emulated three ways, measured in one run.
+
+Figures are ratios of one run on one machine; absolute numbers vary between machines, which is
+why nothing here is asserted in tests.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from . import reference as ref
+from .emu import Machine
+from .kernels import kernels_root
+
+SPAN_KERNEL = "zbuffer/fp16z.S"
+
+
+def _workload(pixels: int) -> tuple[np.ndarray, tuple[int, int, int]]:
+    """A depth buffer holding an earlier noisy surface, and a ramp that crosses it: the depth
+    test passes and fails in long and short runs, as it does in a scene."""
+    rng = np.random.default_rng(1998)
+    x = np.arange(pixels)
+    earlier = (0x30000000 + 0x08000000 * np.sin(x / 900.0) + rng.integers(0, 1 << 22, pixels)).astype(np.uint32)
+    return ref.fp16z_encode(earlier), (0x28000000, 0x18000000 // pixels, 0x7BEF)
+
+
+def run_bench(pixels: int = 1 << 20, progress=None) -> dict:
+    m = Machine.from_source(kernels_root() / SPAN_KERNEL)
+    zinit, (z, dz, colour) = _workload(pixels)
+
+    def once(trace, n=pixels):
+        m.arena.reset()
+        zb = m.arena.put(zinit[:n])
+        fb = m.arena.put(np.zeros(n, np.uint16))
+        start = time.perf_counter()
+        r = m.call("fp16z_span", zb, fb, n, z, dz, colour, trace=trace, budget=0)
+        return time.perf_counter() - start, r
+
+    results: dict = {"pixels": pixels}
+    for mode, trace in (("unicorn_bare", False), ("python_hook", "python"), ("native_trace", True)):
+        if progress is not None:
+            progress.print(f"[dim]measuring {mode.replace('_', ' ')} ...[/]")
+        once(trace, 4096)  # warm up: translation cache, trace buffer, numba
+        seconds, r = once(trace)
+        if trace is True:
+            results["instructions"] = r.instructions
+        results[f"{mode}_seconds"] = seconds
+    n = results["instructions"]
+    for mode in ("unicorn_bare", "python_hook", "native_trace"):
+        results[f"{mode}_ips"] = n / results[f"{mode}_seconds"]
+    results["native_vs_python"] = results["native_trace_ips"] / results["python_hook_ips"]
+    results["bare_vs_native"] = results["unicorn_bare_ips"] / results["native_trace_ips"]
+    return results

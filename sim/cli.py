@@ -1,0 +1,212 @@
+"""The `retrosim` command line."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from . import kernels as catalogue_mod
+from .errors import ArgumentError, RetrosimError
+
+console = Console()
+err_console = Console(stderr=True)
+
+_DTYPES = {"u8": np.uint8, "u16": np.uint16, "u32": np.uint32, "i8": np.int8, "i16": np.int16, "i32": np.int32,
+           "f32": np.float32, "f64": np.float64}
+_ARGS_HELP = ("comma-separated cdecl arguments: integers (12, -3, 0x1F), 32-bit floats (1.5f), or buffers "
+              "allocated in the workload arena and passed by address: buf:TYPE:COUNT[:FILL] with TYPE one of "
+              + ", ".join(_DTYPES))
+
+
+class RetrosimGroup(click.Group):
+    """Turn every RetrosimError into one clean line on stderr and exit status 2."""
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except RetrosimError as e:
+            err_console.print(f"[bold red]retrosim: error:[/] {e}", highlight=False, soft_wrap=True)
+            sys.exit(2)
+
+
+@click.group(cls=RetrosimGroup)
+@click.version_option(package_name="retrosim")
+def main():
+    """Cycle-level timing of i686 kernels on late-1990s x86 CPUs."""
+
+
+# -- argument parsing shared by run-kernel and trace -------------------------------------------
+def parse_args(text: str | None, machine) -> tuple[list, list[tuple[str, int, np.dtype, int]]]:
+    """Parse --args; buffers are allocated in the machine's arena. Returns (values, buffers)."""
+    values, buffers = [], []
+    for i, item in enumerate(a.strip() for a in (text or "").split(",") if a.strip()):
+        if item.startswith("buf:"):
+            parts = item.split(":")
+            if len(parts) not in (3, 4) or parts[1] not in _DTYPES:
+                raise ArgumentError(f"--args item {i + 1} '{item}': expected buf:TYPE:COUNT[:FILL], "
+                                    f"TYPE one of {', '.join(_DTYPES)}")
+            dtype = np.dtype(_DTYPES[parts[1]])
+            try:
+                count = int(parts[2], 0)
+                fill = (float(parts[3]) if dtype.kind == "f" else int(parts[3], 0)) if len(parts) == 4 else 0
+            except ValueError:
+                raise ArgumentError(f"--args item {i + 1} '{item}': COUNT and FILL must be numbers") from None
+            address = machine.arena.put(np.full(count, fill, dtype=dtype))
+            buffers.append((item, address, dtype, count))
+            values.append(address)
+        elif item.lower().endswith("f") and not item.lower().startswith("0x"):
+            try:
+                values.append(np.float32(float(item[:-1])))
+            except ValueError:
+                raise ArgumentError(f"--args item {i + 1} '{item}': not a float") from None
+        else:
+            try:
+                values.append(int(item, 0))
+            except ValueError:
+                raise ArgumentError(f"--args item {i + 1} '{item}': not an integer, float (1.5f) or buf:TYPE:COUNT") from None
+    return values, buffers
+
+
+def _machine(source: str, assembler: str | None):
+    from .emu import Machine
+
+    return Machine.from_source(catalogue_mod.resolve(source), assembler=assembler)
+
+
+def _entry(machine, entry: str | None) -> str:
+    if entry:
+        return entry
+    # declared entry points first; a file without `# @entry` comments offers its global symbols
+    candidates = list(machine.entries) or sorted(machine.image.global_symbols)
+    if len(candidates) == 1:
+        return candidates[0]
+    names = ", ".join(candidates) or "the file defines no global symbol"
+    raise ArgumentError(f"{machine.image.path}: choose an entry point with --entry ({names})")
+
+
+def _buffer_summary(machine, buffers) -> list[dict]:
+    out = []
+    for spec, address, dtype, count in buffers:
+        data = machine.arena.get(address, dtype, count)
+        out.append({"arg": spec, "address": address, "first": data[:8].tolist(),
+                    "sum": float(data.sum(dtype=np.float64)) if dtype.kind == "f" else int(data.astype(np.int64).sum())})
+    return out
+
+
+kernel_options = [
+    click.argument("source"),
+    click.option("--entry", "-e", help="entry point symbol (default: the only one the file declares)"),
+    click.option("--args", "args_text", help=_ARGS_HELP),
+    click.option("--budget", default=200_000_000, show_default=True, help="instruction budget (0 = unlimited)"),
+    click.option("--assembler", type=click.Choice(["gnu", "zig"]), help="assembler back end (default: GNU as)"),
+]
+
+
+def with_kernel_options(fn):
+    for option in reversed(kernel_options):
+        fn = option(fn)
+    return fn
+
+
+# -- commands ------------------------------------------------------------------------------
+@main.command("kernels")
+@click.option("--json", "as_json", is_flag=True, help="print one JSON object")
+def kernels_cmd(as_json: bool):
+    """List kernel sources and the entry points they declare."""
+    root = catalogue_mod.kernels_root()
+    cat = catalogue_mod.catalogue(root)
+    if as_json:
+        click.echo(json.dumps({str(p.relative_to(root)): [e.signature() for e in entries.values()]
+                               for p, entries in cat.items()}, indent=2))
+        return
+    table = Table(title=f"kernels in {root}")
+    table.add_column("file")
+    table.add_column("entry point")
+    for path, entries in cat.items():
+        for i, e in enumerate(entries.values()):
+            table.add_row(str(path.relative_to(root)) if i == 0 else "", e.signature())
+        if not entries:
+            table.add_row(str(path.relative_to(root)), "[dim](no @entry declared)[/]")
+    console.print(table)
+
+
+@main.command("run-kernel")
+@with_kernel_options
+@click.option("--json", "as_json", is_flag=True, help="print one JSON object")
+def run_kernel_cmd(source, entry, args_text, budget, assembler, as_json):
+    """Call a kernel once and print its results and instruction / memory-access counts."""
+    m = _machine(source, assembler)
+    entry = _entry(m, entry)
+    values, buffers = parse_args(args_text, m)
+    r = m.call(entry, *values, budget=budget, trace=True)
+    t = r.trace
+    report = {"entry": entry, "eax": r.eax, "edx": r.edx, "instructions": t.instructions,
+              "distinct_pcs": int(np.unique(t.pc).size), "accesses": t.accesses, "reads": t.reads,
+              "writes": t.writes, "bytes_read": int(t.mem_size[~t.mem_write].sum(dtype=np.int64)),
+              "bytes_written": int(t.mem_size[t.mem_write].sum(dtype=np.int64)),
+              "buffers": _buffer_summary(m, buffers)}
+    if as_json:
+        click.echo(json.dumps(report, indent=2))
+        return
+    table = Table(title=f"{Path(source).name}: {entry}", show_header=False)
+    for key in ("eax", "edx"):
+        table.add_row(key.upper(), f"{report[key]:#010x}  ({report[key]})")
+    for key in ("instructions", "distinct_pcs", "accesses", "reads", "writes", "bytes_read", "bytes_written"):
+        table.add_row(key.replace("_", " "), f"{report[key]:,}")
+    for b in report["buffers"]:
+        table.add_row(b["arg"], f"@{b['address']:#010x} first {b['first']} sum {b['sum']}")
+    console.print(table)
+
+
+@main.command("trace")
+@with_kernel_options
+@click.option("--out", "-o", type=click.Path(dir_okay=False, path_type=Path), required=True,
+              help="output .npz (arrays pc, mem_addr, mem_size, mem_write, mem_insn)")
+def trace_cmd(source, entry, args_text, budget, assembler, out):
+    """Record a kernel's PC stream and data accesses to an .npz file for other simulators."""
+    m = _machine(source, assembler)
+    entry = _entry(m, entry)
+    values, _ = parse_args(args_text, m)
+    t = m.call(entry, *values, budget=budget, trace=True).trace
+    if out.parent and not out.parent.exists():
+        raise ArgumentError(f"--out {out}: directory {out.parent} does not exist")
+    t.save(out)
+    console.print(f"wrote {out}: {t.instructions:,} instructions, {t.accesses:,} data accesses "
+                  f"({t.reads:,} reads, {t.writes:,} writes)")
+
+
+@main.command("bench")
+@click.option("--pixels", default=1 << 20, show_default=True, help="pixels in the Z-buffer span workload")
+@click.option("--json", "as_json", is_flag=True, help="print one JSON object with the figures")
+def bench_cmd(pixels: int, as_json: bool):
+    """Emulation speed: Unicorn bare, with Python hooks, with the native trace (same workload)."""
+    from .bench import run_bench
+
+    result = run_bench(pixels, progress=None if as_json else console)
+    if as_json:
+        click.echo(json.dumps(result, indent=2))
+        return
+    table = Table(title=f"retrosim bench: fp16z_span over {pixels:,} pixels, "
+                        f"{result['instructions']:,} guest instructions")
+    table.add_column("mode")
+    table.add_column("seconds", justify="right")
+    table.add_column("guest instr/s", justify="right")
+    table.add_column("vs bare", justify="right")
+    for mode, key in (("Unicorn, no hooks", "unicorn_bare"), ("Python hooks (code + memory)", "python_hook"),
+                      ("native trace (numba cfuncs)", "native_trace")):
+        ips = result[f"{key}_ips"]
+        table.add_row(mode, f"{result[f'{key}_seconds']:.3f}", f"{ips / 1e6:,.1f} M",
+                      f"{result['unicorn_bare_ips'] / ips:,.1f}x slower" if key != "unicorn_bare" else "1x")
+    console.print(table)
+    console.print(f"native trace vs Python hooks: [bold]{result['native_vs_python']:.1f}x[/] faster (target >= 15x); "
+                  f"native trace vs bare Unicorn: [bold]{result['bare_vs_native']:.1f}x[/] slower (target <= 10x)")
+
+
+if __name__ == "__main__":
+    main()
