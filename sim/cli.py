@@ -181,6 +181,110 @@ def trace_cmd(source, entry, args_text, budget, assembler, out):
                   f"({t.reads:,} reads, {t.writes:,} writes)")
 
 
+def _cpu_choice(ctx, param, value):
+    from .cpus import presets
+
+    if value not in presets.available():
+        raise click.BadParameter(f"unknown CPU preset '{value}' (choose one of: {', '.join(presets.available())})")
+    return value
+
+
+timing_options = [
+    click.option("--cpu", "-c", default="pentium2-233", show_default=True, callback=_cpu_choice,
+                 help="CPU preset (see `retrosim cpus`)"),
+    click.option("--memory", "-m", help="memory preset (default: the CPU preset's)"),
+    click.option("--repeat", "-n", default=2, show_default=True,
+                 help="calls in one machine state; the last is reported (caches and predictors warm)"),
+]
+
+
+def with_timing_options(fn):
+    for option in reversed(timing_options):
+        fn = option(fn)
+    return fn
+
+
+def _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations=0):
+    from .emu import Machine
+    from .timing import time_kernel
+
+    path = catalogue_mod.resolve(source)
+    probe = Machine.from_source(path, assembler=assembler)  # resolve the entry and check --args once
+    entry = _entry(probe, entry)
+    parse_args(args_text, probe)
+    return time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=cpu, memory=memory,
+                       repeat=repeat, budget=budget, timeline_iterations=iterations, assembler=assembler)
+
+
+@main.command("time")
+@with_kernel_options
+@with_timing_options
+@click.option("--json", "as_json", is_flag=True, help="print one JSON object")
+def time_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, as_json):
+    """Cycle counts of a kernel on a CPU model: cycles, uops, decode, ports, stalls, caches, DRAM."""
+    from . import views
+
+    result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat)
+    if as_json:
+        click.echo(json.dumps(views.summary(result), indent=2))
+        return
+    console.print(views.summary_table(result))
+
+
+@main.command("explain")
+@with_kernel_options
+@with_timing_options
+@click.option("--iterations", default=3, show_default=True, help="hot-loop iterations in the timeline")
+@click.option("--json", "as_json", is_flag=True, help="print one JSON object (rows and timeline)")
+def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations, as_json):
+    """Per-instruction table of the last call (decoder, uops, ports, latency, stalls) and a timeline."""
+    from . import views
+
+    result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations)
+    if as_json:
+        click.echo(json.dumps({"summary": views.summary(result), "instructions": views.explain_rows(result),
+                               "timeline": views.timeline_rows(result)}, indent=2))
+        return
+    console.print(views.summary_table(result))
+    console.print(views.explain_table(result))
+    text = views.timeline_text(result)
+    if text:
+        console.print(f"[bold]timeline[/]: {iterations} iterations of the hot loop, from the middle of the last call")
+        console.print(text, markup=False, highlight=False, soft_wrap=True)
+
+
+@main.command("cpus")
+@click.option("--json", "as_json", is_flag=True, help="print one JSON object")
+def cpus_cmd(as_json):
+    """List CPU and memory presets with their caches, clocks and default memory."""
+    from .cpus import load_memory, memory_presets, presets
+
+    cpus = [presets.load(n) for n in presets.available()]
+    if as_json:
+        click.echo(json.dumps({"cpus": {c.name: {"family": c.family, "core_mhz": c.core_mhz, "fsb_mhz": c.fsb_mhz,
+                                                 "l1i": c.l1i.describe(), "l1d": c.l1d.describe(),
+                                                 "l2": c.l2.describe() if c.l2 else None,
+                                                 "board_cache": c.board_cache.describe() if c.board_cache else None,
+                                                 "memory": c.memory} for c in cpus},
+                               "memory": {m: load_memory(m).get("type", "") for m in memory_presets()}}, indent=2))
+        return
+    t = Table(title="CPU presets (sources in sim/cpus/presets/*.toml)")
+    for col in ("preset", "family", "core", "MHz", "FSB", "L1I", "L1D", "L2", "memory"):
+        t.add_column(col)
+    for c in cpus:
+        t.add_row(c.name, c.family, c.core, f"{c.core_mhz:g}", f"{c.fsb_mhz:g}", c.l1i.describe(), c.l1d.describe(),
+                  (c.l2.describe() if c.l2 else "none") + (f" + board {c.board_cache.describe()}" if c.board_cache else ""),
+                  c.memory)
+    console.print(t)
+    m = Table(title="memory presets (sources in sim/cpus/presets/memory/*.toml)")
+    for col in ("preset", "type", "burst (bus clocks)"):
+        m.add_column(col)
+    for name in memory_presets():
+        d = load_memory(name)
+        m.add_row(name, d.get("type", ""), "-".join(str(x) for x in d.get("burst", [])))
+    console.print(m)
+
+
 @main.command("bench")
 @click.option("--pixels", default=1 << 20, show_default=True, help="pixels in the Z-buffer span workload")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object with the figures")

@@ -991,7 +991,22 @@ class Decoder:
         if pcs.size == 0:
             return [], np.empty(0, dtype=np.int32)
 
-        uniq, first, inverse = np.unique(pcs, return_index=True, return_inverse=True)
+        lo, hi = int(pcs.min()), int(pcs.max())
+        if hi - lo < (1 << 24):
+            # Code is compact: a dense table over the PC range replaces np.unique's sort (O(n)),
+            # and first appearances are found in a growing prefix (loops show every PC early).
+            offset = (pcs - lo).astype(np.int64)
+            seen = np.zeros(hi - lo + 1, dtype=bool)
+            seen[offset] = True
+            uniq = np.flatnonzero(seen) + lo
+            inverse = (np.cumsum(seen) - 1)[offset]
+            first = np.full(uniq.size, -1, dtype=np.int64)
+            head_slots, head_first = np.unique(inverse[:4096], return_index=True)
+            first[head_slots] = head_first
+            for slot in np.flatnonzero(first < 0):  # PCs first seen late (an epilogue): one scan each
+                first[slot] = int(np.argmax(inverse == slot))
+        else:
+            uniq, first, inverse = np.unique(pcs, return_index=True, return_inverse=True)
         if len(uniq) > np.iinfo(np.int32).max:
             raise ValueError("too many distinct PCs for an int32 index")
         order = np.argsort(first, kind="stable")  # sorted-unique slot -> appearance order

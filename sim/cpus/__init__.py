@@ -1,0 +1,33 @@
+"""CPU families: presets, instruction tables and timing models behind one factory."""
+
+from __future__ import annotations
+
+import tomllib
+
+from ..errors import RetrosimError
+from . import presets
+
+MEMORY_PRESETS = presets.PRESETS / "memory"
+
+
+def memory_presets() -> list[str]:
+    return sorted(p.stem for p in MEMORY_PRESETS.glob("*.toml"))
+
+
+def load_memory(name: str) -> dict:
+    path = MEMORY_PRESETS / f"{name}.toml"
+    if not path.is_file():
+        raise RetrosimError(f"unknown memory preset '{name}' (choose one of: {', '.join(memory_presets())})")
+    with open(path, "rb") as f:
+        return tomllib.load(f)
+
+
+def make_model(cpu: str, memory: str | None = None):
+    """The timing model for a CPU preset, with its default memory unless `memory` names another."""
+    preset = presets.load(cpu)
+    mem = load_memory(memory or preset.memory)
+    if preset.family == "p6":
+        from .p6 import P6Model
+
+        return P6Model(preset, mem)
+    raise RetrosimError(f"CPU preset '{cpu}': no timing model for family '{preset.family}' yet")

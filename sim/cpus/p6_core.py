@@ -1,0 +1,704 @@
+"""The compiled P6 cycle model: one pass over the dynamic instruction stream, in program order.
+
+Each uop gets five times: decode, allocate (rename into ROB and RS), dispatch (to a port),
+complete, retire. Every time is the maximum of the constraints that apply to it, so the reason a
+uop waited is the constraint that set its time; those reasons are the stall counters.
+
+Front end: 16-byte fetch blocks, three decoders with the 4-1-1 rule (decoder 0 takes 1-4 uops,
+decoders 1 and 2 only 1-uop instructions, in order), microcode sequencer for longer instructions
+(alone, MSROM_RATE uops per cycle), a decode group ends at a taken branch (plus a fetch bubble) and
+at a length-changing prefix (plus a penalty); a decoded-uop queue of QUEUE uops.
+Back end: RENAME uops per cycle into a ROB of ROB entries and an RS of RS entries; ports 0-4
+(bit masks per uop), one uop per port per cycle, oldest uop first; non-pipelined units (divider,
+FP multiplier issue rate); RETIRE uops per cycle in order. Partial-register and partial-flags
+reads wait at rename until the partial writer has retired. Loads wait for every older store
+address (no memory disambiguation on P6), take forwarded data from a matching older store, and
+wait for a mismatching one to reach the cache. Stores commit to L1 after retirement through a
+store buffer of SB entries.
+Memory: the data hierarchy of sim.memory (L1D, L2 when present), a fill-buffer limit of MSHR
+outstanding misses, a backside-bus occupancy per L2 line and a front-side-bus occupancy per DRAM
+line fill and writeback. Instruction fetch goes through its own L1I, which misses to the L2.
+Branches: BTB of BTB_SETS x BTB_WAYS entries with HIST_BITS of local history and a table of 2-bit
+counters per entry (two-level adaptive); static prediction on a BTB miss (backward taken); a
+return stack; the front end restarts MISPREDICT cycles after a mispredicted branch executes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..memory.hierarchy import memory_fills, memory_writebacks, served_level, service
+from .lowering import (BR_CALL, BR_COND, BR_DIRECT, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, COMPUTE, DEC_MSROM,
+                       DEC_SIMPLE, LOAD, NREGS, NUNITS, REG_FLAGS, REG_ST0, STA, STD)
+
+# parameter vector indices
+(P_ROB, P_RS, P_RENAME, P_RETIRE, P_QUEUE, P_FETCH_BLOCK, P_L1_LAT, P_L2_LAT, P_DRAM_LAT, P_DRAM_LINE,
+ P_DRAM_WB, P_MSHR, P_SB, P_MISPREDICT, P_TAKEN_BUBBLE, P_BTB_SETS, P_BTB_WAYS, P_HIST_BITS, P_PARTIAL_EXTRA,
+ P_FWD_FAIL, P_LCP, P_STATIC_REDIRECT, P_HAS_L2, P_L2_BUS, P_RSB, P_MSROM_RATE, P_EXIT_ADDR) = range(27)
+NPARAMS = 32
+
+# counter indices (per segment)
+C_NAMES = ("cycles", "instructions", "uops", "decode_groups", "decoder0", "decoder1", "decoder2", "msrom_uops",
+           "port0", "port1", "port2", "port3", "port4", "stall_decode", "stall_rob", "stall_rs", "stall_store_buffer",
+           "stall_partial_register", "stall_partial_flags", "stall_dependency", "stall_port", "stall_mispredict",
+           "stall_memory", "stall_store_forward", "branches", "mispredicts", "l1d_loads", "l1d_load_misses",
+           "l1d_stores", "l1d_store_misses", "l2_accesses", "l2_misses", "dram_fills", "dram_writebacks",
+           "dram_bus_cycles", "l1i_misses", "lcp_stalls", "store_forwards", "stall_fetch")
+NC = len(C_NAMES)
+# numba needs plain integer globals, not a dict
+C_CYCLES = 0
+C_INSTRUCTIONS = 1
+C_UOPS = 2
+C_DECODE_GROUPS = 3
+C_DECODER0 = 4
+C_DECODER1 = 5
+C_DECODER2 = 6
+C_MSROM_UOPS = 7
+C_PORT0 = 8
+C_PORT1 = 9
+C_PORT2 = 10
+C_PORT3 = 11
+C_PORT4 = 12
+C_STALL_DECODE = 13
+C_STALL_ROB = 14
+C_STALL_RS = 15
+C_STALL_STORE_BUFFER = 16
+C_STALL_PARTIAL_REGISTER = 17
+C_STALL_PARTIAL_FLAGS = 18
+C_STALL_DEPENDENCY = 19
+C_STALL_PORT = 20
+C_STALL_MISPREDICT = 21
+C_STALL_MEMORY = 22
+C_STALL_STORE_FORWARD = 23
+C_BRANCHES = 24
+C_MISPREDICTS = 25
+C_L1D_LOADS = 26
+C_L1D_LOAD_MISSES = 27
+C_L1D_STORES = 28
+C_L1D_STORE_MISSES = 29
+C_L2_ACCESSES = 30
+C_L2_MISSES = 31
+C_DRAM_FILLS = 32
+C_DRAM_WRITEBACKS = 33
+C_DRAM_BUS_CYCLES = 34
+C_L1I_MISSES = 35
+C_LCP_STALLS = 36
+C_STORE_FORWARDS = 37
+C_STALL_FETCH = 38
+
+# per-static-instruction columns (for explain)
+S_NAMES = ("executions", "uops", "decoder0", "decoder1", "decoder2", "msrom", "issue_to_retire", "stall_dependency",
+           "stall_port", "stall_decode", "stall_partial", "stall_memory", "stall_mispredict", "mispredicts",
+           "port0", "port1", "port2", "port3", "port4", "decode_to_retire", "stall_store_forward", "stall_window",
+           "l1d_misses", "l2_misses")
+NS = len(S_NAMES)
+S_EXECUTIONS = 0
+S_UOPS = 1
+S_DECODER0 = 2
+S_DECODER1 = 3
+S_DECODER2 = 4
+S_MSROM = 5
+S_ISSUE_TO_RETIRE = 6
+S_STALL_DEPENDENCY = 7
+S_STALL_PORT = 8
+S_STALL_DECODE = 9
+S_STALL_PARTIAL = 10
+S_STALL_MEMORY = 11
+S_STALL_MISPREDICT = 12
+S_MISPREDICTS = 13
+S_PORT0 = 14
+S_PORT1 = 15
+S_PORT2 = 16
+S_PORT3 = 17
+S_PORT4 = 18
+S_DECODE_TO_RETIRE = 19
+S_STALL_STORE_FORWARD = 20
+S_STALL_WINDOW = 21
+S_L1D_MISSES = 22
+S_L2_MISSES = 23
+
+# timeline columns
+T_NAMES = ("insn", "static", "decode", "alloc", "dispatch", "complete", "retire", "cause")
+NT = len(T_NAMES)
+CAUSES = ("none", "decode", "window", "partial", "dependency", "port", "memory", "store_forward", "mispredict")
+WINDOW = 8192  # port reservation ring: no in-flight uop dispatches more than this far from another
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _book_port(book, ports, c):
+    """Earliest cycle >= c where one of the allowed ports is free; books it. Callers go in program
+    order, so an older uop always gets the earlier slot (oldest first). `book` is a ring of WINDOW
+    cycles, each slot holding cycle << 5 | the ports already taken in it. Returns (cycle, port)."""
+    while True:
+        slot = c & (WINDOW - 1)
+        entry = book[slot]
+        used = entry & 31 if (entry >> 5) == c else 0
+        free = ports & ~used
+        if free != 0:
+            p = 0
+            while not free & (1 << p):
+                p += 1
+            book[slot] = (c << 5) | used | (1 << p)
+            return c, p
+        c += 1
+
+
+@njit(cache=True, nogil=True)
+def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_write, seg_end,
+             s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
+             s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ,
+             P, dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
+             counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out):
+    n = dyn_sid.shape[0]
+    nstatic = s_len.shape[0]
+    rob_n, rs_n, rename_w, retire_w = P[P_ROB], P[P_RS], P[P_RENAME], P[P_RETIRE]
+    queue_n, block = P[P_QUEUE], P[P_FETCH_BLOCK]
+    l1_lat, l2_lat = P[P_L1_LAT], P[P_L2_LAT]
+    mshr_n, sb_n = P[P_MSHR], P[P_SB]
+    d_levels = dconfig.shape[0]
+    i_levels = iconfig.shape[0]
+
+    reg_ready = np.zeros(NREGS, np.int64)
+    reg_pmask = np.full(NREGS, 15, np.int64)    # bytes written by the last (partial) writer
+    reg_pretire = np.zeros(NREGS, np.int64)     # its retire cycle
+    reg_zeroed = np.zeros(NREGS, np.int64)      # upper bytes known zero (XOR/SUB idiom): no partial stall
+    flags_mask = 0x3F
+    flags_retire = 0
+    fp_top = 0
+
+    rob_ring = np.zeros(rob_n, np.int64)
+    rs_heap = np.zeros(rs_n + 1, np.int64)
+    rs_size = 0
+    queue_ring = np.zeros(max(queue_n, 1), np.int64)
+    book = np.full(WINDOW, -1 << 5, np.int64)
+    unit_free = np.zeros(NUNITS, np.int64)
+    sb_ring = np.zeros(sb_n, np.int64)
+    nstores = 0
+    last_commit = 0
+    last_sta_done = 0
+    mshr = np.zeros(mshr_n, np.int64)
+    bus_free = 0
+    l2bus_free = 0
+    FW = 16
+    fw_addr = np.full(FW, -1, np.int64)
+    fw_size = np.zeros(FW, np.int64)
+    fw_ready = np.zeros(FW, np.int64)
+    fw_commit = np.zeros(FW, np.int64)
+    fw_n = 0
+
+    btb_sets, btb_ways, hist_bits = P[P_BTB_SETS], P[P_BTB_WAYS], P[P_HIST_BITS]
+    btb_tag = np.full((btb_sets, btb_ways), -1, np.int64)
+    btb_stamp = np.zeros((btb_sets, btb_ways), np.int64)
+    btb_hist = np.zeros((btb_sets, btb_ways), np.int64)
+    btb_target = np.zeros((btb_sets, btb_ways), np.int64)
+    pht = np.full((btb_sets, btb_ways, 1 << hist_bits), 2, np.int64)
+    rsb = np.zeros(P[P_RSB], np.int64)
+    rsb_top = 0
+    rsb[0] = P[P_EXIT_ADDR]  # the harness's call into the kernel: its return is predictable
+    rsb_top = 1
+
+    dec_cycle = 0
+    dec_pos = 3       # slots used in the current decode group (3 = start a new group)
+    dec_block = -1
+    fe_ready = 0
+    last_iline = -1
+    iline_seen = np.full(16, -1, np.int64)
+    ren_cycle = -1
+    ren_count = 0
+    ret_cycle = -1
+    ret_count = 0
+    u_global = 0
+    rob_pos = 0  # u_global % rob_n, kept incrementally (a division per uop is measurable)
+    q_pos = 0    # u_global % queue_n
+    seg = 0
+    seg_start_retire = 0
+    max_retire = 0
+    nrdtsc = 0
+
+    for i in range(n):
+        sid = dyn_sid[i]
+        pc = dyn_pc[i]
+        length = s_len[sid]
+        nu = s_nuops[sid]
+        u0 = s_uop0[sid]
+        dec = s_dec[sid]
+        psid = sid if i >= stat_first else nstatic  # per-static sums only from stat_first (the last row is a sink)
+
+        # ---- front end: fetch (L1I) and decode ------------------------------------------------
+        stall_fetch = 0
+        iline = pc >> 5
+        if iline != last_iline and iline_seen[iline & 15] != iline:
+            # Lines fetched since the last L1I miss are still resident (nothing was filled since),
+            # so their lookups are skipped: a hit. What is lost is their LRU refresh, which can only
+            # matter once code outgrows the 16 KB L1I; kernels are a few hundred bytes.
+            r = service(itags, istamps, idirty, iconfig, iclock, istats, pc, 1, False)
+            lvl = served_level(r)
+            if lvl > 0:
+                counters[seg, C_L1I_MISSES] += 1
+                extra = l2_lat if P[P_HAS_L2] == 1 else P[P_DRAM_LAT]
+                fe_ready = max(fe_ready, dec_cycle + extra)
+                stall_fetch = extra
+                iline_seen[:] = -1
+            iline_seen[iline & 15] = iline
+        last_iline = iline
+        d = dec_cycle
+        new_group = dec_pos >= 3 or (dec != DEC_SIMPLE and dec_pos > 0) or s_lcp[sid] == 1
+        if block > 0 and (pc + length - 1) // block != dec_block:
+            new_group = True
+        if new_group:
+            d = dec_cycle + 1 if dec_pos > 0 else dec_cycle
+        # uop queue: uop u0 enters only when uop u0 - queue_n has left it (been allocated)
+        if queue_n > 0 and u_global >= queue_n:
+            qfree = queue_ring[q_pos]
+            if qfree > d:
+                d = qfree
+                new_group = True
+        if fe_ready > d:
+            counters[seg, C_STALL_MISPREDICT if stall_fetch == 0 else C_STALL_FETCH] += fe_ready - d
+            d = fe_ready
+            new_group = True
+        if s_lcp[sid] == 1:
+            d += P[P_LCP]  # the length decoder restarts for a length-changing prefix
+            counters[seg, C_LCP_STALLS] += P[P_LCP]
+        if new_group:
+            dec_pos = 0
+            dec_block = pc // block if block > 0 else 0
+            counters[seg, C_DECODE_GROUPS] += 1
+        slot = dec_pos
+        if dec == DEC_MSROM:
+            counters[seg, C_MSROM_UOPS] += nu
+            per_static[psid, S_MSROM] += 1
+            dec_pos = 3
+        else:
+            dec_pos += 1
+            if dec != DEC_SIMPLE:
+                dec_pos = max(dec_pos, 1)
+        if slot < 3 and dec != DEC_MSROM:
+            counters[seg, C_DECODER0 + slot] += 1
+            per_static[psid, S_DECODER0 + slot] += 1
+        decode_time = d
+        dec_cycle = d
+        if dec == DEC_MSROM:
+            dec_cycle = d + (nu - 1) // P[P_MSROM_RATE]
+
+        # ---- rename-time constraints of the whole instruction ---------------------------------
+        inst_ready = decode_time + 1
+        rename_free = ren_cycle if ren_count < rename_w else ren_cycle + 1
+        if i > 0 and inst_ready > rename_free:  # rename idle, waiting for the front end
+            counters[seg, C_STALL_DECODE] += inst_ready - rename_free
+            per_static[psid, S_STALL_DECODE] += inst_ready - rename_free
+        cause_alloc = 0
+        partial_wait = 0
+        for k in range(s_nsrc[sid]):
+            rid = s_src[sid, k, 0]
+            mask = s_src[sid, k, 1]
+            if rid < 8:
+                if (mask & ~reg_pmask[rid]) != 0 and reg_zeroed[rid] == 0:
+                    partial_wait = max(partial_wait, reg_pretire[rid] + P[P_PARTIAL_EXTRA])
+            elif rid == REG_FLAGS:
+                if (mask & ~flags_mask) != 0:
+                    if flags_retire + P[P_PARTIAL_EXTRA] > partial_wait:
+                        partial_wait = flags_retire + P[P_PARTIAL_EXTRA]
+                        if partial_wait > inst_ready:
+                            counters[seg, C_STALL_PARTIAL_FLAGS] += partial_wait - inst_ready
+        if partial_wait > inst_ready:
+            counters[seg, C_STALL_PARTIAL_REGISTER] += partial_wait - inst_ready
+            per_static[psid, S_STALL_PARTIAL] += partial_wait - inst_ready
+            inst_ready = partial_wait
+            cause_alloc = 3
+
+        # x87 register names are relative to TOP: map to physical slots
+        top_before = fp_top
+        top_after = (fp_top - s_fpdelta[sid]) & 7
+
+        # ---- per uop ----------------------------------------------------------------------------
+        acc = acc_start[i]
+        acc_end = acc + acc_count[i]
+        inst_complete = 0
+        inst_retire = 0
+        first_alloc = 0
+        first_dispatch = 0
+        cause_disp = 0
+        branch_done = 0
+        is_store = False
+        store_addr = 0
+        store_size = 0
+        store_std = 0
+        store_sta = 0
+        for k in range(nu):
+            u = u0 + k
+            kind = u_kind[u]
+            t = inst_ready if k == 0 else max(inst_ready, decode_time + 1 + k // 3)
+            # rename bandwidth
+            if t == ren_cycle and ren_count >= rename_w:
+                t += 1
+            if t < ren_cycle:
+                t = ren_cycle if ren_count < rename_w else ren_cycle + 1
+            # ROB entry of the uop rob_n older must have retired
+            if u_global >= rob_n and rob_ring[rob_pos] > t:
+                counters[seg, C_STALL_ROB] += rob_ring[rob_pos] - t
+                per_static[psid, S_STALL_WINDOW] += rob_ring[rob_pos] - t
+                t = rob_ring[rob_pos]
+                cause_alloc = max(cause_alloc, 2)
+            # RS entries are freed at dispatch
+            while rs_size > 0 and rs_heap[0] <= t:
+                rs_size = _heap_pop(rs_heap, rs_size)
+            if rs_size >= rs_n:
+                w = rs_heap[0]
+                counters[seg, C_STALL_RS] += w - t
+                per_static[psid, S_STALL_WINDOW] += w - t
+                t = w
+                cause_alloc = max(cause_alloc, 2)
+                while rs_size > 0 and rs_heap[0] <= t:
+                    rs_size = _heap_pop(rs_heap, rs_size)
+            # a store needs a store-buffer entry
+            if kind == STA and nstores >= sb_n and sb_ring[nstores % sb_n] > t:
+                counters[seg, C_STALL_STORE_BUFFER] += sb_ring[nstores % sb_n] - t
+                t = sb_ring[nstores % sb_n]
+                cause_alloc = max(cause_alloc, 2)
+            if t > ren_cycle:
+                ren_cycle = t
+                ren_count = 0
+            ren_count += 1
+            alloc = t
+            if queue_n > 0:
+                queue_ring[q_pos] = alloc
+                q_pos = q_pos + 1 if q_pos + 1 < queue_n else 0
+            if k == 0:
+                first_alloc = alloc
+            # sources
+            ready = alloc + 1
+            for j in range(s_nsrc[sid]):
+                if s_src[sid, j, 2] != k:
+                    continue
+                rid = s_src[sid, j, 0]
+                if rid == REG_ST0:
+                    rid = REG_ST0 + ((top_before + s_src[sid, j, 3]) & 7)
+                if reg_ready[rid] > ready:
+                    ready = reg_ready[rid]
+            if kind == LOAD and last_sta_done > ready:
+                ready = last_sta_done  # P6 loads never pass a store whose address is unknown
+            dep_wait = ready - (alloc + 1)
+            if u_unit[u] != 0 and unit_free[u_unit[u]] > ready:
+                ready_unit = unit_free[u_unit[u]]
+            else:
+                ready_unit = ready
+            if u_ports[u] == 0:
+                disp, port = ready_unit, -1
+            else:
+                disp, port = _book_port(book, u_ports[u], ready_unit)
+            port_wait = disp - ready  # includes waiting for a busy non-pipelined unit
+            if u_unit[u] != 0:
+                unit_free[u_unit[u]] = disp + u_occ[u]
+            lat = u_lat[u]
+            mem_wait = 0
+            fwd_wait = 0
+            if kind == LOAD and acc < acc_end:
+                # find the access this load makes (the next read of this instruction)
+                while acc < acc_end and mem_write[acc]:
+                    acc += 1
+                if acc < acc_end:
+                    a = np.int64(mem_addr[acc])
+                    sz = np.int64(mem_size[acc])
+                    acc += 1
+                    # store forwarding: newest older store still in the store buffer that overlaps
+                    fwd = -1
+                    for q in range(min(fw_n, FW)):
+                        e = (fw_n - 1 - q) % FW
+                        if fw_commit[e] > disp and fw_addr[e] < a + sz and a < fw_addr[e] + fw_size[e]:
+                            fwd = e
+                            break
+                    r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False)
+                    lvl = served_level(r)
+                    counters[seg, C_L1D_LOADS] += 1
+                    if fwd >= 0:
+                        if fw_addr[fwd] == a and sz <= fw_size[fwd]:
+                            counters[seg, C_STORE_FORWARDS] += 1
+                            if fw_ready[fwd] + 1 > disp + lat:
+                                fwd_wait = fw_ready[fwd] + 1 - (disp + lat)
+                        else:  # forwarding fails: wait until the store has written the cache
+                            fwd_wait = max(0, fw_commit[fwd] + P[P_FWD_FAIL] - disp)
+                        counters[seg, C_STALL_STORE_FORWARD] += fwd_wait
+                        per_static[psid, S_STALL_STORE_FORWARD] += fwd_wait
+                    if lvl > 0:
+                        counters[seg, C_L1D_LOAD_MISSES] += 1
+                        per_static[psid, S_L1D_MISSES] += 1
+                        mem_wait, bus_free, l2bus_free = _miss_latency(r, lvl, d_levels, disp, P, mshr, bus_free,
+                                                                       l2bus_free, counters[seg])
+                        if lvl == d_levels:
+                            per_static[psid, S_L2_MISSES] += 1
+                        counters[seg, C_STALL_MEMORY] += mem_wait
+                        per_static[psid, S_STALL_MEMORY] += mem_wait
+            complete = disp + lat + max(mem_wait, fwd_wait)
+            if kind == STA:
+                is_store = True
+                store_sta = complete
+                if complete > last_sta_done:
+                    last_sta_done = complete
+            if kind == STD:
+                store_std = complete
+            if kind == BRANCH:
+                branch_done = complete
+            # destinations
+            for j in range(s_ndst[sid]):
+                if s_dst[sid, j, 2] != k:
+                    continue
+                rid = s_dst[sid, j, 0]
+                if rid == REG_ST0:
+                    rid = REG_ST0 + ((top_after + s_dst[sid, j, 3]) & 7)
+                reg_ready[rid] = complete
+            # retire in order, retire_w per cycle
+            rt = complete + 1
+            if rt < ret_cycle:
+                rt = ret_cycle
+            if rt == ret_cycle and ret_count >= retire_w:
+                rt += 1
+            if rt > ret_cycle:
+                ret_cycle = rt
+                ret_count = 0
+            ret_count += 1
+            rob_ring[rob_pos] = rt
+            rob_pos = rob_pos + 1 if rob_pos + 1 < rob_n else 0
+            # enter the RS (left at dispatch)
+            if u_ports[u] != 0:
+                rs_size = _heap_push(rs_heap, rs_size, disp)
+            if port >= 0:
+                counters[seg, C_PORT0 + port] += 1
+                per_static[psid, S_PORT0 + port] += 1
+            if k == 0:
+                first_dispatch = disp
+            if dep_wait > 0:
+                counters[seg, C_STALL_DEPENDENCY] += dep_wait
+                per_static[psid, S_STALL_DEPENDENCY] += dep_wait
+                cause_disp = max(cause_disp, 4)
+            if port_wait > 0:
+                counters[seg, C_STALL_PORT] += port_wait
+                per_static[psid, S_STALL_PORT] += port_wait
+                cause_disp = max(cause_disp, 5)
+            if mem_wait > 0:
+                cause_disp = max(cause_disp, 6)
+            if fwd_wait > 0:
+                cause_disp = max(cause_disp, 7)
+            inst_complete = max(inst_complete, complete)
+            inst_retire = rt
+            u_global += 1
+
+        # ---- after the instruction: register state, stores, branches --------------------------
+        for j in range(s_ndst[sid]):
+            rid = s_dst[sid, j, 0]
+            mask = s_dst[sid, j, 1]
+            if rid < 8:
+                if mask == 15:
+                    reg_pmask[rid] = 15
+                    reg_zeroed[rid] = s_zero[sid]
+                else:
+                    reg_pmask[rid] = mask
+                    reg_pretire[rid] = inst_retire
+            elif rid == REG_FLAGS:
+                flags_mask = mask
+                flags_retire = inst_retire
+        fp_top = top_after
+        if is_store:
+            # commit after retirement, in order; a write miss first fetches the line (write-allocate)
+            commit = max(inst_retire, last_commit + 1)
+            while acc < acc_end and not mem_write[acc]:
+                acc += 1
+            if acc < acc_end:
+                a = np.int64(mem_addr[acc])
+                sz = np.int64(mem_size[acc])
+                r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True)
+                lvl = served_level(r)
+                counters[seg, C_L1D_STORES] += 1
+                if lvl > 0:
+                    counters[seg, C_L1D_STORE_MISSES] += 1
+                    per_static[psid, S_L1D_MISSES] += 1
+                    if lvl == d_levels:
+                        per_static[psid, S_L2_MISSES] += 1
+                    w, bus_free, l2bus_free = _miss_latency(r, lvl, d_levels, commit, P, mshr, bus_free, l2bus_free, counters[seg])
+                    commit += w
+                e = fw_n % FW
+                fw_addr[e] = a
+                fw_size[e] = sz
+                fw_ready[e] = store_std
+                fw_commit[e] = commit
+                fw_n += 1
+            sb_ring[nstores % sb_n] = commit
+            nstores += 1
+            last_commit = commit
+        br = s_branch[sid]
+        if br != BR_NONE:
+            counters[seg, C_BRANCHES] += 1
+            nxt = dyn_pc[i + 1] if i + 1 < n else pc + length
+            taken = nxt != pc + length
+            mispredicted = False
+            redirect = False
+            bset = (pc >> 0) % btb_sets
+            way = -1
+            for w in range(btb_ways):
+                if btb_tag[bset, w] == pc:
+                    way = w
+            if br == BR_COND:
+                if way >= 0:
+                    h = btb_hist[bset, way]
+                    predict = pht[bset, way, h] >= 2
+                    cnt = pht[bset, way, h]
+                    pht[bset, way, h] = min(3, cnt + 1) if taken else max(0, cnt - 1)
+                    btb_hist[bset, way] = ((h << 1) | (1 if taken else 0)) & ((1 << hist_bits) - 1)
+                    btb_stamp[bset, way] = i
+                else:
+                    target = s_target[sid]
+                    predict = target >= 0 and target < pc  # static: backward taken, forward not taken
+                    redirect = predict  # a static taken prediction redirects fetch at decode
+                    if taken:
+                        way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, i)
+                        btb_hist[bset, way] = 1
+                        for h in range(1 << hist_bits):
+                            pht[bset, way, h] = 2
+                mispredicted = predict != taken
+            elif br == BR_RET:
+                predicted_target = -1
+                if rsb_top > 0:
+                    rsb_top -= 1
+                    predicted_target = rsb[rsb_top % rsb.shape[0]]
+                mispredicted = predicted_target != nxt
+            else:
+                if br == BR_CALL:
+                    rsb[rsb_top % rsb.shape[0]] = pc + length
+                    rsb_top += 1
+                if way >= 0 and btb_target[bset, way] == nxt:
+                    btb_stamp[bset, way] = i
+                elif br == BR_INDIRECT:
+                    mispredicted = True
+                else:
+                    redirect = True  # direct target known at decode: a short redirect bubble
+                if way < 0:
+                    way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, i)
+            if way >= 0:
+                btb_target[bset, way] = nxt if taken else btb_target[bset, way]
+            if mispredicted:
+                counters[seg, C_MISPREDICTS] += 1
+                per_static[psid, S_MISPREDICTS] += 1
+                restart = (branch_done if branch_done > 0 else inst_complete) + P[P_MISPREDICT]
+                if restart > fe_ready:
+                    fe_ready = restart
+                dec_pos = 3
+            elif taken:
+                bubble = P[P_STATIC_REDIRECT] if redirect else P[P_TAKEN_BUBBLE]
+                if decode_time + 1 + bubble > fe_ready:
+                    fe_ready = decode_time + 1 + bubble
+                dec_pos = 3
+            elif redirect:
+                pass
+
+        # ---- RDTSC values, timeline, per-static sums ------------------------------------------
+        if nrdtsc < rdtsc_out.shape[0] and rdtsc_sid[sid] == 1:
+            rdtsc_out[nrdtsc] = first_dispatch
+            nrdtsc += 1
+        counters[seg, C_INSTRUCTIONS] += 1
+        counters[seg, C_UOPS] += nu
+        per_static[psid, S_EXECUTIONS] += 1
+        per_static[psid, S_UOPS] += nu
+        per_static[psid, S_ISSUE_TO_RETIRE] += inst_retire - first_dispatch
+        per_static[psid, S_DECODE_TO_RETIRE] += inst_retire - decode_time
+        if inst_retire > max_retire:
+            max_retire = inst_retire
+        if tl_first <= i < tl_first + timeline.shape[0]:
+            row = timeline[i - tl_first]
+            row[0] = i
+            row[1] = sid
+            row[2] = decode_time
+            row[3] = first_alloc
+            row[4] = first_dispatch
+            row[5] = inst_complete
+            row[6] = inst_retire
+            cause = cause_disp if cause_disp > 0 else cause_alloc
+            if fe_ready >= decode_time and decode_time > 0 and cause == 0 and stall_fetch > 0:
+                cause = 1
+            row[7] = cause
+        if seg < seg_end.shape[0] and i + 1 == seg_end[seg]:
+            counters[seg, C_CYCLES] = max_retire - seg_start_retire
+            seg_start_retire = max_retire
+            seg += 1
+    return max_retire
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _miss_latency(r, lvl, levels, start, P, mshr, bus_free, l2bus_free, ctr):
+    """Extra cycles beyond an L1 hit for an access that L1 missed, with fill-buffer, backside-bus
+    and front-side-bus occupancy. Returns (extra, bus_free, l2bus_free)."""
+    # a fill buffer: wait for the oldest outstanding miss when all are busy
+    k = 0
+    for j in range(mshr.shape[0]):
+        if mshr[j] < mshr[k]:
+            k = j
+    t = max(start, mshr[k])
+    has_l2 = P[P_HAS_L2] == 1
+    if has_l2:
+        ctr[C_L2_ACCESSES] += 1
+    if lvl == 1 and has_l2 and lvl < levels:
+        t2 = max(t, l2bus_free)
+        l2bus_free = t2 + P[P_L2_BUS]
+        done = t2 + P[P_L2_LAT] - P[P_L1_LAT]
+        mshr[k] = t2 + P[P_L2_BUS]
+    else:
+        if has_l2:
+            ctr[C_L2_MISSES] += 1
+        t2 = t + (P[P_L2_LAT] - P[P_L1_LAT] if has_l2 else 0)
+        b = max(t2, bus_free)
+        fills = memory_fills(r)
+        wbs = memory_writebacks(r)
+        busy = fills * P[P_DRAM_LINE] + wbs * P[P_DRAM_WB]
+        bus_free = b + busy
+        ctr[C_DRAM_FILLS] += fills
+        ctr[C_DRAM_WRITEBACKS] += wbs
+        ctr[C_DRAM_BUS_CYCLES] += busy
+        done = b + P[P_DRAM_LAT] if fills > 0 else t2
+        mshr[k] = b + busy
+    return max(0, done - start), bus_free, l2bus_free
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _btb_alloc(tag, stamp, s, ways, pc, now):
+    victim = 0
+    for w in range(ways):
+        if tag[s, w] == -1:
+            victim = w
+            break
+        if stamp[s, w] < stamp[s, victim]:
+            victim = w
+    tag[s, victim] = pc
+    stamp[s, victim] = now
+    return victim
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _heap_push(h, size, v):
+    h[size] = v
+    i = size
+    while i > 0:
+        p = (i - 1) >> 1
+        if h[p] <= h[i]:
+            break
+        h[p], h[i] = h[i], h[p]
+        i = p
+    return size + 1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _heap_pop(h, size):
+    size -= 1
+    h[0] = h[size]
+    i = 0
+    while True:
+        l = 2 * i + 1
+        if l >= size:
+            break
+        c = l
+        if l + 1 < size and h[l + 1] < h[l]:
+            c = l + 1
+        if h[i] <= h[c]:
+            break
+        h[i], h[c] = h[c], h[i]
+        i = c
+    return size

@@ -1,0 +1,81 @@
+"""CPU presets (sim/cpus/presets/*.toml): clocks, caches and default memory, each field sourced."""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..errors import RetrosimError
+
+PRESETS = Path(__file__).resolve().parent / "presets"
+
+
+class UnknownPreset(RetrosimError):
+    pass
+
+
+@dataclass(frozen=True)
+class CacheSpec:
+    size_kb: int
+    ways: int
+    line_bytes: int
+    latency_cycles: int | None = None  # load-to-use, core clocks (L1: total; L2: total from the load's start)
+    speed_ratio: float = 1.0           # L2 clock / core clock
+    estimated: bool = False
+
+    @property
+    def size_bytes(self) -> int:
+        return self.size_kb * 1024
+
+    def describe(self) -> str:
+        speed = "" if self.speed_ratio == 1.0 else f", {self.speed_ratio:g}x clock"
+        lat = f", {self.latency_cycles} clk" if self.latency_cycles is not None else ""
+        return f"{self.size_kb} KB {self.ways}-way {self.line_bytes} B{lat}{speed}"
+
+
+@dataclass(frozen=True)
+class CpuPreset:
+    name: str
+    family: str          # timing model: "p6", "k6", ...
+    core_mhz: float
+    fsb_mhz: float
+    l1i: CacheSpec
+    l1d: CacheSpec
+    l2: CacheSpec | None
+    board_cache: CacheSpec | None
+    memory: str          # default memory preset
+    core: str = ""
+    raw: dict = field(default_factory=dict, compare=False, hash=False, repr=False)
+
+    @property
+    def multiplier(self) -> float:
+        return self.core_mhz / self.fsb_mhz
+
+
+def _cache(section: dict | None) -> CacheSpec | None:
+    if not section or not section.get("present", True):
+        return None
+    return CacheSpec(int(section["size_kb"]), int(section["ways"]), int(section["line_bytes"]),
+                     section.get("latency_cycles"), float(section.get("speed_ratio", 1.0)),
+                     bool(section.get("latency_estimated", False)))
+
+
+def available() -> list[str]:
+    return sorted(p.stem for p in PRESETS.glob("*.toml"))
+
+
+def load(name: str) -> CpuPreset:
+    path = PRESETS / f"{name}.toml"
+    if not path.is_file():
+        raise UnknownPreset(f"unknown CPU preset '{name}' (choose one of: {', '.join(available())})")
+    with open(path, "rb") as f:
+        raw = tomllib.load(f)
+    try:
+        return CpuPreset(
+            name=raw.get("name", name), family=raw["cpu_model"], core_mhz=float(raw["clock"]["core_mhz"]),
+            fsb_mhz=float(raw["clock"]["fsb_mhz"]), l1i=_cache(raw["l1i"]), l1d=_cache(raw["l1d"]),
+            l2=_cache(raw.get("l2")), board_cache=_cache(raw.get("board_cache") or raw.get("l3")),
+            memory=raw["memory"]["default"], core=raw.get("core", ""), raw=raw)
+    except KeyError as e:
+        raise RetrosimError(f"{path}: missing field {e}") from None

@@ -1,0 +1,149 @@
+"""Instruction timing tables as data: load a family's TOML table and find the row for a decoded
+instruction, saying exactly which row a prediction used.
+
+Rows are keyed by (mnemonic, operand signature) in the vocabulary of :mod:`sim.decode`. A lookup
+tries the exact key first, then the documented generalisations below, cheapest first, and
+reports the one it used: the reader of `retrosim explain` sees "add r8,i8 -> add r32,i32".
+
+Generalisations (each is a statement about these families, not a guess per row):
+- condition-code families share one row: j<cc> -> jcc, set<cc> -> setcc, cmov<cc> -> cmovcc;
+- 8- and 16-bit register, memory and immediate operands take the 32-bit row (the uop count and
+  ports of ALU operations do not depend on the operand size; the 16-bit length-changing-prefix
+  penalty is a decoder effect the models add separately);
+- an x87 register operand ST(i) takes the ST row, and an explicit leading ST(0) may be dropped
+  (FCOM ST, m32fp is FCOM m32fp);
+- the address-only operand of LEA is m32.
+"""
+
+from __future__ import annotations
+
+import itertools
+import tomllib
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+
+from ..errors import RetrosimError
+
+TABLES = Path(__file__).resolve().parent / "tables"
+
+_FAMILIES = {"j": "jcc", "set": "setcc", "cmov": "cmovcc"}
+_NOT_FAMILY = {"jmp", "jecxz", "jcxz"}
+_WIDER = {"r8": ("r32",), "r16": ("r32",), "m8": ("m32",), "m16": ("m32",), "i8": ("i32",), "i16": ("i32",),
+          "sti": ("st",), "m": ("m32",), "rel8": ("rel32",), "rel16": ("rel32",)}
+
+
+class MissingTiming(RetrosimError):
+    """An executed instruction has no row in the family's table."""
+
+
+@dataclass(frozen=True)
+class TimingRow:
+    mnemonic: str
+    signature: str
+    uops: int
+    ports: tuple[str, ...]
+    decoder: str
+    latency: float | None
+    throughput: float | None
+    source: str
+    note: str = ""
+    estimated: bool = False
+    extra: dict = field(default_factory=dict, compare=False, hash=False)
+
+    @property
+    def key(self) -> str:
+        return f"{self.mnemonic} {self.signature}".strip()
+
+
+@dataclass(frozen=True)
+class Match:
+    row: TimingRow
+    asked: str  # "mnemonic signature" of the decoded instruction
+
+    @property
+    def generalised(self) -> bool:
+        return self.asked != self.row.key
+
+    def describe(self) -> str:
+        return self.row.key if not self.generalised else f"{self.asked} -> {self.row.key}"
+
+
+def family_mnemonic(mnemonic: str) -> str:
+    if mnemonic in _NOT_FAMILY:
+        return mnemonic
+    for prefix, family in _FAMILIES.items():
+        if mnemonic.startswith(prefix) and mnemonic != prefix:
+            return family
+    return mnemonic
+
+
+def _signature_candidates(signature: str):
+    """The signature itself, then generalised variants with the fewest substitutions first."""
+    tokens = signature.split(",") if signature else []
+    variants = [((t,) + _WIDER.get(t, ())) for t in tokens]
+    seen = set()
+    for combo in sorted(itertools.product(*[range(len(v)) for v in variants]), key=sum):
+        sig = ",".join(v[i] for v, i in zip(variants, combo))
+        if sig not in seen:
+            seen.add(sig)
+            yield sig
+    if tokens and tokens[0] == "st":  # an explicit ST(0) first operand may be implicit in the table
+        yield from _signature_candidates(",".join(tokens[1:]))
+
+
+class InstructionTable:
+    """One family's table (e.g. sim/cpus/tables/p6.toml)."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        with open(self.path, "rb") as f:
+            data = tomllib.load(f)
+        self.rows: dict[tuple[str, str], TimingRow] = {}
+        known = {"mnemonic", "signature", "uops", "ports", "decoder", "latency", "throughput", "source", "note",
+                 "estimated"}
+        for i, raw in enumerate(data.get("insn", [])):
+            try:
+                ports = raw.get("ports", [])
+                row = TimingRow(
+                    mnemonic=raw["mnemonic"], signature=raw.get("signature", ""), uops=int(raw["uops"]),
+                    ports=tuple(ports) if isinstance(ports, list) else tuple(p for p in ports.split("+") if p),
+                    decoder=raw.get("decoder", ""), latency=raw.get("latency"), throughput=raw.get("throughput"),
+                    source=raw["source"], note=raw.get("note", ""), estimated=bool(raw.get("estimated", False)),
+                    extra={k: v for k, v in raw.items() if k not in known})
+            except KeyError as e:
+                raise RetrosimError(f"{self.path}: [[insn]] row {i + 1}: missing field {e}") from None
+            self.rows[(row.mnemonic, row.signature)] = row
+
+    @cached_property
+    def _cache(self) -> dict:
+        return {}
+
+    def lookup(self, mnemonic: str, signature: str) -> Match | None:
+        key = (mnemonic, signature)
+        if key not in self._cache:
+            self._cache[key] = self._find(mnemonic, signature)
+        return self._cache[key]
+
+    def _find(self, mnemonic: str, signature: str) -> Match | None:
+        asked = f"{mnemonic} {signature}".strip()
+        for name in dict.fromkeys((mnemonic, family_mnemonic(mnemonic))):
+            for sig in _signature_candidates(signature):
+                row = self.rows.get((name, sig))
+                if row is not None:
+                    return Match(row, asked)
+        return None
+
+    def require(self, mnemonic: str, signature: str, where: str) -> Match:
+        match = self.lookup(mnemonic, signature)
+        if match is None:
+            raise MissingTiming(f"{where}: no timing row for '{mnemonic} {signature}'".rstrip() +
+                                f" in {self.path.name} (add one, with its source)")
+        return match
+
+
+def load_table(family: str) -> InstructionTable:
+    path = TABLES / f"{family}.toml"
+    if not path.is_file():
+        raise RetrosimError(f"no instruction table for CPU family '{family}' ({path} is missing)")
+    return InstructionTable(path)

@@ -1,0 +1,91 @@
+"""Time a kernel on a CPU model: emulate (traced), decode, and run the family's timing model.
+
+The kernel's entry point is called `repeat` times in one machine state, so caches and predictors
+carry over from call to call as they would in a program; the report is the last call. RDTSC inside
+a kernel returns the simulated cycle count: a first pass times the run, a second pass replays it
+with RDTSC answering the first pass's cycles (the instruction stream does not depend on the values
+RDTSC returns unless the kernel branches on them; the replay checks that it did not).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .cpus import make_model
+from .decode import Decoder
+from .emu import Machine, RdtscEvent
+from .errors import RetrosimError
+from .trace import Trace
+
+Setup = Callable[[Machine], list]  # builds the call's arguments (and buffers) in a fresh machine
+
+
+@dataclass
+class TimingResult:
+    cpu: str
+    memory: str
+    entry: str
+    source: Path
+    repeat: int
+    calls: list[dict]                 # counters per call
+    model: object = field(repr=False)
+    run: object = field(repr=False)
+    trace: Trace = field(repr=False)
+
+    @property
+    def last(self) -> dict:
+        return self.calls[-1]
+
+    def summary(self) -> dict:
+        d = {"cpu": self.cpu, "memory": self.memory, "entry": self.entry, "repeat": self.repeat}
+        d.update(self.last)
+        return d
+
+
+def hot_loop_window(pc: np.ndarray, start: int, iterations: int, cap: int = 256) -> tuple[int, int]:
+    """(first instruction, count) covering `iterations` passes through the most executed PC of
+    pc[start:], taken from the middle of that range (steady state, caches and predictors warm)."""
+    if iterations <= 0 or start >= pc.size:
+        return (0, 0)
+    part = pc[start:]
+    values, counts = np.unique(part, return_counts=True)
+    head = values[np.argmax(counts)]
+    where = np.flatnonzero(part == head)
+    k = max(0, len(where) // 2 - 1)
+    end = where[min(k + iterations, len(where) - 1)] if len(where) > k + 1 else part.size
+    return (start + int(where[k]), int(min(cap, max(1, end - where[k]))))
+
+
+def time_kernel(source: str | Path, entry: str, setup: Setup | None = None, cpu: str = "pentium2-233",
+                memory: str | None = None, repeat: int = 2, budget: int = 200_000_000,
+                timeline_iterations: int = 0, assembler: str | None = None) -> TimingResult:
+    """`timeline_iterations`: record a per-instruction timeline of that many iterations of the hot
+    loop (the last call's most executed PC) from the middle of the last call."""
+    if repeat < 1:
+        raise RetrosimError(f"--repeat must be at least 1, got {repeat}")
+    model = make_model(cpu, memory)
+
+    def emulate(rdtsc_values: list[int] | None):
+        answers = iter(rdtsc_values or [])
+        clock = (lambda ev: next(answers, 0)) if rdtsc_values is not None else None
+        machine = Machine.from_source(source, assembler=assembler, rdtsc=clock)
+        args = setup(machine) if setup else []
+        parts = [machine.call(entry, *args, budget=budget, trace=True).trace for _ in range(repeat)]
+        return machine, Trace.concatenate(parts), np.cumsum([p.instructions for p in parts]).tolist()
+
+    machine, trace, bounds = emulate(None)
+    last_call = bounds[-2] if len(bounds) > 1 else 0
+    timeline = hot_loop_window(trace.pc, last_call, timeline_iterations)
+    run = model.run(trace, Decoder(machine.image.fetch), bounds, timeline, last_call)
+    if run.rdtsc.size:
+        machine, replay, bounds = emulate([int(c) for c in run.rdtsc])
+        if not np.array_equal(replay.pc, trace.pc):
+            raise RetrosimError(f"{source}: {entry} branches on RDTSC values; its timing cannot be replayed")
+        trace = replay
+        run = model.run(trace, Decoder(machine.image.fetch), bounds, timeline, last_call)
+    calls = [run.segment(k) for k in range(len(bounds))]
+    return TimingResult(cpu, model.dram.name, entry, Path(source), repeat, calls, model, run, trace)
