@@ -60,32 +60,67 @@ def hot_loop_window(pc: np.ndarray, start: int, iterations: int, cap: int = 256)
     return (start + int(where[k]), int(min(cap, max(1, end - where[k]))))
 
 
+@dataclass
+class Emulation:
+    """A kernel's traced run: `repeat` calls in one machine state. The trace does not depend on
+    the CPU model, so one emulation serves every preset (unless the kernel reads RDTSC)."""
+
+    source: Path
+    entry: str
+    setup: Setup | None
+    repeat: int
+    budget: int
+    assembler: str | None
+    machine: Machine = field(repr=False)
+    trace: Trace = field(repr=False)
+    bounds: list[int]
+
+    @property
+    def last_call(self) -> int:
+        return self.bounds[-2] if len(self.bounds) > 1 else 0
+
+    def decoder(self) -> Decoder:
+        return Decoder(self.machine.image.fetch)
+
+    def replay(self, rdtsc_values: list[int]) -> Emulation:
+        return emulate(self.source, self.entry, self.setup, self.repeat, self.budget, self.assembler, rdtsc_values)
+
+
+def emulate(source: str | Path, entry: str, setup: Setup | None = None, repeat: int = 2,
+            budget: int = 200_000_000, assembler: str | None = None,
+            rdtsc_values: list[int] | None = None) -> Emulation:
+    if repeat < 1:
+        raise RetrosimError(f"--repeat must be at least 1, got {repeat}")
+    answers = iter(rdtsc_values or [])
+    clock = (lambda ev: next(answers, 0)) if rdtsc_values is not None else None
+    machine = Machine.from_source(source, assembler=assembler, rdtsc=clock)
+    args = setup(machine) if setup else []
+    parts = [machine.call(entry, *args, budget=budget, trace=True).trace for _ in range(repeat)]
+    bounds = np.cumsum([p.instructions for p in parts]).tolist()
+    return Emulation(Path(source), entry, setup, repeat, budget, assembler, machine, Trace.concatenate(parts), bounds)
+
+
+def time_emulation(emu: Emulation, cpu: str = "pentium2-233", memory: str | None = None,
+                   timeline_iterations: int = 0) -> TimingResult:
+    """Time an emulation on one CPU preset. `timeline_iterations`: record a per-instruction timeline
+    of that many iterations of the hot loop (the last call's most executed PC), mid last call."""
+    model = make_model(cpu, memory)
+    timeline = hot_loop_window(emu.trace.pc, emu.last_call, timeline_iterations)
+    run = model.run(emu.trace, emu.decoder(), emu.bounds, timeline, emu.last_call)
+    if run.rdtsc.size:
+        replay = emu.replay([int(c) for c in run.rdtsc])
+        if not np.array_equal(replay.trace.pc, emu.trace.pc):
+            raise RetrosimError(f"{emu.source}: {emu.entry} branches on RDTSC values; its timing cannot be replayed")
+        emu = replay
+        run = model.run(emu.trace, emu.decoder(), emu.bounds, timeline, emu.last_call)
+    calls = [run.segment(k) for k in range(len(emu.bounds))]
+    return TimingResult(cpu, model.dram.name, emu.entry, emu.source, emu.repeat, calls, model, run, emu.trace)
+
+
 def time_kernel(source: str | Path, entry: str, setup: Setup | None = None, cpu: str = "pentium2-233",
                 memory: str | None = None, repeat: int = 2, budget: int = 200_000_000,
                 timeline_iterations: int = 0, assembler: str | None = None) -> TimingResult:
-    """`timeline_iterations`: record a per-instruction timeline of that many iterations of the hot
-    loop (the last call's most executed PC) from the middle of the last call."""
-    if repeat < 1:
-        raise RetrosimError(f"--repeat must be at least 1, got {repeat}")
-    model = make_model(cpu, memory)
-
-    def emulate(rdtsc_values: list[int] | None):
-        answers = iter(rdtsc_values or [])
-        clock = (lambda ev: next(answers, 0)) if rdtsc_values is not None else None
-        machine = Machine.from_source(source, assembler=assembler, rdtsc=clock)
-        args = setup(machine) if setup else []
-        parts = [machine.call(entry, *args, budget=budget, trace=True).trace for _ in range(repeat)]
-        return machine, Trace.concatenate(parts), np.cumsum([p.instructions for p in parts]).tolist()
-
-    machine, trace, bounds = emulate(None)
-    last_call = bounds[-2] if len(bounds) > 1 else 0
-    timeline = hot_loop_window(trace.pc, last_call, timeline_iterations)
-    run = model.run(trace, Decoder(machine.image.fetch), bounds, timeline, last_call)
-    if run.rdtsc.size:
-        machine, replay, bounds = emulate([int(c) for c in run.rdtsc])
-        if not np.array_equal(replay.pc, trace.pc):
-            raise RetrosimError(f"{source}: {entry} branches on RDTSC values; its timing cannot be replayed")
-        trace = replay
-        run = model.run(trace, Decoder(machine.image.fetch), bounds, timeline, last_call)
-    calls = [run.segment(k) for k in range(len(bounds))]
-    return TimingResult(cpu, model.dram.name, entry, Path(source), repeat, calls, model, run, trace)
+    """Emulate and time in one step (see :func:`emulate` and :func:`time_emulation`)."""
+    make_model(cpu, memory)  # reject an unknown preset before emulating
+    emu = emulate(source, entry, setup, repeat, budget, assembler)
+    return time_emulation(emu, cpu, memory, timeline_iterations)

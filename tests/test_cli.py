@@ -22,7 +22,7 @@ def test_kernels_lists_every_declared_entry():
 
 
 def test_run_kernel_with_buffers_reports_counts_and_results():
-    r = run("run-kernel", "zbuffer/z32.S", "--json", "--args", "buf:u32:50:0xFFFFFFFF,buf:u16:50,50,1000,10,0x4242")
+    r = run("run-kernel", "zbuffer/z32.S", "-e", "z32_span", "--json", "--args", "buf:u32:50:0xFFFFFFFF,buf:u16:50,50,1000,10,0x4242")
     assert r.exit_code == 0, r.output
     out = json.loads(r.output)
     assert out["eax"] == 1000 + 50 * 10
@@ -33,7 +33,7 @@ def test_run_kernel_with_buffers_reports_counts_and_results():
 
 
 def test_float_arguments(tmp_path):
-    r = run("run-kernel", "zbuffer/zf32.S", "--json", "--args", "buf:f32:8:inf,buf:u16:8,8,0.5f,0.25f,7")
+    r = run("run-kernel", "zbuffer/zf32.S", "-e", "zf32_span", "--json", "--args", "buf:f32:8:inf,buf:u16:8,8,0.5f,0.25f,7")
     assert r.exit_code == 0, r.output
     out = json.loads(r.output)
     assert out["eax"] == 8 and out["buffers"][0]["first"] == [0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0, 2.25]
@@ -52,11 +52,11 @@ def test_errors_are_one_line_with_exit_status_2(tmp_path):
     bad = tmp_path / "bad.S"
     bad.write_text(".intel_syntax noprefix\n.text\n.globl f\nf:\n  mov eax, [0x7]\n  ret\n")
     cases = [
-        (("run-kernel", "zbuffer/z32.S", "--args", "1,2"), "takes 6 argument(s), 2 given"),
+        (("run-kernel", "zbuffer/z32.S", "-e", "z32_span", "--args", "1,2"), "takes 6 argument(s), 2 given"),
         (("run-kernel", "no/such.S"), "no such kernel source file"),
         (("run-kernel", "convert/fp16z.S", "--args", "5"), "choose an entry point with --entry"),
-        (("run-kernel", "zbuffer/z32.S", "--args", "buf:u99:4"), "expected buf:TYPE:COUNT"),
-        (("run-kernel", "zbuffer/z32.S", "--args", "x1"), "not an integer"),
+        (("run-kernel", "zbuffer/z32.S", "-e", "z32_span", "--args", "buf:u99:4"), "expected buf:TYPE:COUNT"),
+        (("run-kernel", "zbuffer/z32.S", "-e", "z32_span", "--args", "x1"), "not an integer"),
         (("run-kernel", str(bad)), "read of unmapped or protected address 0x00000007"),
         (("trace", "convert/fp16z.S", "-e", "fp16z_convert", "--args", "1", "-o", str(tmp_path / "no" / "t.npz")),
          "does not exist"),

@@ -45,3 +45,7 @@ fp16z_span:
     pop     esi
     pop     ebx
     ret
+
+# @entry fp16z_frame(spans, nspans, zbuf, zwords, zclear) -> draws a frame of spans (see draw.inc)
+.include "draw.inc"
+DRAW_FRAME fp16z_frame, fp16z_span

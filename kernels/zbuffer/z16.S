@@ -40,3 +40,7 @@ z16_span:
     pop     esi
     pop     ebx
     ret
+
+# @entry z16_frame(spans, nspans, zbuf, zwords, zclear) -> draws a frame of spans (see draw.inc)
+.include "draw.inc"
+DRAW_FRAME z16_frame, z16_span

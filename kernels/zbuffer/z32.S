@@ -39,3 +39,7 @@ z32_span:
     pop     esi
     pop     ebx
     ret
+
+# @entry z32_frame(spans, nspans, zbuf, zwords, zclear) -> draws a frame of spans (see draw.inc)
+.include "draw.inc"
+DRAW_FRAME z32_frame, z32_span

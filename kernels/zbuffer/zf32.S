@@ -48,3 +48,7 @@ zf32_span:
     pop     esi
     pop     ebx
     ret
+
+# @entry zf32_frame(spans, nspans, zbuf, zwords, zclear) -> draws a frame of spans (see draw.inc)
+.include "draw.inc"
+DRAW_FRAME zf32_frame, zf32_span

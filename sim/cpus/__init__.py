@@ -15,6 +15,7 @@ def memory_presets() -> list[str]:
 
 
 def load_memory(name: str) -> dict:
+    """The raw memory preset (for listings); timing models use sim.memory.dram."""
     path = MEMORY_PRESETS / f"{name}.toml"
     if not path.is_file():
         raise RetrosimError(f"unknown memory preset '{name}' (choose one of: {', '.join(memory_presets())})")
@@ -22,10 +23,20 @@ def load_memory(name: str) -> dict:
         return tomllib.load(f)
 
 
+def load_dram(name: str):
+    from ..memory.dram import load_memory_preset
+
+    load_memory(name)  # the unknown-name error with the preset list
+    try:
+        return load_memory_preset(name)
+    except ValueError as e:
+        raise RetrosimError(f"memory preset '{name}': {e}") from None
+
+
 def make_model(cpu: str, memory: str | None = None):
     """The timing model for a CPU preset, with its default memory unless `memory` names another."""
     preset = presets.load(cpu)
-    mem = load_memory(memory or preset.memory)
+    mem = load_dram(memory or preset.memory)
     if preset.family == "p6":
         from .p6 import P6Model
 

@@ -13,6 +13,8 @@ import numpy as np
 from ..decode import Decoder
 from ..elf import EXIT_ADDR
 from ..memory.cache import CacheGeometry
+from ..errors import RetrosimError
+from ..memory.dram import DramTiming, core_clocks, line_costs
 from ..memory.hierarchy import Hierarchy, family_policies
 from ..trace import Trace
 from . import p6_core as core
@@ -28,8 +30,12 @@ ESTIMATES = {
     "mispredict_restart": (6, "cycles from a mispredicted branch's execution to the decode of the correct path; "
                            "with decode->rename->dispatch (3) this gives the sourced minimum penalty of 9"),
     "static_redirect": (3, "a taken branch missing the BTB (predicted at decode): a few cycles to redirect fetch; estimate"),
-    "partial_extra": (1, "cycles after the partial writer retires before the stalled read renames; with "
-                      "rename->dispatch this reproduces the measured +5 of a partial-register read"),
+    "partial_extra": (2, "cycles after the partial writer retires before the stalled read renames; with "
+                      "rename->dispatch->execute this reproduces the measured +5 of a partial-register read "
+                      "(p6_machine.toml [partial_register_stall], InstLatX64 PII/PPro chains)"),
+    "forward_latency": (4, "store data ready -> forwarded load data ready; with the 1-cycle store-data uop this "
+                        "makes the measured ~5-cycle store->load round trip (p6_machine.toml "
+                        "[store_forwarding] measured_roundtrips, MOVD/MOVQ 5.1)"),
     "l2_bus_full_speed": (4, "core cycles the 64-bit backside bus is busy per 32-byte line at full speed (4 transfers)"),
     "msrom_rate": (3, "microcode sequencer uops per cycle (p6_machine.toml [decode.microcode], itself estimated)"),
 }
@@ -45,20 +51,20 @@ class DramCost:
     """Core-clock costs of the memory behind the last cache level."""
 
     name: str
-    lead_off: int       # from the request leaving the CPU to the critical chunk (core clocks)
-    line_busy: int      # front-side bus busy per 32-byte line fill (core clocks)
-    writeback_busy: int # front-side bus busy per line writeback (core clocks)
-    source: str
+    lead_off: int        # from the request leaving the CPU to the critical chunk (core clocks)
+    line_busy: int       # front-side bus busy per 32-byte line fill (core clocks)
+    writeback_busy: int  # front-side bus busy per line writeback (core clocks)
 
 
-def dram_cost(memory: dict, preset: CpuPreset) -> DramCost:
-    """The memory preset's burst timings (bus clocks at the CPU's FSB) in core clocks, rounded up."""
-    mult = preset.core_mhz / preset.fsb_mhz
-    first = memory["first_transfer_bus_clocks"]
-    line = memory.get("line_fill_bus_clocks", sum(memory.get("burst", [first, 1, 1, 1])))
-    overhead = ESTIMATES["fsb_overhead_bus_clocks"][0]
-    return DramCost(memory.get("name", "?"), math.ceil((overhead + first) * mult), math.ceil(line * mult),
-                    math.ceil(line * mult), memory.get("source", ""))
+def dram_cost(memory: DramTiming, preset: CpuPreset) -> DramCost:
+    """The memory preset's burst (bus clocks at the CPU's FSB) in core clocks, rounded up; the
+    lead-off adds the bus-protocol overhead estimate to the burst's first transfer."""
+    try:
+        costs = line_costs(memory, preset.core_mhz, preset.fsb_mhz)
+    except ValueError as e:
+        raise RetrosimError(f"{preset.name} with {memory.name}: {e}") from None
+    lead = core_clocks(ESTIMATES["fsb_overhead_bus_clocks"][0] + memory.first_access_bus_clocks, costs.ratio)
+    return DramCost(memory.name, lead, costs.fill, costs.writeback)
 
 
 def _geometry(name: str, spec: CacheSpec, policy: dict) -> CacheGeometry:
@@ -69,7 +75,7 @@ def _geometry(name: str, spec: CacheSpec, policy: dict) -> CacheGeometry:
 class P6Model:
     family = "p6"
 
-    def __init__(self, preset: CpuPreset, memory: dict):
+    def __init__(self, preset: CpuPreset, memory: DramTiming):
         if preset.family != "p6":
             raise ValueError(f"{preset.name} is a {preset.family} part, not P6")
         self.preset = preset
@@ -114,7 +120,8 @@ class P6Model:
         P[core.P_BTB_WAYS] = m["branch"]["btb_ways"]
         P[core.P_HIST_BITS] = m["branch"]["btb_history_bits"]
         P[core.P_PARTIAL_EXTRA] = ESTIMATES["partial_extra"][0]
-        P[core.P_FWD_FAIL] = 0
+        P[core.P_FWD_FAIL] = m["store_forwarding"]["failure_penalty_cycles"]
+        P[core.P_FWD_LAT] = ESTIMATES["forward_latency"][0]
         P[core.P_LCP] = math.ceil(m["decode"]["prefixes"]["lcp_penalty_cycles"]) - 1  # plus the group break
         P[core.P_STATIC_REDIRECT] = ESTIMATES["static_redirect"][0]
         P[core.P_RSB] = m["branch"]["return_stack_entries"]

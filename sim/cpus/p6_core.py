@@ -35,7 +35,7 @@ from .lowering import (BR_CALL, BR_COND, BR_DIRECT, BR_INDIRECT, BR_NONE, BR_RET
 # parameter vector indices
 (P_ROB, P_RS, P_RENAME, P_RETIRE, P_QUEUE, P_FETCH_BLOCK, P_L1_LAT, P_L2_LAT, P_DRAM_LAT, P_DRAM_LINE,
  P_DRAM_WB, P_MSHR, P_SB, P_MISPREDICT, P_TAKEN_BUBBLE, P_BTB_SETS, P_BTB_WAYS, P_HIST_BITS, P_PARTIAL_EXTRA,
- P_FWD_FAIL, P_LCP, P_STATIC_REDIRECT, P_HAS_L2, P_L2_BUS, P_RSB, P_MSROM_RATE, P_EXIT_ADDR) = range(27)
+ P_FWD_FAIL, P_LCP, P_STATIC_REDIRECT, P_HAS_L2, P_L2_BUS, P_RSB, P_MSROM_RATE, P_EXIT_ADDR, P_FWD_LAT) = range(28)
 NPARAMS = 32
 
 # counter indices (per segment)
@@ -415,10 +415,12 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                     if fwd >= 0:
                         if fw_addr[fwd] == a and sz <= fw_size[fwd]:
                             counters[seg, C_STORE_FORWARDS] += 1
-                            if fw_ready[fwd] + 1 > disp + lat:
-                                fwd_wait = fw_ready[fwd] + 1 - (disp + lat)
+                            if fw_ready[fwd] + P[P_FWD_LAT] > disp + lat:
+                                fwd_wait = fw_ready[fwd] + P[P_FWD_LAT] - (disp + lat)
                         else:  # forwarding fails: wait until the store has written the cache
-                            fwd_wait = max(0, fw_commit[fwd] + P[P_FWD_FAIL] - disp)
+                            # forwarding fails: the load replays once the store has written L1, and
+                            # its data arrives FWD_FAIL cycles after that (p6_machine.toml, estimated)
+                            fwd_wait = max(0, max(fw_commit[fwd], disp) + P[P_FWD_FAIL] - (disp + lat))
                         counters[seg, C_STALL_STORE_FORWARD] += fwd_wait
                         per_static[psid, S_STALL_STORE_FORWARD] += fwd_wait
                     if lvl > 0:

@@ -1,0 +1,222 @@
+"""Main-memory timing: the cost of a 32-byte line fill or writeback over the front-side bus.
+
+Presets live in ``sim/cpus/presets/memory/NAME.toml`` (field names and sources are the research
+colleague's). Timings there are in *bus* clocks as an x-y-y-y burst: x for the first 64-bit
+transfer (the lead-off: row/column access plus chipset), y for each of the three more transfers of
+a 32-byte line (EDO 5-2-2-2 = 11, PC66 SDRAM 5-1-1-1 = 8, PC100 SDRAM 4-1-1-1 = 7).
+
+Core clocks. A P6 or K6 core runs at a fixed multiple of the bus clock, always a multiple of 1/2
+(3.5 for a Pentium II 233 on a 66 MHz bus), so the ratio is an exact fraction: the MHz figures in
+the CPU presets are rounded (233.33 / 66.67 = 3.49978...), so :func:`bus_ratio` snaps their
+quotient to the nearest quarter. A cost in core clocks is ``ceil(bus_clocks * ratio)``: the core
+can only use the data at a core-clock edge, so a fraction of a core clock rounds *up* (EDO at 3.5:
+11 x 3.5 = 38.5 -> 39). Integer arithmetic on fractions only, so every machine gets the same number.
+
+Writebacks. The presets give read-burst timings only; a line writeback is a 4-transfer burst write,
+and we charge it the same x-y-y-y as a fill (``writeback_estimated``). SDRAM writes have no CAS
+latency, so this overstates an SDRAM writeback's lead-off by a clock or two.
+
+Open rows. :func:`row_access` is a simple open-page model: one open row per bank; a line fill costs
+``row_hit`` / ``row_closed`` / ``row_conflict`` lead-off clocks instead of the burst's first figure,
+plus the same three transfers. Only presets that give row timings support it (PC100: 2 / 4 / 6 at
+CL2, from the datasheet tRCD/tRP/CL; its 4-1-1-1 lead-off equals the closed-row figure, so the
+quoted burst is the closed-row case). EDO and PC66 rows were not found: asking for them is an error,
+not a guess. Row geometry defaults to a 64-bit DIMM built from 64 Mbit x8 SDRAM chips: 4 banks, rows
+of 512 columns x 8 bytes = 4 KB (Micron 64Mb SDRAM MT48LC8M8A2 data sheet: "each of the x8's
+16,777,216-bit banks is organized as 4,096 rows by 512 columns by 8 bits"). The address map
+(column bits lowest, then bank, then row) is an assumption; chipsets differ.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+
+from .cache import HOT
+
+MEMORY_PRESETS_DIR = Path(__file__).resolve().parent.parent / "cpus" / "presets" / "memory"
+TRANSFERS_PER_LINE = 4  # 32-byte line over the 64-bit P6/Socket 7 data bus
+
+DEFAULT_ROW_BYTES = 4096
+DEFAULT_BANKS = 4
+ROW_GEOMETRY_SOURCE = ("Micron 64Mb SDRAM (MT48LC8M8A2) data sheet: x8 part = 4 banks x 4,096 rows x 512 "
+                       "columns x 8 bits; eight x8 chips on a 64-bit DIMM give 512 x 8 B = 4 KB rows")
+
+# Row states for row_access().
+ROW_HIT, ROW_CLOSED, ROW_CONFLICT = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class DramTiming:
+    """One memory preset, in bus clocks. ``row_*`` are None when the preset has no row timings."""
+
+    name: str
+    kind: str
+    bus_mhz: float
+    burst: tuple[int, ...]
+    source: str
+    row_hit: int | None = None
+    row_closed: int | None = None
+    row_conflict: int | None = None
+    writeback_estimated: bool = True
+
+    @property
+    def first_access_bus_clocks(self) -> int:
+        return self.burst[0]
+
+    @property
+    def burst_bus_clocks(self) -> int:
+        """Clocks of the three transfers after the first."""
+        return sum(self.burst[1:])
+
+    @property
+    def line_fill_bus_clocks(self) -> int:
+        return sum(self.burst)
+
+    @property
+    def line_writeback_bus_clocks(self) -> int:
+        return sum(self.burst)  # estimate: see the module docstring
+
+    @property
+    def has_rows(self) -> bool:
+        return self.row_hit is not None
+
+    def describe(self) -> str:
+        return f"{self.name} ({self.kind}, {'-'.join(map(str, self.burst))} at {self.bus_mhz:g} MHz)"
+
+
+def available_memory_presets() -> list[str]:
+    return sorted(p.stem for p in MEMORY_PRESETS_DIR.glob("*.toml"))
+
+
+def load_memory_preset(name: str) -> DramTiming:
+    """The memory preset ``sim/cpus/presets/memory/NAME.toml``, checked for consistency."""
+    path = MEMORY_PRESETS_DIR / f"{name}.toml"
+    if not path.is_file():
+        raise ValueError(f"unknown memory preset {name!r} (available: {', '.join(available_memory_presets())})")
+    with open(path, "rb") as f:
+        d = tomllib.load(f)
+    where = f"{path.name}"
+
+    def need(field):
+        if field not in d:
+            raise ValueError(f"{where}: missing field {field!r}")
+        return d[field]
+
+    burst = tuple(need("burst"))
+    if len(burst) != TRANSFERS_PER_LINE or not all(isinstance(x, int) and x > 0 for x in burst):
+        raise ValueError(f"{where}: burst must be {TRANSFERS_PER_LINE} positive integers, got {list(burst)}")
+    # The preset repeats the burst as separate fields; they must agree.
+    for field, value in (("first_transfer_bus_clocks", burst[0]), ("line_fill_bus_clocks", sum(burst))):
+        if field in d and d[field] != value:
+            raise ValueError(f"{where}: {field} = {d[field]} disagrees with burst {list(burst)} ({value})")
+    if "next_transfer_bus_clocks" in d and any(x != d["next_transfer_bus_clocks"] for x in burst[1:]):
+        raise ValueError(f"{where}: next_transfer_bus_clocks = {d['next_transfer_bus_clocks']} "
+                         f"disagrees with burst {list(burst)}")
+    rows = [d.get(f"row_{k}_bus_clocks") for k in ("open_hit", "closed", "conflict")]
+    if any(r is not None for r in rows) and not all(isinstance(r, int) for r in rows):
+        raise ValueError(f"{where}: row_open_hit/closed/conflict_bus_clocks must be given together")
+    return DramTiming(name=need("name"), kind=need("type"), bus_mhz=float(need("bus_mhz")), burst=burst,
+                      source=need("source"), row_hit=rows[0], row_closed=rows[1], row_conflict=rows[2])
+
+
+def bus_ratio(core_mhz: float, fsb_mhz: float) -> Fraction:
+    """Core clocks per bus clock as an exact fraction: the quotient snapped to the nearest 1/4
+    (real multipliers are multiples of 1/2; the preset MHz figures are rounded)."""
+    if core_mhz <= 0 or fsb_mhz <= 0:
+        raise ValueError(f"clock frequencies must be positive, got core {core_mhz} MHz, bus {fsb_mhz} MHz")
+    exact = Fraction(core_mhz) / Fraction(fsb_mhz)
+    ratio = Fraction(round(exact * 4), 4)
+    if ratio < 1 or abs(exact - ratio) > Fraction(1, 100) * ratio:
+        raise ValueError(f"core {core_mhz} MHz / bus {fsb_mhz} MHz = {float(exact):.4f} is not a "
+                         "multiple of 1/4 (within 1%)")
+    return ratio
+
+
+def core_clocks(bus_clocks: int, ratio: Fraction) -> int:
+    """``ceil(bus_clocks * ratio)``, exactly."""
+    return -(-(bus_clocks * ratio.numerator) // ratio.denominator)
+
+
+@dataclass(frozen=True)
+class LineCosts:
+    """What one 32-byte line costs on a given CPU and memory, in core clocks."""
+
+    memory: str
+    ratio: Fraction
+    fill_bus_clocks: int
+    writeback_bus_clocks: int
+    fill: int
+    writeback: int
+
+
+def line_costs(timing: DramTiming, core_mhz: float, fsb_mhz: float) -> LineCosts:
+    """Line fill and line writeback in core clocks (rounded up) for a core at ``core_mhz`` on a
+    ``fsb_mhz`` bus. The memory must be rated for at least the bus clock."""
+    if fsb_mhz > timing.bus_mhz + 0.5:
+        raise ValueError(f"memory preset {timing.name} is rated for {timing.bus_mhz:g} MHz, "
+                         f"below the {fsb_mhz:g} MHz bus")
+    ratio = bus_ratio(core_mhz, fsb_mhz)
+    fill, wb = timing.line_fill_bus_clocks, timing.line_writeback_bus_clocks
+    return LineCosts(timing.name, ratio, fill, wb, core_clocks(fill, ratio), core_clocks(wb, ratio))
+
+
+def line_costs_for_cpu(cpu_preset: dict, memory: str | None = None) -> LineCosts:
+    """:func:`line_costs` for a parsed CPU preset, with its default memory unless ``memory`` names
+    another preset."""
+    clock = cpu_preset["clock"]
+    name = memory or cpu_preset["memory"]["default"]
+    return line_costs(load_memory_preset(name), clock["core_mhz"], clock["fsb_mhz"])
+
+
+class OpenRowModel:
+    """Builder for :func:`row_access`: the per-bank open-row array and the preset's row timings."""
+
+    def __init__(self, timing: DramTiming, row_bytes: int = DEFAULT_ROW_BYTES, banks: int = DEFAULT_BANKS):
+        if not timing.has_rows:
+            raise ValueError(f"memory preset {timing.name} gives no row-hit/row-miss timings; "
+                             "the open-row model needs row_open_hit/closed/conflict_bus_clocks")
+        for what, n in (("row_bytes", row_bytes), ("banks", banks)):
+            if n <= 0 or n & (n - 1):
+                raise ValueError(f"{what} must be a power of two, got {n}")
+        self.timing = timing
+        self.row_shift = row_bytes.bit_length() - 1
+        self.bank_mask = banks - 1
+        self.open_rows = np.full(banks, -1, np.int64)
+        self.leadoff = np.array([timing.row_hit, timing.row_closed, timing.row_conflict], np.int64)
+
+    def params(self):
+        """``(open_rows, row_shift, bank_mask, leadoff, burst_rest)``: the arguments of
+        :func:`row_access` after the address."""
+        return self.open_rows, self.row_shift, self.bank_mask, self.leadoff, self.timing.burst_bus_clocks
+
+    def reset(self) -> None:
+        self.open_rows.fill(-1)
+
+
+@njit(**HOT)
+def row_state(open_rows, row_shift, bank_mask, addr):
+    """ROW_HIT, ROW_CLOSED or ROW_CONFLICT for a line at ``addr`` (state not changed).
+    Address map: the low ``row_shift`` bits address within a row, the next bits pick the bank."""
+    bank = (addr >> row_shift) & bank_mask
+    row = addr >> row_shift  # the bank bits included: a unique row number
+    state = ROW_CONFLICT
+    if open_rows[bank] == row:
+        state = ROW_HIT
+    elif open_rows[bank] < 0:
+        state = ROW_CLOSED
+    return state
+
+
+@njit(**HOT)
+def row_access(addr, open_rows, row_shift, bank_mask, leadoff, burst_rest):
+    """Bus clocks of one line transfer (fill or writeback) at ``addr`` under the open-row model,
+    leaving the row open: ``leadoff[state] + burst_rest``."""
+    state = row_state(open_rows, row_shift, bank_mask, addr)
+    open_rows[(addr >> row_shift) & bank_mask] = addr >> row_shift
+    return leadoff[state] + burst_rest

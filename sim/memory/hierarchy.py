@@ -1,0 +1,594 @@
+"""A data-cache hierarchy of up to three levels (L1D, L2, optional board cache), compiled.
+
+The hierarchy is non-inclusive ("inclusive of nothing"): a miss is filled into every level on the
+miss path, and no level ever invalidates a line because another level evicted it. Each level is a
+:mod:`sim.memory.cache` level; this module walks a request down the levels:
+
+- a miss that allocates fetches the line from the next level first (a LOAD there), then writes
+  its dirty victim, if any, back to the next level (a WRITEBACK there);
+- a write that a level does not absorb (write-through, or a no-allocate miss) continues to the next
+  level as the same kind of request (FORWARD);
+- below the last level is memory, which counts line fills (LOAD), line writebacks (WRITEBACK) and
+  partial writes (STORE: no-allocate or write-through writes that reached the bus).
+
+The walk is depth first, so every level sees its requests in the order the hardware would issue
+them. All levels must have the same line size (true of every CPU modelled: 32 bytes).
+
+For the timing models: :func:`service` handles one CPU access (splitting it at line boundaries)
+and returns a packed result telling which level supplied the data and how much memory traffic the
+access caused; :func:`simulate` runs a whole trace. Both take the arrays of
+:meth:`Hierarchy.arrays` and update them in place.
+
+Storage: all levels live in one ``tags``/``stamps``/``dirty`` array each, level k in rows
+``row0 .. row0 + sets`` and its first ``ways`` columns (config columns CFG_ROW0/SETS/WAYS). One
+array per field, not a tuple of per-level arrays, because indexing a tuple of arrays with a run-time
+level costs numba reference counting on every request (measured: ~65 ns, the whole budget).
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+from numba import njit
+
+from .cache import (ALLOC_ALWAYS, ALLOC_PAGE_SECTOR, ALLOCATED, DIRTY_VICTIM, EVICT, FETCH, FORWARD, HIT,
+                    HOT, LOAD, PAGE_BITS, PAGE_SECTOR, STORE, WRITEBACK, CacheGeometry, CacheState,
+                    lookup, victim_address)
+
+MAX_LEVELS = 3
+POLICIES_FILE = Path(__file__).with_name("policies.toml")
+PRESETS_DIR = Path(__file__).resolve().parent.parent / "cpus" / "presets"
+
+# Columns of the per-level config array.
+CFG_OFFSET_BITS, CFG_WRITE_ALLOCATE, CFG_WRITE_BACK, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS = range(7)
+NCFG = 7
+
+# Columns of the counts array [levels + 1, NSTATS]; the last row is memory. A request of kind k
+# (LOAD/STORE/WRITEBACK = 0/1/2) is counted in column 2k, and its hit in column 2k + 1. For memory,
+# LOADS = line fills, STORES = partial writes, WRITEBACKS_IN = line writebacks.
+(S_LOADS, S_LOAD_HITS, S_STORES, S_STORE_HITS, S_WRITEBACKS_IN, S_WRITEBACK_HITS, S_FILLS,
+ S_EVICTIONS, S_WRITEBACKS, S_FORWARDED, S_COMPULSORY, S_CAPACITY, S_CONFLICT) = range(13)
+NSTATS = 13
+
+# Packed result of service(): the level that supplied the data (levels = memory) in bits 0-7, then
+# 8-bit counts of the memory traffic the access caused.
+SERVED_MASK = 0xFF
+MEM_FILL_SHIFT, MEM_WRITEBACK_SHIFT, MEM_PARTIAL_SHIFT, LINES_SHIFT = 8, 16, 24, 32
+
+# The walk's work array: [0] the LRU clock (a request counter), [1 + level] the page of the level's
+# last line fill (for the K6 "page+sector" write-allocate rule; -1 = none), then a stack of pending
+# requests (at most two pushed per request and level: a few entries deep).
+FILL_PAGE_BASE = 1
+STACK_BASE = FILL_PAGE_BASE + MAX_LEVELS
+WORK_SIZE = 32
+
+# Rows of the miss-classification shadow array [levels, 4, distinct lines].
+SH_SEEN, SH_IN, SH_PREV, SH_NEXT = range(4)
+# Columns of the shadow meta array [levels, 4]: the fully-associative LRU list.
+FA_HEAD, FA_TAIL, FA_COUNT, FA_CAPACITY = range(4)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def served_level(result):
+    """Level that supplied the line (0 = L1 hit; ``levels`` = memory) for a :func:`service` result;
+    for a split access, the slower of its two lines. For a write that no level allocated: where it
+    was absorbed."""
+    return result & SERVED_MASK
+
+
+@njit(cache=True, nogil=True, inline="always")
+def memory_fills(result):
+    return (result >> MEM_FILL_SHIFT) & 0xFF
+
+
+@njit(cache=True, nogil=True, inline="always")
+def memory_writebacks(result):
+    return (result >> MEM_WRITEBACK_SHIFT) & 0xFF
+
+
+@njit(cache=True, nogil=True, inline="always")
+def memory_partial_writes(result):
+    return (result >> MEM_PARTIAL_SHIFT) & 0xFF
+
+
+@njit(cache=True, nogil=True, inline="always")
+def lines_touched(result):
+    return (result >> LINES_SHIFT) & 0xFF
+
+
+@njit(**HOT)
+def _fa_touch(sh, meta, k, i):
+    """Move line id i to the MRU end of level k's shadow list (it is in the list)."""
+    if meta[k, FA_HEAD] == i:
+        return
+    p, n = sh[k, SH_PREV, i], sh[k, SH_NEXT, i]
+    sh[k, SH_NEXT, p] = n  # i is not the head, so p >= 0
+    if n >= 0:
+        sh[k, SH_PREV, n] = p
+    else:
+        meta[k, FA_TAIL] = p
+    _fa_push(sh, meta, k, i)
+
+
+@njit(**HOT)
+def _fa_push(sh, meta, k, i):
+    head = meta[k, FA_HEAD]
+    sh[k, SH_PREV, i] = -1
+    sh[k, SH_NEXT, i] = head
+    if head >= 0:
+        sh[k, SH_PREV, head] = i
+    else:
+        meta[k, FA_TAIL] = i
+    meta[k, FA_HEAD] = i
+
+
+@njit(**HOT)
+def _fa_access(sh, meta, k, i, kind, allocate):
+    """The fully-associative LRU cache of the same size as level k, fed the same requests and with
+    the same touch and allocate rules; returns whether it hit."""
+    if sh[k, SH_IN, i]:
+        if kind != WRITEBACK:
+            _fa_touch(sh, meta, k, i)
+        return True
+    if kind == LOAD or allocate:
+        if meta[k, FA_COUNT] == meta[k, FA_CAPACITY]:
+            t = meta[k, FA_TAIL]
+            p = sh[k, SH_PREV, t]
+            sh[k, SH_IN, t] = 0
+            meta[k, FA_TAIL] = p
+            if p >= 0:
+                sh[k, SH_NEXT, p] = -1
+            else:
+                meta[k, FA_HEAD] = -1
+            meta[k, FA_COUNT] -= 1
+        _fa_push(sh, meta, k, i)
+        sh[k, SH_IN, i] = 1
+        meta[k, FA_COUNT] += 1
+    return False
+
+
+@njit(**HOT)
+def _classify(uniq, sh, meta, stats, level, line, kind, allocate, hit):
+    """Dinero-style 3C: compulsory = first request for the line at this level; capacity = a
+    fully-associative LRU cache of the same size misses too; conflict = the rest. ``allocate``:
+    whether this write would allocate on a miss (the real cache's decision)."""
+    i = np.searchsorted(uniq, line)
+    first = sh[level, SH_SEEN, i] == 0
+    sh[level, SH_SEEN, i] = 1
+    fa_hit = _fa_access(sh, meta, level, i, kind, allocate)
+    if not hit:
+        if first:
+            stats[level, S_COMPULSORY] += 1
+        elif not fa_hit:
+            stats[level, S_CAPACITY] += 1
+        else:
+            stats[level, S_CONFLICT] += 1
+
+
+@njit(**HOT)
+def _push(work, sp, addr, level, kind, primary):
+    work[sp] = (addr << 8) | (level << 4) | (kind << 1) | primary
+    return sp + 1
+
+
+@njit(**HOT)
+def _step(tags, stamps, dirty, config, work, stats, sp):
+    """Pop one pending request off the stack in ``work``, perform it, and push the requests it
+    causes in reverse order of execution (the fetch runs first, then the victim's writeback, then
+    the forwarded write), so the walk is depth first, as in the hardware. Returns ``(sp, entry,
+    code)``; ``code`` is -1 for a request that reached memory.
+
+    The stack stands in for recursion, which numba cannot cache. An entry packs the line address,
+    level, kind and a "primary" bit: the primary chain is the path the CPU's data takes (the fetch,
+    or a write no level absorbed); its deepest level is the one that served the access.
+    """
+    sp -= 1
+    e = work[sp]
+    addr, level, kind, primary = e >> 8, (e >> 4) & 0xF, (e >> 1) & 0x7, e & 1
+    stats[level, 2 * kind] += 1
+    code = -1  # memory
+    if level < config.shape[0]:  # (one exit only: see cache.lookup)
+        now = work[0]
+        work[0] = now + 1
+        code = lookup(tags, stamps, dirty, config[level, CFG_ROW0], config[level, CFG_SETS],
+                      config[level, CFG_WAYS], config[level, CFG_OFFSET_BITS], addr, kind,
+                      config[level, CFG_WRITE_ALLOCATE], config[level, CFG_WRITE_BACK],
+                      config[level, CFG_REPLACEMENT], now, work[FILL_PAGE_BASE + level])
+        if code & HIT:
+            stats[level, 2 * kind + 1] += 1
+        if code & FORWARD:
+            stats[level, S_FORWARDED] += 1
+            absorbed = code & (HIT | ALLOCATED) != 0
+            sp = _push(work, sp, addr, level + 1, kind, primary & (not absorbed))
+        if code & EVICT:
+            stats[level, S_EVICTIONS] += 1
+            if code & DIRTY_VICTIM:
+                stats[level, S_WRITEBACKS] += 1
+                sp = _push(work, sp, victim_address(code), level + 1, WRITEBACK, 0)
+        if code & FETCH:
+            stats[level, S_FILLS] += 1
+            work[FILL_PAGE_BASE + level] = addr >> PAGE_BITS
+            sp = _push(work, sp, addr, level + 1, LOAD, primary)
+    return sp, e, code
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _account(result, e, nlevels):
+    """Fold one performed request into the packed result: deepest primary level, memory traffic."""
+    level, kind = (e >> 4) & 0xF, (e >> 1) & 0x7
+    if e & 1 and level > (result & SERVED_MASK):
+        result = (result & ~SERVED_MASK) | level
+    if level == nlevels:
+        result += 1 << (MEM_FILL_SHIFT if kind == LOAD else
+                        MEM_WRITEBACK_SHIFT if kind == WRITEBACK else MEM_PARTIAL_SHIFT)
+    return result
+
+
+@njit(**HOT)
+def service(tags, stamps, dirty, config, work, stats, addr, size, is_write):
+    """One CPU data access of ``size`` bytes at ``addr`` (read, or write if ``is_write``).
+
+    ``tags``/``stamps``/``dirty`` (all levels in one array each), ``config`` int64
+    ``[levels, NCFG]`` and ``work`` int64 ``[WORK_SIZE]`` (the LRU clock and the walk's stack)
+    are as given by :meth:`Hierarchy.arrays`; ``stats`` int64 ``[levels + 1, NSTATS]`` gets the
+    counts added (:meth:`Hierarchy.new_counts`).
+
+    Returns a packed int64: ``served_level(r)`` (0 = L1 hit, ``levels`` = memory; for an access
+    that crosses a line boundary, the slower line), ``memory_fills(r)``, ``memory_writebacks(r)``,
+    ``memory_partial_writes(r)`` and ``lines_touched(r)``.
+    """
+    nlevels = config.shape[0]
+    ob = config[0, CFG_OFFSET_BITS]
+    first, last = addr >> ob, (addr + size - 1) >> ob
+    kind = STORE if is_write else LOAD
+    served = 0
+    traffic = 0
+    for line in range(first, last + 1):
+        r = 0
+        sp = _push(work, STACK_BASE, line << ob, 0, kind, 1)
+        while sp > STACK_BASE:
+            sp, e, code = _step(tags, stamps, dirty, config, work, stats, sp)
+            r = _account(r, e, nlevels)
+        served = max(served, r & SERVED_MASK)
+        traffic += r & ~SERVED_MASK
+    return served | traffic | ((last - first + 1) << LINES_SHIFT)
+
+
+@njit(cache=True, nogil=True)
+def simulate(tags, stamps, dirty, config, work, mem_addr, mem_size, mem_write):
+    """Run a whole trace through the hierarchy (state updated in place; a warm start is allowed).
+
+    Returns the counts, int64 ``[levels + 1, NSTATS]`` (columns ``S_*``; the last row is memory).
+    Counts are per line: an access that crosses a line boundary is two L1 requests.
+    """
+    stats = np.zeros((config.shape[0] + 1, NSTATS), np.int64)
+    for j in range(mem_addr.shape[0]):
+        service(tags, stamps, dirty, config, work, stats, np.int64(mem_addr[j]), np.int64(mem_size[j]),
+                mem_write[j])
+    return stats
+
+
+@njit(cache=True, nogil=True)
+def simulate_classified(tags, stamps, dirty, config, work, mem_addr, mem_size, mem_write, uniq):
+    """:func:`simulate` plus the compulsory/capacity/conflict split of every level's misses
+    (columns S_COMPULSORY, S_CAPACITY, S_CONFLICT). Start from cold caches. ``uniq`` is the sorted
+    array of every line number the trace touches; lines are identified by their index in it."""
+    nlevels = config.shape[0]
+    stats = np.zeros((nlevels + 1, NSTATS), np.int64)
+    sh = np.zeros((nlevels, 4, uniq.shape[0]), np.int64)
+    sh[:, SH_PREV, :] = -1
+    sh[:, SH_NEXT, :] = -1
+    meta = np.full((nlevels, 4), -1, np.int64)
+    for k in range(nlevels):
+        meta[k, FA_COUNT] = 0
+        meta[k, FA_CAPACITY] = config[k, CFG_SETS] * config[k, CFG_WAYS]
+    for j in range(mem_addr.shape[0]):
+        a = np.int64(mem_addr[j])
+        ob = config[0, CFG_OFFSET_BITS]
+        for line in range(a >> ob, ((a + mem_size[j] - 1) >> ob) + 1):
+            sp = _push(work, STACK_BASE, line << ob, 0, STORE if mem_write[j] else LOAD, 1)
+            while sp > STACK_BASE:
+                sp, e, code = _step(tags, stamps, dirty, config, work, stats, sp)
+                if code >= 0:
+                    level = (e >> 4) & 0xF
+                    policy = config[level, CFG_WRITE_ALLOCATE]
+                    # under the K6 rule a present line means a present sector: it would allocate
+                    allocate = policy == ALLOC_ALWAYS or (policy == ALLOC_PAGE_SECTOR
+                                                          and code & (HIT | ALLOCATED) != 0)
+                    _classify(uniq, sh, meta, stats, level, (e >> 8) >> config[level, CFG_OFFSET_BITS],
+                              (e >> 1) & 0x7, allocate, code & HIT)
+    return stats
+
+
+@njit(cache=True, nogil=True)
+def _trace_lines(mem_addr, mem_size, offset_bits):
+    total = 0
+    for j in range(mem_addr.shape[0]):
+        a = np.int64(mem_addr[j])
+        total += ((a + mem_size[j] - 1) >> offset_bits) - (a >> offset_bits) + 1
+    out = np.empty(total, np.int64)
+    n = 0
+    for j in range(mem_addr.shape[0]):
+        a = np.int64(mem_addr[j])
+        for line in range(a >> offset_bits, ((a + mem_size[j] - 1) >> offset_bits) + 1):
+            out[n] = line
+            n += 1
+    return out
+
+
+# --- results -----------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class LevelStats:
+    """Counts of one level, per line-sized request. ``loads``/``stores`` come from the CPU (L1) or
+    the level above (fills it requested, writes it passed on); ``writebacks_in`` are dirty lines
+    the level above evicted. ``fills`` = lines fetched from the next level, ``evictions`` = valid
+    lines replaced, ``writebacks`` = dirty ones among them, ``forwarded`` = writes passed on.
+    The 3C split is None unless the run asked for it."""
+
+    name: str
+    loads: int
+    load_hits: int
+    stores: int
+    store_hits: int
+    writebacks_in: int
+    writeback_hits: int
+    fills: int
+    evictions: int
+    writebacks: int
+    forwarded: int
+    compulsory: int | None = None
+    capacity: int | None = None
+    conflict: int | None = None
+
+    @property
+    def load_misses(self) -> int:
+        return self.loads - self.load_hits
+
+    @property
+    def store_misses(self) -> int:
+        return self.stores - self.store_hits
+
+    @property
+    def writeback_misses(self) -> int:
+        return self.writebacks_in - self.writeback_hits
+
+    @property
+    def requests(self) -> int:
+        return self.loads + self.stores + self.writebacks_in
+
+    @property
+    def hits(self) -> int:
+        return self.load_hits + self.store_hits + self.writeback_hits
+
+    @property
+    def misses(self) -> int:
+        return self.requests - self.hits
+
+    @property
+    def miss_rate(self) -> float:
+        return self.misses / self.requests if self.requests else 0.0
+
+
+@dataclass(frozen=True)
+class MemoryStats:
+    line_fills: int
+    line_writebacks: int
+    partial_writes: int
+
+
+@dataclass(frozen=True)
+class HierarchyStats:
+    accesses: int               # CPU data accesses in the trace
+    levels: tuple[LevelStats, ...]
+    memory: MemoryStats
+
+    @property
+    def line_accesses(self) -> int:
+        return self.levels[0].loads + self.levels[0].stores
+
+    @property
+    def crossing_accesses(self) -> int:
+        """Accesses that touched more than one line (for accesses no larger than a line)."""
+        return self.line_accesses - self.accesses
+
+    def level(self, name: str) -> LevelStats:
+        for s in self.levels:
+            if s.name == name:
+                return s
+        raise KeyError(f"no cache level named {name!r} (levels: {', '.join(s.name for s in self.levels)})")
+
+    def table(self) -> list[dict[str, object]]:
+        """One row per level, then one for memory, for reports (md/csv/json)."""
+        rows: list[dict[str, object]] = []
+        for s in self.levels:
+            row = {"level": s.name, "loads": s.loads, "load_misses": s.load_misses, "stores": s.stores,
+                   "store_misses": s.store_misses, "writebacks_in": s.writebacks_in,
+                   "writeback_misses": s.writeback_misses, "hits": s.hits, "misses": s.misses,
+                   "miss_rate": round(s.miss_rate, 6), "fills": s.fills, "evictions": s.evictions,
+                   "writebacks": s.writebacks, "forwarded": s.forwarded}
+            if s.compulsory is not None:
+                row.update(compulsory=s.compulsory, capacity=s.capacity, conflict=s.conflict)
+            rows.append(row)
+        m = self.memory
+        rows.append({"level": "memory", "line_fills": m.line_fills, "line_writebacks": m.line_writebacks,
+                     "partial_writes": m.partial_writes})
+        return rows
+
+    @classmethod
+    def from_counts(cls, names: Sequence[str], counts: np.ndarray, accesses: int,
+                    classified: bool = False) -> HierarchyStats:
+        levels = []
+        for name, row in zip(names, counts[:-1]):
+            c = [int(x) for x in row]
+            levels.append(LevelStats(
+                name, c[S_LOADS], c[S_LOAD_HITS], c[S_STORES], c[S_STORE_HITS], c[S_WRITEBACKS_IN],
+                c[S_WRITEBACK_HITS], c[S_FILLS], c[S_EVICTIONS], c[S_WRITEBACKS], c[S_FORWARDED],
+                *((c[S_COMPULSORY], c[S_CAPACITY], c[S_CONFLICT]) if classified else (None, None, None))))
+        mem = counts[-1]
+        return cls(int(accesses), tuple(levels),
+                   MemoryStats(int(mem[S_LOADS]), int(mem[S_WRITEBACKS_IN]), int(mem[S_STORES])))
+
+
+# --- builder -----------------------------------------------------------------------------------
+
+class Hierarchy:
+    """Builder and holder of a hierarchy's arrays; :meth:`run` simulates a trace."""
+
+    def __init__(self, geometries: Sequence[CacheGeometry]):
+        geometries = tuple(geometries)
+        if not 1 <= len(geometries) <= MAX_LEVELS:
+            raise ValueError(f"a hierarchy has 1 to {MAX_LEVELS} cache levels, got {len(geometries)}")
+        names = [g.name for g in geometries]
+        if len(set(names)) != len(names):
+            raise ValueError(f"cache level names must be unique, got {names}")
+        line = geometries[0].line_bytes
+        for g in geometries[1:]:
+            if g.line_bytes != line:
+                raise ValueError(f"{g.name}: line size {g.line_bytes} differs from {geometries[0].name}'s "
+                                 f"{line}; all levels must share one line size")
+        self.geometries = geometries
+        # One array per field for all levels (see the module docstring), padded to the widest level.
+        rows = sum(g.sets for g in geometries)
+        width = max(g.ways for g in geometries)
+        self.tags = np.full((rows, width), -1, np.int64)
+        self.stamps = np.full((rows, width), -1, np.int64)
+        self.dirty = np.zeros((rows, width), np.uint8)
+        config, states, row0 = [], [], 0
+        for g in geometries:
+            view = np.s_[row0:row0 + g.sets, :g.ways]
+            states.append(CacheState(g, (self.tags[view], self.stamps[view], self.dirty[view])))
+            config.append([g.offset_bits, g.allocate_id, g.write_back, g.replacement_id, row0, g.sets, g.ways])
+            row0 += g.sets
+        self.states = tuple(states)
+        self.config = np.array(config, dtype=np.int64)
+        self.work = np.zeros(WORK_SIZE, np.int64)
+        self.reset()
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(g.name for g in self.geometries)
+
+    def arrays(self):
+        """``(tags, stamps, dirty, config, work)``: the first five arguments of :func:`service`,
+        :func:`simulate` and :func:`simulate_classified` (all levels in one array per field)."""
+        return self.tags, self.stamps, self.dirty, self.config, self.work
+
+    def new_counts(self) -> np.ndarray:
+        """A zeroed counts array for :func:`service`."""
+        return np.zeros((len(self.states) + 1, NSTATS), np.int64)
+
+    def reset(self) -> None:
+        self.tags.fill(-1)
+        self.stamps.fill(-1)
+        self.dirty.fill(0)
+        self.work.fill(0)
+        self.work[FILL_PAGE_BASE:FILL_PAGE_BASE + MAX_LEVELS] = -1
+
+    def run(self, trace, *, classify: bool = False, cold: bool = True) -> HierarchyStats:
+        """Simulate ``trace`` (anything with ``mem_addr``/``mem_size``/``mem_write`` arrays, e.g. a
+        :class:`sim.trace.Trace`). ``cold`` empties the caches first; ``classify`` adds the
+        compulsory/capacity/conflict split of each level's misses (needs a cold start)."""
+        addr = np.ascontiguousarray(trace.mem_addr, dtype=np.uint32)
+        size = np.ascontiguousarray(trace.mem_size, dtype=np.uint8)
+        write = np.ascontiguousarray(trace.mem_write, dtype=np.bool_)
+        if not addr.shape == size.shape == write.shape or addr.ndim != 1:
+            raise ValueError("trace mem_addr, mem_size and mem_write must be 1-D arrays of one length")
+        if size.size and not size.min():
+            raise ValueError("trace mem_size: zero-byte access")
+        if cold:
+            self.reset()
+        elif classify:
+            raise ValueError("miss classification needs a cold start (cold=True)")
+        if classify:
+            uniq = np.unique(_trace_lines(addr, size, self.geometries[0].offset_bits))
+            counts = simulate_classified(*self.arrays(), addr, size, write, uniq)
+        else:
+            counts = simulate(*self.arrays(), addr, size, write)
+        return HierarchyStats.from_counts(self.names, counts, addr.size, classified=classify)
+
+    @classmethod
+    def from_preset(cls, preset) -> Hierarchy:
+        """The data-cache hierarchy of a CPU preset: a parsed ``sim/cpus/presets/*.toml``, its name,
+        or a :class:`sim.cpus.presets.CpuPreset`. Levels: ``[l1d]``, ``[l2]`` unless
+        ``present = false``, and an optional ``[l3]`` (the K6-III's board cache).
+
+        Policies default to the family's (``cpu_model``) in ``policies.toml``; a level's section may
+        override ``replacement``, ``write_back``, ``write_allocate`` or give ``write_policy =
+        "write-back" | "write-through"``, and a top-level ``[write_allocate] mode = "full" |
+        "page+sector only"`` sets the L1D's write allocation (the K6 presets).
+        """
+        if isinstance(preset, str):
+            preset = load_cpu_preset(preset)
+        preset = getattr(preset, "raw", preset)
+        name = preset.get("name", "<preset>")
+        family = preset.get("cpu_model")
+        policies = family_policies()
+        if family not in policies:
+            raise ValueError(f"CPU preset {name}: cpu_model {family!r} has no cache policies in "
+                             f"{POLICIES_FILE.name} (known: {', '.join(sorted(policies))})")
+        geometries = []
+        for level in ("l1d", "l2", "l3"):
+            section = preset.get(level)
+            if section is None or not section.get("present", True):
+                continue
+            defaults = policies[family].get(level)
+            if defaults is None:
+                raise ValueError(f"CPU preset {name}: [{level}] given but {POLICIES_FILE.name} has no "
+                                 f"[{family}.{level}] policy")
+            try:
+                kwargs = dict(size_bytes=int(section["size_kb"] * 1024), ways=section["ways"],
+                              line_bytes=section.get("line_bytes", 32))
+            except KeyError as e:
+                raise ValueError(f"CPU preset {name}: [{level}] lacks field {e.args[0]}") from None
+            for key in ("replacement", "write_back", "write_allocate"):
+                kwargs[key] = section.get(key, defaults[key])
+            if "write_policy" in section:
+                kwargs["write_back"] = _choice(name, f"[{level}] write_policy", section["write_policy"],
+                                               {"write-back": True, "write-through": False})
+            if level == "l1d" and "write_allocate" in preset:
+                kwargs["write_allocate"] = _choice(name, "[write_allocate] mode", preset["write_allocate"].get("mode"),
+                                                   WRITE_ALLOCATE_MODES)
+            try:
+                geometries.append(CacheGeometry(level.upper(), **kwargs))
+            except ValueError as e:
+                raise ValueError(f"CPU preset {name}: {e}") from None
+        if not geometries:
+            raise ValueError(f"CPU preset {name}: no [l1d] section")
+        return cls(geometries)
+
+
+# The K6 presets' [write_allocate] mode (see sim/memory/cache.py for what each means).
+WRITE_ALLOCATE_MODES = {"full": True, "page+sector only": PAGE_SECTOR, "none": False}
+
+
+def _choice(preset: str, field: str, value, choices: dict):
+    if value not in choices:
+        raise ValueError(f"CPU preset {preset}: {field} = {value!r} is not one of "
+                         f"{', '.join(repr(c) for c in choices)}")
+    return choices[value]
+
+
+def family_policies() -> dict:
+    with open(POLICIES_FILE, "rb") as f:
+        return tomllib.load(f)
+
+
+def load_cpu_preset(name: str) -> dict:
+    path = PRESETS_DIR / f"{name}.toml"
+    if not path.is_file():
+        known = sorted(p.stem for p in PRESETS_DIR.glob("*.toml"))
+        raise ValueError(f"unknown CPU preset {name!r} (available: {', '.join(known)})")
+    with open(path, "rb") as f:
+        return tomllib.load(f)
+
+
+__all__ = [
+    "Hierarchy", "HierarchyStats", "LevelStats", "MemoryStats", "service", "simulate",
+    "simulate_classified", "served_level", "memory_fills", "memory_writebacks",
+    "memory_partial_writes", "lines_touched", "NSTATS", "load_cpu_preset", "family_policies",
+]

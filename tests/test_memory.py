@@ -1,0 +1,426 @@
+"""Caches and DRAM timing (sim.memory): exact agreement with pycachesim, hand-computed cases, miss
+classification by construction, DRAM costs worked out from the presets, determinism, throughput."""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from sim.memory import (DIRTY_VICTIM, EVICT, FETCH, FORWARD, HIT, LOAD, STORE, CacheGeometry,
+                        CacheState, Hierarchy, OpenRowModel, bus_ratio, line_costs,
+                        line_costs_for_cpu, line_span, lines_touched, load_memory_preset,
+                        memory_fills, memory_writebacks, row_access, served_level, service,
+                        victim_address)
+from sim.memory.hierarchy import family_policies, load_cpu_preset
+
+KB = 1024
+
+
+def trace_of(addr, size, write):
+    return SimpleNamespace(mem_addr=np.asarray(addr, np.uint32), mem_size=np.asarray(size, np.uint8),
+                           mem_write=np.asarray(write, np.bool_))
+
+
+def synthetic_trace(n=60_000, seed=7):
+    """Random, strided and span-like accesses of 1-8 bytes, with misaligned ones that cross lines."""
+    rng = np.random.default_rng(seed)
+    k = n // 3
+    rand = 0x10000000 + rng.integers(0, 256 * KB, k)
+    stride = 0x20000000 + (np.arange(k) * 72) % (192 * KB)                    # 72 B stride: crosses lines
+    i = np.arange(n - 2 * k)
+    span = np.where(i % 2 == 0, 0x30000000 + i * 2, 0x30100000 + i * 2 + 1)  # z read, odd-aligned fb write
+    addr = np.concatenate([rand, stride, span])
+    size = np.concatenate([rng.choice([1, 2, 4, 8], k), np.full(k, 4), np.full(n - 2 * k, 2)])
+    write = np.concatenate([rng.random(k) < 0.4, rng.random(k) < 0.5, i % 2 == 1])
+    order = rng.permutation(n) if seed % 2 else np.arange(n)  # odd seeds interleave the three patterns
+    return trace_of(addr[order], size[order], write[order])
+
+
+# --- pycachesim cross-check -------------------------------------------------------------------------
+
+def pycachesim_run(geometries, trace):
+    """Run pycachesim on the same trace; return per-level counts in our terms.
+
+    Mapping (pycachesim 0.3, RRZE-HPC; cachesim/backend.c read for its semantics):
+    - pycachesim's store() marks a present line dirty without refreshing its LRU position and
+      without counting a hit; a store miss (write-allocate) is counted as a LOAD and a MISS of the
+      level. We refresh LRU on store hits (true LRU), so a CPU store is fed as load(a) then store(a):
+      the load does the lookup, LRU update and fill, the store only sets the dirty bit.
+    - per-kind L1 hits and misses come from HIT/MISS counter deltas over runs of loads or stores;
+    - HIT/MISS count lines (a line-crossing access is two), LOAD/STORE count calls;
+    - a dirty L1 victim is store()d into L2: a hit there marks it dirty without an LRU update (as in
+      our model); a miss is *loaded from memory* first (LOAD+MISS at L2, a memory load) and then
+      dirtied, where we allocate the whole line without a fetch. The cache states agree; only the
+      counts differ: pycachesim L2 MISS = our load misses + writeback misses, L2 LOAD = our fill
+      requests + writeback misses, memory loads = our line fills + L2 writeback misses.
+    """
+    cachesim = pytest.importorskip("cachesim")
+    policy = {"lru": "LRU", "fifo": "FIFO"}
+    lower, caches = None, []
+    for g in reversed(geometries):
+        assert g.write_back and g.write_allocate
+        c = cachesim.Cache(g.name, g.sets, g.ways, g.line_bytes, policy[g.replacement], write_back=True,
+                           write_allocate=True, load_from=lower, store_to=lower)
+        caches.insert(0, c)
+        lower = c
+    mem = cachesim.MainMemory()
+    mem.load_to(caches[-1])
+    mem.store_from(caches[-1])
+    sim = cachesim.CacheSimulator(caches[0], mem)
+    l1 = caches[0]
+    per_kind = dict(load_hits=0, load_misses=0, store_hits=0, store_misses=0)
+    key = trace.mem_write.astype(np.int64) * 256 + trace.mem_size
+    for run in np.split(np.arange(key.size), np.flatnonzero(np.diff(key)) + 1):
+        write, size = bool(trace.mem_write[run[0]]), int(trace.mem_size[run[0]])
+        addrs = [int(a) for a in trace.mem_addr[run]]
+        hits, misses = l1.HIT_count, l1.MISS_count
+        if write:
+            sim.loadstore([([a], [a]) for a in addrs], length=size)
+        else:
+            sim.load(addrs, length=size)
+        kind = "store" if write else "load"
+        per_kind[f"{kind}_hits"] += l1.HIT_count - hits
+        per_kind[f"{kind}_misses"] += l1.MISS_count - misses
+    return per_kind, [c.stats() for c in caches], mem.stats()
+
+
+def assert_matches_pycachesim(geometries, trace):
+    ours = Hierarchy(geometries).run(trace)
+    per_kind, levels, mem = pycachesim_run(geometries, trace)
+    l1 = ours.levels[0]
+    assert per_kind == dict(load_hits=l1.load_hits, load_misses=l1.load_misses,
+                            store_hits=l1.store_hits, store_misses=l1.store_misses)
+    assert levels[0]["EVICT_count"] == l1.writebacks
+    writeback_misses = 0
+    for ours_l, theirs in zip(ours.levels[1:], levels[1:]):
+        assert ours_l.stores == 0  # write-back, write-allocate above: only fills and writebacks arrive
+        assert theirs["HIT_count"] == ours_l.load_hits
+        assert theirs["MISS_count"] == ours_l.load_misses + ours_l.writeback_misses
+        assert theirs["LOAD_count"] == ours_l.loads + ours_l.writeback_misses
+        assert theirs["STORE_count"] == ours_l.writebacks_in
+        assert theirs["EVICT_count"] == ours_l.writebacks
+        writeback_misses = ours_l.writeback_misses
+    assert mem["LOAD_count"] == ours.memory.line_fills + writeback_misses
+    assert mem["STORE_count"] == ours.memory.line_writebacks
+    return ours
+
+
+CONFIGS = {
+    # the Celeron 300A: 16 KB 4-way L1D, 128 KB 4-way on-die L2
+    "celeron-300a": [CacheGeometry("L1D", 16 * KB, 4), CacheGeometry("L2", 128 * KB, 4)],
+    # a direct-mapped L2 barely larger than L1: dirty L1 victims often miss it (non-inclusive)
+    "small-dm-l2": [CacheGeometry("L1D", 4 * KB, 2), CacheGeometry("L2", 8 * KB, 1)],
+    "fifo": [CacheGeometry("L1D", 8 * KB, 2, replacement="fifo"),
+             CacheGeometry("L2", 32 * KB, 4, replacement="fifo")],
+    "l1-only-dm": [CacheGeometry("L1D", 2 * KB, 1)],
+}
+
+
+@pytest.mark.parametrize("seed", [7, 8])
+@pytest.mark.parametrize("config", CONFIGS)
+def test_matches_pycachesim_on_synthetic_trace(config, seed):
+    trace = synthetic_trace(seed=seed)
+    ours = assert_matches_pycachesim(CONFIGS[config], trace)
+    assert ours.crossing_accesses > 1000  # the trace does exercise line-crossing accesses
+    assert ours.levels[0].writebacks > 0
+    if config == "small-dm-l2":
+        assert ours.levels[1].writeback_misses > 0  # the mapping's special case is exercised
+
+
+@pytest.fixture(scope="module")
+def fp16z_traces():
+    """The fp16z span kernel over 20000 pixels, with aligned buffers and with buffers at odd
+    addresses (every 16th 2-byte access then crosses a line)."""
+    from sim.emu import Machine
+    m = Machine.from_source("kernels/zbuffer/fp16z.S")
+    n = 20000
+    traces = {}
+    for misalign in (0, 1):
+        m.arena.reset()
+        zb = m.arena.put(np.full(n + 1, 0xFFFF, np.uint16)) + misalign
+        fb = m.arena.put(np.zeros(n + 1, np.uint16)) + misalign
+        traces[misalign] = m.call("fp16z_span", zb, fb, n, 1 << 30, 12345, 0x1234, trace=True).trace
+    return traces
+
+
+@pytest.mark.parametrize("misalign", [0, 1])
+@pytest.mark.parametrize("config", ["celeron-300a", "small-dm-l2"])
+def test_matches_pycachesim_on_emulator_trace(fp16z_traces, config, misalign):
+    trace = fp16z_traces[misalign]
+    assert trace.accesses > 40000 and trace.writes > 20000
+    ours = assert_matches_pycachesim(CONFIGS[config], trace)
+    assert (ours.crossing_accesses > 0) == bool(misalign)
+    assert ours.levels[0].load_misses > 1000  # 80 KB of buffers through a 16 KB L1
+
+
+# --- hand-computed cases ------------------------------------------------------------------------------
+
+def test_direct_mapped_conflict_pair_thrashes():
+    """1 KB direct-mapped, 32 B lines: 0x0 and 0x400 share set 0 and evict each other every time;
+    0x20 (set 1) is unaffected."""
+    addr = [0x0, 0x400] * 10 + [0x20, 0x20]
+    s = Hierarchy([CacheGeometry("L1D", 1 * KB, 1)]).run(trace_of(addr, [4] * 22, [False] * 22)).levels[0]
+    assert (s.loads, s.load_hits, s.load_misses) == (22, 1, 21)
+    assert s.evictions == 19 and s.writebacks == 0
+
+
+def test_four_way_set_evicts_least_recently_used():
+    """5 lines into one set of a 4-way cache: the victim is the line used longest ago (LRU), or the
+    one filled first (FIFO/LRA)."""
+    g = CacheGeometry("L1D", 4 * KB, 4)  # 32 sets: lines 1 KB apart share a set
+    lines = [k * 1024 for k in range(5)]
+    for replacement, victim in (("lru", lines[1]), ("fifo", lines[0])):
+        c = CacheState(CacheGeometry(g.name, g.size_bytes, g.ways, replacement=replacement))
+        for a in lines[:4]:
+            assert c.access(a) == FETCH | 32  # ALLOCATED: a cold miss, no eviction
+        assert c.access(lines[0]) == HIT  # refreshes line 0 under LRU only
+        code = c.access(lines[4])
+        assert code & EVICT and not code & DIRTY_VICTIM
+        assert victim_address(code) == victim
+        assert not c.contains(victim) and c.contains(lines[4])
+
+
+def test_write_hit_marks_dirty_and_eviction_writes_back():
+    """Load A, store A (a hit: dirty), load B in A's set: A is written back. Then B is evicted clean."""
+    g = CacheGeometry("L1D", 1 * KB, 1)
+    trace = trace_of([0x0, 0x2, 0x400, 0x0], [4, 2, 4, 4], [False, True, False, False])
+    s = Hierarchy([g]).run(trace)
+    l1 = s.levels[0]
+    assert (l1.load_hits, l1.store_hits, l1.load_misses) == (0, 1, 3)
+    assert (l1.evictions, l1.writebacks) == (2, 1)
+    assert (s.memory.line_fills, s.memory.line_writebacks, s.memory.partial_writes) == (3, 1, 0)
+    c = CacheState(g)
+    c.access(0x0)
+    c.access(0x2, STORE)
+    code = c.access(0x400)
+    assert code & DIRTY_VICTIM and victim_address(code) == 0x0
+
+
+def test_no_write_allocate_write_miss_does_not_fill():
+    """P5-style write-back, no-write-allocate: a write miss goes to memory and leaves the cache as
+    it was; a write hit is absorbed (dirty), and written back on eviction."""
+    g = CacheGeometry("L1D", 1 * KB, 1, write_allocate=False)
+    c = CacheState(g)
+    assert c.access(0x100, STORE) == FORWARD and not c.contains(0x100)
+    trace = trace_of([0x100, 0x100, 0x100, 0x104, 0x500], [4] * 5, [True, False, True, True, False])
+    s = Hierarchy([g]).run(trace)
+    l1 = s.levels[0]
+    assert (l1.store_misses, l1.store_hits, l1.load_misses, l1.fills) == (1, 2, 2, 2)
+    assert l1.forwarded == 1 and s.memory.partial_writes == 1
+    assert (l1.writebacks, s.memory.line_writebacks) == (1, 1)  # 0x500 evicts the dirty 0x100 line
+
+
+def test_k6_page_and_sector_write_allocate():
+    """The K6 with WHCR.WAELIM = 0 allocates a write miss only on the page of the last line fill
+    or when the other line of the 64-byte sector is present (AMD-K6 data sheet 20695H sec. 8.7)."""
+    c = CacheState(CacheGeometry("L1D", 32 * KB, 2, replacement="fifo", write_allocate="page+sector"))
+    assert c.access(0x5000, STORE) == FORWARD  # no fill yet, so no page to match: not allocated
+    assert c.access(0x6040) & FETCH            # a load fill: the CCR now holds page 0x6
+    assert c.access(0x6F00, STORE) & FETCH     # same page: allocated
+    assert c.access(0x7000) & FETCH            # CCR -> page 0x7
+    assert c.access(0x6060, STORE) & FETCH     # other page, but its sector buddy 0x6040 is present
+    assert c.fill_page == 0x6                  # (a write-allocate is a line fill too)
+    assert c.access(0x5000, STORE) == FORWARD  # page 0x5, buddy 0x5020 absent: not allocated
+    assert not c.contains(0x5000) and c.contains(0x6060)
+
+
+def test_k6_presets_on_the_zbuffer_trace(fp16z_traces):
+    """fp16z reads the z-buffer (fills set the CCR page) and writes a frame buffer 40 KB away, lines
+    it never read: on the k6-233 (page+sector only, as measured) every frame-buffer store misses L1
+    and goes to the board cache; on the k6-2-300 (full write allocate) only the first per line."""
+    trace = fp16z_traces[0]
+    n_fb_writes = 20000
+    k6 = Hierarchy.from_preset("k6-233").run(trace)
+    assert k6.levels[0].store_misses >= n_fb_writes and k6.levels[0].forwarded == k6.levels[0].store_misses
+    assert k6.levels[1].stores == k6.levels[0].forwarded
+    k62 = Hierarchy.from_preset("k6-2-300").run(trace)
+    assert k62.levels[0].forwarded == 0
+    assert n_fb_writes * 2 // 32 <= k62.levels[0].store_misses < n_fb_writes * 2 // 32 + 10
+
+
+def test_write_through_forwards_every_write():
+    l1 = CacheGeometry("L1D", 1 * KB, 2, write_back=False, write_allocate=False)
+    l2 = CacheGeometry("L2", 8 * KB, 4)
+    s = Hierarchy([l1, l2]).run(trace_of([0x0, 0x0, 0x4], [4] * 3, [False, True, True]))
+    assert (s.levels[0].store_hits, s.levels[0].forwarded, s.levels[0].writebacks) == (2, 2, 0)
+    assert (s.levels[1].stores, s.levels[1].store_hits) == (2, 2)  # absorbed by the write-back L2
+    assert s.memory.partial_writes == 0
+
+
+def test_line_crossing_access_touches_two_lines():
+    assert tuple(line_span(30, 4, 5)) == (0, 2)
+    assert tuple(line_span(28, 4, 5)) == (0, 1)
+    assert tuple(line_span(0x7FFFFFFF, 2, 5)) == (0x7FFFFFE0, 2)
+    s = Hierarchy([CacheGeometry("L1D", 1 * KB, 2)]).run(trace_of([30, 28, 60], [4, 4, 8], [False] * 3))
+    assert (s.accesses, s.line_accesses, s.crossing_accesses) == (3, 5, 2)
+    assert (s.levels[0].load_misses, s.levels[0].load_hits) == (3, 2)
+
+
+def test_service_reports_where_data_came_from():
+    h = Hierarchy([CacheGeometry("L1D", 1 * KB, 1), CacheGeometry("L2", 8 * KB, 2)])
+    counts = h.new_counts()
+
+    def svc(addr, size=4, write=False):
+        return service(*h.arrays(), counts, addr, size, write)
+
+    r = svc(0x0)
+    assert (served_level(r), memory_fills(r), lines_touched(r)) == (2, 1, 1)  # from memory
+    assert served_level(svc(0x4, write=True)) == 0                           # L1 hit, now dirty
+    r = svc(0x400)                                                            # evicts dirty 0x0 into L2
+    assert (served_level(r), memory_writebacks(r)) == (2, 0)
+    assert served_level(svc(0x0)) == 1                                        # L2 hit
+    r = svc(0x41E, 4)                                                         # crosses into line 0x420
+    assert (lines_touched(r), served_level(r), memory_fills(r)) == (2, 2, 1)
+    assert counts[0, 0] == 5 and counts[-1, 0] == 3  # L1 line loads, memory line fills
+
+
+# --- miss classification --------------------------------------------------------------------------
+
+def test_miss_classification_by_construction():
+    """128 B direct-mapped (4 lines). A and B share set 0: A B A B = 2 compulsory + 2 conflict (a
+    4-line fully-associative cache would hold both). Then five new lines C0..C4 (5 compulsory; C4
+    lands in set 0) and C0 again: the fully-associative LRU cache of 4 lines has dropped C0 too, so
+    that miss is capacity."""
+    a, b = 0x0, 0x80
+    c = [0x1000 + 32 * k for k in range(5)]
+    trace = trace_of([a, b, a, b, *c, c[0]], [4] * 10, [False] * 10)
+    s = Hierarchy([CacheGeometry("L1D", 128, 1)]).run(trace, classify=True).levels[0]
+    assert (s.misses, s.compulsory, s.conflict, s.capacity) == (10, 7, 2, 1)
+
+
+def test_miss_classification_adds_up_at_every_level():
+    h = Hierarchy(CONFIGS["small-dm-l2"])
+    stats = h.run(synthetic_trace(20_000), classify=True)
+    plain = h.run(synthetic_trace(20_000))
+    for s, p in zip(stats.levels, plain.levels):
+        assert s.compulsory + s.capacity + s.conflict == s.misses == p.misses
+        assert s.compulsory > 0 and s.capacity > 0 and s.conflict > 0
+    with pytest.raises(ValueError, match="cold start"):
+        h.run(synthetic_trace(100), classify=True, cold=False)
+
+
+# --- geometry, presets, policies ---------------------------------------------------------------------
+
+def test_geometry_validation_messages():
+    with pytest.raises(ValueError, match=r"^L2: size 100000 is not ways\*line\*power-of-two sets"):
+        CacheGeometry("L2", 100000, 4)
+    with pytest.raises(ValueError, match="line_bytes 48 is not a power of two"):
+        CacheGeometry("L1D", 48 * 64, 1, line_bytes=48)
+    with pytest.raises(ValueError, match="replacement 'plru'"):
+        CacheGeometry("L1D", 16 * KB, 4, replacement="plru")
+    with pytest.raises(ValueError, match="same|share one line size"):
+        Hierarchy([CacheGeometry("L1D", 16 * KB, 4), CacheGeometry("L2", 256 * KB, 4, line_bytes=64)])
+    g = CacheGeometry("L1D", 16 * KB, 4)
+    assert (g.sets, g.offset_bits, g.set_bits, g.lines) == (128, 5, 7, 512)
+
+
+def test_hierarchy_from_cpu_presets():
+    h = Hierarchy.from_preset("pentium2-233")
+    assert [(g.name, g.size_bytes, g.ways, g.sets) for g in h.geometries] == [
+        ("L1D", 16 * KB, 4, 128), ("L2", 512 * KB, 4, 4096)]
+    assert all(g.write_back and g.write_allocate and g.replacement == "lru" for g in h.geometries)
+    assert [g.name for g in Hierarchy.from_preset("celeron-266").geometries] == ["L1D"]  # no L2
+    k6 = {"name": "k6-test", "cpu_model": "k6", "l1d": {"size_kb": 32, "ways": 2, "line_bytes": 32},
+          "l2": {"size_kb": 512, "ways": 2, "write_back": False, "write_allocate": False}}
+    l1, l2 = Hierarchy.from_preset(k6).geometries
+    assert (l1.replacement, l1.write_allocate) == ("fifo", True)  # LRA; WHCR-enabled write allocate
+    assert Hierarchy.from_preset("k6-233").geometries[0].write_allocate == "page+sector"  # as measured
+    assert [g.name for g in Hierarchy.from_preset("k6-3-450").geometries] == ["L1D", "L2", "L3"]
+    assert (l2.write_back, l2.write_allocate) == (False, False)    # preset overrides the defaults
+    with pytest.raises(ValueError, match=r"unknown CPU preset 'pentium5'.*celeron-300a"):
+        Hierarchy.from_preset("pentium5")
+    with pytest.raises(ValueError, match="cpu_model 'z80'"):
+        Hierarchy.from_preset({"name": "x", "cpu_model": "z80", "l1d": {"size_kb": 8, "ways": 2}})
+
+
+def test_every_family_policy_names_its_source():
+    for family, levels in family_policies().items():
+        for level, p in levels.items():
+            assert p["source"] and p["replacement"] in ("lru", "fifo"), (family, level)
+    assert family_policies()["p5"]["l1d"]["write_allocate"] is False
+    assert family_policies()["p6"]["l1d"]["write_allocate"] is True
+
+
+# --- DRAM ---------------------------------------------------------------------------------------------
+
+def test_line_fill_costs_in_core_clocks():
+    """Bus clocks from the presets' bursts, times core/bus ratio, rounded up to a whole core clock.
+
+    pentium2-233 (233.33 / 66.67 MHz -> 7/2):
+      EDO   5-2-2-2 = 11 bus clocks x 3.5 = 38.5 -> 39
+      PC66  5-1-1-1 =  8 x 3.5 = 28
+      PC100 4-1-1-1 =  7 x 3.5 = 24.5 -> 25
+    celeron-300a (300 / 66.67 -> 9/2):
+      EDO 11 x 4.5 = 49.5 -> 50;  PC66 8 x 4.5 = 36;  PC100 7 x 4.5 = 31.5 -> 32
+    Writebacks are charged the same burst (no write timings in the presets).
+    """
+    expect = {"pentium2-233": {"edo": 39, "sdram-pc66": 28, "sdram-pc100": 25},
+              "celeron-300a": {"edo": 50, "sdram-pc66": 36, "sdram-pc100": 32}}
+    for cpu, per_memory in expect.items():
+        preset = load_cpu_preset(cpu)
+        for memory, clocks in per_memory.items():
+            costs = line_costs_for_cpu(preset, memory)
+            assert (costs.fill, costs.writeback) == (clocks, clocks), (cpu, memory)
+    assert line_costs_for_cpu(load_cpu_preset("pentium2-233")).memory == "edo"  # the article's PC
+    assert load_memory_preset("edo").burst == (5, 2, 2, 2)
+    assert bus_ratio(233.33, 66.67) == bus_ratio(233.0, 66.6) == pytest.approx(3.5)
+
+
+def test_memory_preset_errors():
+    with pytest.raises(ValueError, match=r"unknown memory preset 'ddr400' \(available: edo, sdram-pc100, sdram-pc66\)"):
+        load_memory_preset("ddr400")
+    with pytest.raises(ValueError, match="rated for 66.67 MHz, below the 100 MHz bus"):
+        line_costs(load_memory_preset("sdram-pc66"), 500.0, 100.0)
+    with pytest.raises(ValueError, match="not a multiple of 1/4"):
+        bus_ratio(260.0, 66.67)
+    with pytest.raises(ValueError, match="no row-hit/row-miss timings"):
+        OpenRowModel(load_memory_preset("edo"))
+
+
+def test_open_row_model():
+    """PC100 CL2: lead-off 2 (row open), 4 (bank idle), 6 (another row open), plus 1-1-1. 4 KB rows,
+    4 banks: 0x20 is in 0x0's row; 0x1000 is bank 1; 0x4000 is bank 0's next row."""
+    model = OpenRowModel(load_memory_preset("sdram-pc100"))
+    costs = [row_access(a, *model.params()) for a in (0x0, 0x20, 0x1000, 0x4000, 0x0, 0x1020)]
+    assert costs == [7, 5, 7, 9, 9, 5]
+
+
+# --- determinism and consistency --------------------------------------------------------------------
+
+def test_runs_are_deterministic():
+    trace = synthetic_trace(30_000, seed=9)
+    h1, h2 = Hierarchy(CONFIGS["celeron-300a"]), Hierarchy(CONFIGS["celeron-300a"])
+    a, b, again = h1.run(trace), h2.run(trace), h1.run(trace)
+    assert a == b == again
+    assert np.array_equal(h1.tags, h2.tags) and np.array_equal(h1.dirty, h2.dirty)
+
+
+def test_single_level_access_agrees_with_hierarchy():
+    """The per-request njit access() and the hierarchy walk give the same L1 behaviour."""
+    g = CacheGeometry("L1D", 2 * KB, 2)
+    trace = synthetic_trace(3000, seed=11)
+    c, hits, writebacks = CacheState(g), 0, 0
+    for a, n, w in zip(trace.mem_addr, trace.mem_size, trace.mem_write):
+        first, count = line_span(int(a), int(n), g.offset_bits)
+        for k in range(count):
+            code = c.access(first + 32 * k, STORE if w else LOAD)
+            hits += bool(code & HIT)
+            writebacks += bool(code & DIRTY_VICTIM)
+    h = Hierarchy([g])
+    s = h.run(trace).levels[0]
+    assert (s.hits, s.writebacks) == (hits, writebacks)
+    assert np.array_equal(h.states[0].resident_lines(), c.resident_lines())
+
+
+def test_table_rows_for_reports():
+    rows = Hierarchy(CONFIGS["celeron-300a"]).run(synthetic_trace(5000)).table()
+    assert [r["level"] for r in rows] == ["L1D", "L2", "memory"]
+    assert rows[0]["hits"] + rows[0]["misses"] == rows[0]["loads"] + rows[0]["stores"]
+    assert rows[2]["line_fills"] == rows[1]["fills"]
+
+
+def test_cache_throughput_benchmark():
+    from sim.memory.bench import cache_throughput
+    rate = cache_throughput(n=1_000_000, repeat=1)
+    print(f"cache hierarchy: {rate / 1e6:.1f} M accesses/s")
+    assert rate > 0
