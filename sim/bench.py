@@ -47,9 +47,28 @@ def run_bench(pixels: int = 1 << 20, progress=None) -> dict:
         if trace is True:
             results["instructions"] = r.instructions
         results[f"{mode}_seconds"] = seconds
+    if progress is not None:
+        progress.print("[dim]measuring end to end (emulate + trace + decode + P6 model on pentium2-233) ...[/]")
+    results["end_to_end_seconds"] = _end_to_end(zinit, z, dz, colour, pixels)
     n = results["instructions"]
-    for mode in ("unicorn_bare", "python_hook", "native_trace"):
+    for mode in ("unicorn_bare", "python_hook", "native_trace", "end_to_end"):
         results[f"{mode}_ips"] = n / results[f"{mode}_seconds"]
     results["native_vs_python"] = results["native_trace_ips"] / results["python_hook_ips"]
     results["bare_vs_native"] = results["unicorn_bare_ips"] / results["native_trace_ips"]
+    results["bare_vs_end_to_end"] = results["unicorn_bare_ips"] / results["end_to_end_ips"]
     return results
+
+
+def _end_to_end(zinit, z, dz, colour, pixels) -> float:
+    """Seconds to emulate (traced), decode and time one call on pentium2-233 with its caches."""
+    from .timing import time_kernel
+
+    def setup(m):
+        return [m.arena.put(zinit[:n]), m.arena.put(np.zeros(n, np.uint16)), n, z, dz, colour]
+
+    n = 4096
+    time_kernel(kernels_root() / SPAN_KERNEL, "fp16z_span", setup, cpu="pentium2-233", repeat=1)  # warm up
+    n = pixels
+    start = time.perf_counter()
+    time_kernel(kernels_root() / SPAN_KERNEL, "fp16z_span", setup, cpu="pentium2-233", repeat=1, budget=0)
+    return time.perf_counter() - start

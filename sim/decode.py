@@ -995,11 +995,11 @@ class Decoder:
         if hi - lo < (1 << 24):
             # Code is compact: a dense table over the PC range replaces np.unique's sort (O(n)),
             # and first appearances are found in a growing prefix (loops show every PC early).
-            offset = (pcs - lo).astype(np.int64)
+            offset = pcs - pcs.dtype.type(lo)  # stays in the PCs' own (unsigned) dtype: no copy to int64
             seen = np.zeros(hi - lo + 1, dtype=bool)
             seen[offset] = True
             uniq = np.flatnonzero(seen) + lo
-            inverse = (np.cumsum(seen) - 1)[offset]
+            inverse = (np.cumsum(seen, dtype=np.int32) - 1)[offset]
             first = np.full(uniq.size, -1, dtype=np.int64)
             head_slots, head_first = np.unique(inverse[:4096], return_index=True)
             first[head_slots] = head_first

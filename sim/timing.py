@@ -100,11 +100,13 @@ def emulate(source: str | Path, entry: str, setup: Setup | None = None, repeat: 
     return Emulation(Path(source), entry, setup, repeat, budget, assembler, machine, Trace.concatenate(parts), bounds)
 
 
-def time_emulation(emu: Emulation, cpu: str = "pentium2-233", memory: str | None = None,
+def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None,
                    timeline_iterations: int = 0) -> TimingResult:
-    """Time an emulation on one CPU preset. `timeline_iterations`: record a per-instruction timeline
-    of that many iterations of the hot loop (the last call's most executed PC), mid last call."""
-    model = make_model(cpu, memory)
+    """Time an emulation on one CPU preset (a name, or a model from make_model).
+    `timeline_iterations`: record a per-instruction timeline of that many iterations of the hot
+    loop (the last call's most executed PC), from the middle of the last call."""
+    model = make_model(cpu, memory) if isinstance(cpu, str) else cpu
+    cpu = model.preset.name
     timeline = hot_loop_window(emu.trace.pc, emu.last_call, timeline_iterations)
     run = model.run(emu.trace, emu.decoder(), emu.bounds, timeline, emu.last_call)
     if run.rdtsc.size:
@@ -121,6 +123,6 @@ def time_kernel(source: str | Path, entry: str, setup: Setup | None = None, cpu:
                 memory: str | None = None, repeat: int = 2, budget: int = 200_000_000,
                 timeline_iterations: int = 0, assembler: str | None = None) -> TimingResult:
     """Emulate and time in one step (see :func:`emulate` and :func:`time_emulation`)."""
-    make_model(cpu, memory)  # reject an unknown preset before emulating
+    model = make_model(cpu, memory)  # before emulating: an unknown preset fails fast
     emu = emulate(source, entry, setup, repeat, budget, assembler)
-    return time_emulation(emu, cpu, memory, timeline_iterations)
+    return time_emulation(emu, model, timeline_iterations=timeline_iterations)

@@ -4,6 +4,7 @@ sim/cpus/tables/p6.toml, the cycle loop in :mod:`sim.cpus.p6_core`."""
 
 from __future__ import annotations
 
+import functools
 import math
 import tomllib
 from dataclasses import dataclass
@@ -41,6 +42,7 @@ ESTIMATES = {
 }
 
 
+@functools.cache
 def _machine_table() -> dict:
     with open(TABLES / "p6_machine.toml", "rb") as f:
         return tomllib.load(f)

@@ -17,6 +17,7 @@ Generalisations (each is a statement about these families, not a guess per row):
 
 from __future__ import annotations
 
+import functools
 import itertools
 import tomllib
 from dataclasses import dataclass, field
@@ -142,7 +143,9 @@ class InstructionTable:
         return match
 
 
+@functools.cache
 def load_table(family: str) -> InstructionTable:
+    """The family's table, parsed once per process (tables are data files shipped with the package)."""
     path = TABLES / f"{family}.toml"
     if not path.is_file():
         raise RetrosimError(f"no instruction table for CPU family '{family}' ({path} is missing)")
