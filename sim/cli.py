@@ -285,6 +285,130 @@ def cpus_cmd(as_json):
     console.print(m)
 
 
+REPORTS_DIR = Path(__file__).resolve().parent.parent / "reports"
+SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
+
+
+def _scenes(names) -> list:
+    from .scene import load_scene
+
+    if not names:
+        paths = sorted(SCENES_DIR.glob("*.toml"))
+    else:
+        paths = []
+        for n in names:
+            p = Path(n)
+            p = p if p.suffix == ".toml" and p.is_file() else SCENES_DIR / f"{n}.toml"
+            if not p.is_file():
+                known = ", ".join(sorted(q.stem for q in SCENES_DIR.glob("*.toml")))
+                raise ArgumentError(f"no scene '{n}' (shipped scenes: {known})")
+            paths.append(p)
+    return [load_scene(p) for p in paths]
+
+
+def _run_scenes(scenes, cpus) -> list:
+    """Run scenes with a progress bar per scene (on stderr, so --json output stays clean)."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from .runner import run_scene
+
+    results = []
+    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                  TimeElapsedColumn(), console=err_console, transient=False) as bar:
+        for scene in scenes:
+            steps = len(scene.variants) * (1 + len(list(cpus) or scene.cpus))
+            task = bar.add_task(scene.name, total=steps)
+
+            def progress(msg, task=task):
+                bar.update(task, advance=1, description=msg[:70])
+
+            results.append(run_scene(scene, list(cpus) or None, progress))
+            bar.update(task, completed=steps, description=f"{scene.name}: done")
+    return results
+
+
+def _summary_table(results) -> Table:
+    t = Table(title="cycles per pixel (last frame) and pixels with wrong visibility")
+    t.add_column("scene")
+    t.add_column("variant")
+    keys = list(dict.fromkeys(k for r in results for k in r.cpu_keys))
+    for k in keys:
+        t.add_column(k.replace(":", "\n"), justify="right")
+    t.add_column("wrong visibility", justify="right")
+    for r in results:
+        for i, v in enumerate(r.scene.variants):
+            cells = []
+            for k in keys:
+                try:
+                    cells.append(f"{r.timing(v, k).per_pixel('cycles'):.2f}")
+                except KeyError:
+                    cells.append("")
+            vis = r.accuracy[v].visibility
+            t.add_row(r.scene.name if i == 0 else "", v, *cells,
+                      f"{vis['fraction']:.3%}" if vis else "-")
+    return t
+
+
+@main.command("report")
+@click.argument("scenes", nargs=-1)
+@click.option("--cpu", "cpus", multiple=True, help="run on these presets instead of the scene's (preset[:memory])")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=REPORTS_DIR, show_default=True,
+              help="directory for the Markdown, HTML, JSON, CSV and PNG reports")
+def report_cmd(scenes, cpus, out):
+    """Run scenes (default: every shipped scene) and write their reports; print a summary."""
+    from .report import write_reports
+
+    results = _run_scenes(_scenes(scenes), cpus)
+    for r in results:
+        paths = write_reports(r, out)
+        err_console.print(f"wrote {', '.join(str(p) for p in paths)}")
+    console.print(_summary_table(results))
+
+
+@main.command("check")
+@click.argument("scenes", nargs=-1)
+@click.option("--update", is_flag=True, help="re-record the baselines of the scenes run (say why in the commit)")
+@click.option("--reports/--no-reports", "check_reports", default=False,
+              help="also check that the committed Markdown/JSON/CSV reports are up to date")
+def check_cmd(scenes, update, check_reports):
+    """Re-run scenes and compare exact cycle counts with reports/baselines.json."""
+    from . import baseline
+    from .report import write_reports
+
+    chosen = _scenes(scenes)
+    results = _run_scenes(chosen, ())
+    if update:
+        baseline.save(baseline.update(baseline.load(), results))
+        console.print(f"re-recorded {len(results)} scene(s) in {baseline.BASELINE_FILE}")
+        return
+    drifts = baseline.compare(baseline.load(), results)
+    stale = []
+    if check_reports:
+        import tempfile
+
+        with tempfile.TemporaryDirectory() as tmp:
+            for r in results:
+                for path in write_reports(r, Path(tmp), formats=("md", "json", "csv")):
+                    committed = REPORTS_DIR / path.name
+                    if not committed.is_file() or committed.read_bytes() != path.read_bytes():
+                        stale.append(committed)
+    if drifts:
+        t = Table(title=f"{len(drifts)} counter(s) differ from reports/baselines.json")
+        for col in ("scene", "case", "counter", "old", "new", "delta", "percent"):
+            t.add_column(col, justify="right" if col in ("old", "new", "delta", "percent") else "left")
+        for d in drifts:
+            t.add_row(d.scene, d.case, d.counter, "-" if d.old is None else f"{d.old:,}",
+                      "-" if d.new is None else f"{d.new:,}", "-" if d.delta is None else f"{d.delta:+,}",
+                      "-" if d.percent is None else f"{d.percent:+.2f}%")
+        console.print(t)
+    for p in stale:
+        err_console.print(f"stale report: {p} (regenerate with `retrosim report`)")
+    if drifts or stale:
+        raise SystemExit(1)
+    console.print(f"{sum(len(baseline.entries(r)) for r in results)} case(s) in {len(results)} scene(s) "
+                  "match the baselines" + (" and the committed reports" if check_reports else ""))
+
+
 @main.command("bench")
 @click.option("--pixels", default=1 << 20, show_default=True, help="pixels in the Z-buffer span workload")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object with the figures")

@@ -1,0 +1,72 @@
+"""Regression baselines: exact cycle counts (and the main counters) per scene, variant and preset.
+
+A changed count is either a deliberate model change (re-record with `retrosim check --update` in
+the same commit, and say why) or a bug. Counts are integers, so comparison is exact.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+from .report import atomic_write
+from .runner import SceneResult
+
+BASELINE_FILE = Path(__file__).resolve().parent.parent / "reports" / "baselines.json"
+COUNTERS = ("cycles", "instructions", "uops", "decode_groups", "l1d_load_misses", "l1d_store_misses", "l2_misses",
+            "dram_fills", "mispredicts")
+
+
+@dataclass(frozen=True)
+class Drift:
+    scene: str
+    case: str       # "variant@cpu:memory"
+    counter: str
+    old: int | None  # None: the case is new
+    new: int | None  # None: the case disappeared
+
+    @property
+    def delta(self) -> int | None:
+        return None if self.old is None or self.new is None else self.new - self.old
+
+    @property
+    def percent(self) -> float | None:
+        return None if not self.old or self.new is None else 100.0 * (self.new - self.old) / self.old
+
+
+def entries(result: SceneResult) -> dict[str, dict[str, int]]:
+    return {f"{t.variant}@{t.key}": {c: int(t.counters[c]) for c in COUNTERS} for t in result.timings}
+
+
+def load(path: Path = BASELINE_FILE) -> dict:
+    if not path.is_file():
+        return {}
+    with open(path) as f:
+        return json.load(f)
+
+
+def save(data: dict, path: Path = BASELINE_FILE) -> None:
+    atomic_write(path, (json.dumps(data, indent=1, sort_keys=True) + "\n").encode())
+
+
+def compare(baseline: dict, results: list[SceneResult]) -> list[Drift]:
+    drifts = []
+    for r in results:
+        old_scene = baseline.get(r.scene.name, {})
+        new_scene = entries(r)
+        for case in sorted(set(old_scene) | set(new_scene)):
+            old, new = old_scene.get(case), new_scene.get(case)
+            for c in COUNTERS:
+                o = None if old is None else old.get(c)
+                n = None if new is None else new.get(c)
+                if o != n:
+                    drifts.append(Drift(r.scene.name, case, c, o, n))
+    return drifts
+
+
+def update(baseline: dict, results: list[SceneResult]) -> dict:
+    out = dict(baseline)
+    for r in results:
+        out[r.scene.name] = entries(r)
+    return out

@@ -1,0 +1,305 @@
+"""Scene reports: Markdown, self-contained HTML, JSON, CSV and a work-precision plot (PNG).
+
+Reports are generated, never edited. Every file is written to a temporary name and renamed, so an
+interrupted run leaves the previous report intact. Numbers are formatted deterministically so a
+re-run on any machine produces the same Markdown, JSON and CSV bytes (CI compares them).
+"""
+
+from __future__ import annotations
+
+import base64
+import csv
+import html
+import io
+import json
+import os
+import tempfile
+from pathlib import Path
+
+from typing import TYPE_CHECKING
+
+from .frames import VARIANT_LABELS
+
+if TYPE_CHECKING:
+    from .runner import SceneResult
+
+PER_PIXEL = [  # (counter, column title) for the "where the cycles go" tables
+    ("uops", "uops"), ("decode_groups", "decode groups"), ("l1d_load_misses", "L1D load misses"),
+    ("l1d_store_misses", "L1D store misses"), ("l2_misses", "L2 misses"), ("dram_fills", "DRAM fills"),
+    ("dram_bus_cycles", "DRAM bus cycles"),
+]
+STALL_COLUMNS = [("stall_dependency", "dep"), ("stall_port", "port"), ("stall_decode", "decode"),
+                 ("stall_partial_register", "partial"), ("stall_memory", "memory"),
+                 ("stall_store_forward", "fwd"), ("stall_mispredict", "branch")]
+EXPLAIN_COUNTERS = ["uops", "decode_groups", "l1d_load_misses", "l1d_store_misses", "l2_misses", "dram_bus_cycles",
+                    "stall_memory", "stall_partial_register", "mispredicts"]
+
+
+def atomic_write(path: Path, data: bytes) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def _f(x: float, digits: int = 2) -> str:
+    return f"{x:,.{digits}f}"
+
+
+def _cpu_label(key: str) -> str:
+    cpu, memory = key.split(":")
+    return f"{cpu} ({memory})"
+
+
+# -- claims ----------------------------------------------------------------------------------
+def evaluate_claims(result: SceneResult) -> list[dict]:
+    """Each `[[claims]]` entry of the scene checked against the model, with the counters that
+    explain the outcome. A claim the model does not reproduce is reported as such, not tuned away."""
+    out = []
+    for claim in result.scene.claims:
+        key = claim.cpu if ":" in claim.cpu else next(k for k in result.cpu_keys if k.startswith(claim.cpu + ":"))
+        a, b = (result.timing(v, key) for v in claim.variants)
+        ca, cb = a.per_pixel("cycles"), b.per_pixel("cycles")
+        ratio = ca / cb if cb else float("inf")
+        holds = {"similar": abs(ratio - 1) <= claim.tolerance, "faster": ratio < 1 - claim.tolerance,
+                 "slower": ratio > 1 + claim.tolerance}[claim.expect]
+        diffs = []
+        for name in EXPLAIN_COUNTERS:
+            d = a.per_pixel(name) - b.per_pixel(name)
+            if abs(d) >= 0.005:
+                diffs.append((name, d))
+        out.append({"text": claim.text, "cpu": key, "variants": list(claim.variants), "expect": claim.expect,
+                    "tolerance": claim.tolerance, "cycles_per_pixel": [round(ca, 3), round(cb, 3)],
+                    "ratio": round(ratio, 4), "holds": holds,
+                    "explanation": {n: round(d, 3) for n, d in diffs}})
+    return out
+
+
+def _claim_sentence(c: dict) -> str:
+    a, b = c["variants"]
+    verdict = "**reproduced**" if c["holds"] else "**not reproduced**"
+    word = {"similar": "about the same as", "faster": "faster than", "slower": "slower than"}[c["expect"]]
+    more = ", ".join(f"{'+' if d > 0 else ''}{d:g} {n.replace('_', ' ')}" for n, d in c["explanation"].items())
+    return (f"- {c['text']} — {verdict}. Claim: {a} {word} {b} on {_cpu_label(c['cpu'])} "
+            f"(tolerance {c['tolerance']:.0%}). Model: {a} {c['cycles_per_pixel'][0]:.2f} vs {b} "
+            f"{c['cycles_per_pixel'][1]:.2f} cycles/pixel, ratio {c['ratio']:.3f}. Per pixel, {a} minus {b}: "
+            f"{more or 'no counter differs'}.")
+
+
+# -- tables ------------------------------------------------------------------------------------
+def _md_table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def cycles_table(result: SceneResult) -> tuple[list[str], list[list[str]]]:
+    header = ["variant"] + [_cpu_label(k) for k in result.cpu_keys]
+    rows = [[f"{v} ({VARIANT_LABELS[v]})"] + [_f(result.timing(v, k).per_pixel("cycles")) for k in result.cpu_keys]
+            for v in result.scene.variants]
+    return header, rows
+
+
+def accuracy_table(result: SceneResult) -> tuple[list[str], list[list[str]]]:
+    header = ["variant", "wrong visibility (pixels)", "wrong visibility (share)", "worst depth error",
+              "mean depth error"]
+    rows = []
+    for v in result.scene.variants:
+        acc = result.accuracy[v]
+        vis, dep = acc.visibility or {}, acc.depth_error or {}
+        rows.append([v, f"{vis.get('wrong', '-'):,}" if vis else "-",
+                     f"{vis.get('fraction', 0):.4%}" if vis else "-",
+                     f"{dep.get('worst', 0):.3g}" if dep else "-", f"{dep.get('mean', 0):.3g}" if dep else "-"])
+    return header, rows
+
+
+def breakdown_table(result: SceneResult, key: str) -> tuple[list[str], list[list[str]]]:
+    header = ["variant", "cycles"] + [t for _, t in PER_PIXEL] + ["p0/p1/p2/p3/p4"] + \
+             ["stalls " + "/".join(t for _, t in STALL_COLUMNS)]
+    rows = []
+    for v in result.scene.variants:
+        t = result.timing(v, key)
+        ports = "/".join(_f(t.per_pixel(f"port{p}"), 1) for p in range(5))
+        stalls = "/".join(_f(t.per_pixel(c), 1) for c, _ in STALL_COLUMNS)
+        rows.append([v, _f(t.per_pixel("cycles"))] + [_f(t.per_pixel(c), 3) for c, _ in PER_PIXEL] + [ports, stalls])
+    return header, rows
+
+
+# -- plot --------------------------------------------------------------------------------------
+def work_precision_png(result: SceneResult) -> bytes | None:
+    """x: cycles per pixel (one marker per CPU), y: share of pixels with wrong visibility."""
+    if not any(a.visibility for a in result.accuracy.values()):
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 4.5), dpi=100)
+    markers = "osD^vP*X"
+    floor = 0.5 / max(1, result.pixels)  # zero errors are drawn on this floor, labelled "exact"
+    for i, key in enumerate(result.cpu_keys):
+        xs = [result.timing(v, key).per_pixel("cycles") for v in result.scene.variants]
+        ys = [max(floor, result.accuracy[v].visibility["fraction"]) for v in result.scene.variants]
+        ax.scatter(xs, ys, marker=markers[i % len(markers)], label=_cpu_label(key), s=40)
+    for v in result.scene.variants:
+        key = result.cpu_keys[0]
+        x = result.timing(v, key).per_pixel("cycles")
+        y = max(floor, result.accuracy[v].visibility["fraction"])
+        ax.annotate(v, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
+    ax.set_yscale("log")
+    ax.axhline(floor, color="0.8", lw=0.8)
+    ax.text(ax.get_xlim()[0], floor, " exact", va="bottom", fontsize=7, color="0.5")
+    ax.set_xlabel("cycles per pixel (last frame, caches warm)")
+    ax.set_ylabel("pixels with wrong visibility (share)")
+    ax.set_title(f"{result.scene.name}: error against run time")
+    ax.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", metadata={"Software": None})
+    plt.close(fig)
+    return buf.getvalue()
+
+
+# -- documents ---------------------------------------------------------------------------------
+def to_json(result: SceneResult) -> dict:
+    s = result.scene
+    return {
+        "scene": s.name, "description": s.description, "width": result.width, "height": result.height,
+        "triangles": result.triangles, "spans": result.spans, "pixels_per_frame": result.pixels,
+        "depth_complexity": round(result.depth_complexity, 4), "frames": s.frames,
+        "timings": [{"variant": t.variant, "cpu": t.cpu, "memory": t.memory, "pixels": t.pixels,
+                     "cycles_per_pixel": round(t.per_pixel("cycles"), 4), **t.counters} for t in result.timings],
+        "accuracy": {v: {"matches_reference_model": a.matches_reference_model, "visibility": a.visibility,
+                         "depth_error": a.depth_error} for v, a in result.accuracy.items()},
+        "precision": result.precision,
+        "claims": evaluate_claims(result),
+        "findings": list(s.findings(result)) if hasattr(s, "findings") else [],
+    }
+
+
+def to_csv(result: SceneResult) -> str:
+    buf = io.StringIO()
+    counters = list(result.timings[0].counters) if result.timings else []
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["scene", "variant", "cpu", "memory", "pixels", "cycles_per_pixel"] + counters)
+    for t in result.timings:
+        w.writerow([result.scene.name, t.variant, t.cpu, t.memory, t.pixels, f"{t.per_pixel('cycles'):.4f}"]
+                   + [t.counters[c] for c in counters])
+    return buf.getvalue()
+
+
+def to_markdown(result: SceneResult, png_name: str | None, findings: list[str]) -> str:
+    s = result.scene
+    parts = [f"# {s.name}", "", s.description.strip(), "",
+             f"Generated by `retrosim report {s.name}` from `scenes/{s.name}.toml`; do not edit.", "",
+             f"Workload: {result.width}x{result.height} pixels, {result.triangles:,} triangles, {result.spans:,} spans, "
+             f"{result.pixels:,} pixels drawn per frame (depth complexity {result.depth_complexity:.2f}). "
+             f"{s.frames} frame(s) are drawn in one machine state (clear the depth buffer, then every span); "
+             "the last frame is reported, with caches and predictors warm.", ""]
+    if result.timings:
+        parts += ["## Cycles per pixel", "", _md_table(*cycles_table(result)), ""]
+    if any(a.visibility or a.depth_error for a in result.accuracy.values()):
+        parts += ["## Error against the exact reference", "",
+                  "Against a float64 Z-buffer of the same spans. Depth errors are in units of the scene's exact "
+                  "depth range.", "", _md_table(*accuracy_table(result)), ""]
+    if png_name:
+        parts += ["## Work against precision", "", f"![work-precision plot]({png_name})", ""]
+    claims = evaluate_claims(result)
+    if claims:
+        parts += ["## The article's claims, checked", ""] + [_claim_sentence(c) for c in claims] + [""]
+    if findings:
+        parts += ["## Findings", ""] + [f"- {f}" for f in findings] + [""]
+    if result.timings:
+        parts += ["## Where the cycles go", "",
+                  "Per pixel, last frame. Stall columns are uop-stall cycles (a uop waiting for a dependency, "
+                  "a port, the decoders, a partial-register merge, memory, a store forward, a branch restart); "
+                  "they overlap, so they do not add up to the cycle count.", ""]
+        for key in result.cpu_keys:
+            parts += [f"### {_cpu_label(key)}", "", _md_table(*breakdown_table(result, key)), ""]
+    if result.precision:
+        parts += ["## Precision of the stored depth formats", "",
+                  "Relative quantization step (distance to the next representable depth, divided by the depth) "
+                  "across the depth range.", "", _precision_md(result.precision), ""]
+    return "\n".join(parts).rstrip() + "\n"
+
+
+def _precision_md(precision: dict) -> str:
+    rows = precision.get("rows", [])
+    if not rows:
+        return "(none)"
+    header = list(rows[0].keys())
+    return _md_table(header, [[f"{r[h]:.3g}" if isinstance(r[h], float) else str(r[h]) for h in header]
+                              for r in rows])
+
+
+def write_reports(result: SceneResult, out_dir: Path, findings: list[str] | None = None,
+                  formats: tuple[str, ...] = ("md", "png", "json", "csv", "html")) -> list[Path]:
+    out_dir = Path(out_dir)
+    name = result.scene.name
+    png = work_precision_png(result) if "png" in formats or "html" in formats else None
+    md = to_markdown(result, f"{name}.png" if png else None, findings or [])
+    written = []
+    payloads = {
+        "md": md.encode(),
+        "png": png,
+        "json": (json.dumps(to_json(result), indent=2, sort_keys=False) + "\n").encode(),
+        "csv": to_csv(result).encode(),
+        "html": render_html(md, png).encode(),
+    }
+    for fmt in formats:
+        data = payloads[fmt]
+        if data is None:
+            continue
+        path = out_dir / f"{name}.{fmt}"
+        atomic_write(path, data)
+        written.append(path)
+    return written
+
+
+_CSS = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;line-height:1.4}"
+        "table{border-collapse:collapse;margin:1em 0;font-size:90%}td,th{border:1px solid #ccc;padding:2px 6px;"
+        "text-align:right}td:first-child,th:first-child{text-align:left}img{max-width:100%}")
+
+
+def render_html(markdown: str, png: bytes | None) -> str:
+    """The Markdown report as one self-contained HTML page (tables, headings, the inlined plot)."""
+    body: list[str] = []
+    table: list[str] = []
+
+    def flush():
+        if table:
+            head, *rest = table
+            body.append("<table><tr>" + "".join(f"<th>{c}</th>" for c in head) + "</tr>"
+                        + "".join("<tr>" + "".join(f"<td>{c}</td>" for c in r) + "</tr>" for r in rest) + "</table>")
+            table.clear()
+
+    for line in markdown.splitlines():
+        if line.startswith("|"):
+            if set(line.replace("|", "").strip()) <= {"-"}:
+                continue
+            table.append([html.escape(c.strip()) for c in line.strip().strip("|").split("|")])
+            continue
+        flush()
+        if line.startswith("### "):
+            body.append(f"<h3>{html.escape(line[4:])}</h3>")
+        elif line.startswith("## "):
+            body.append(f"<h2>{html.escape(line[3:])}</h2>")
+        elif line.startswith("# "):
+            body.append(f"<h1>{html.escape(line[2:])}</h1>")
+        elif line.startswith("!["):
+            if png:
+                data = base64.b64encode(png).decode()
+                body.append(f'<p><img alt="work-precision plot" src="data:image/png;base64,{data}"></p>')
+        elif line.startswith("- "):
+            body.append(f"<li>{html.escape(line[2:])}</li>")
+        elif line.strip():
+            body.append(f"<p>{html.escape(line)}</p>")
+    flush()
+    return ("<!DOCTYPE html><html><head><meta charset='utf-8'><title>retrosim report</title>"
+            f"<style>{_CSS}</style></head><body>" + "\n".join(body) + "</body></html>\n")

@@ -1,0 +1,114 @@
+"""Run a scene: rasterize, draw its frames with each Z-buffer variant under Unicorn, time the last
+frame on each CPU preset, and measure each variant's error against the exact reference.
+
+Only what the scene asks for is built: its variants' kernels, its presets, its metrics.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from . import metrics, raster
+from .cpus import make_model
+from .errors import RetrosimError
+from .frames import VARIANT_LABELS, draw_frames
+from .scene import Scene
+from .timing import time_emulation
+
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class Timing:
+    variant: str
+    cpu: str      # preset name
+    memory: str   # memory preset name
+    pixels: int
+    counters: dict
+
+    @property
+    def key(self) -> str:
+        return f"{self.cpu}:{self.memory}"
+
+    def per_pixel(self, name: str) -> float:
+        return self.counters[name] / self.pixels if self.pixels else 0.0
+
+
+@dataclass(frozen=True)
+class Accuracy:
+    variant: str
+    matches_reference_model: bool  # Unicorn's buffers equal sim.raster.simulate_frame bit for bit
+    visibility: dict | None
+    depth_error: dict | None
+
+
+@dataclass
+class SceneResult:
+    scene: Scene
+    width: int
+    height: int
+    triangles: int
+    spans: int
+    pixels: int
+    depth_complexity: float
+    timings: list[Timing] = field(default_factory=list)
+    accuracy: dict[str, Accuracy] = field(default_factory=dict)
+    precision: dict | None = None
+
+    def timing(self, variant: str, key: str) -> Timing:
+        for t in self.timings:
+            if t.variant == variant and t.key == key:
+                return t
+        raise KeyError((variant, key))
+
+    @property
+    def cpu_keys(self) -> list[str]:
+        return list(dict.fromkeys(t.key for t in self.timings))
+
+
+def _cpu_keys(cpus: list[str]) -> list[tuple[str, str | None]]:
+    out = []
+    for spec in cpus:
+        cpu, _, memory = spec.partition(":")
+        out.append((cpu, memory or None))
+    return out
+
+
+def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | None = None) -> SceneResult:
+    say = progress or (lambda msg: None)
+    geometry = scene.build_geometry()
+    w, h = scene.width, scene.height
+    spans = raster.rasterize(geometry, w, h, keep_empty=scene.keep_empty_spans)
+    pixels = int(spans.count.sum())
+    result = SceneResult(scene, w, h, int(geometry.z.shape[0]), int(spans.y.size), pixels, pixels / (w * h))
+    wanted = set(scene.metrics)
+    ref_depth = ref_owner = None
+    if wanted & {"visibility", "depth_error"}:
+        ref_depth, ref_owner = raster.reference(spans, w, h)
+    models = {}
+    for cpu, memory in _cpu_keys(cpus or scene.cpus):
+        models[(cpu, memory)] = make_model(cpu, memory)
+    for variant in scene.variants:
+        say(f"{scene.name}: {VARIANT_LABELS[variant]}: emulating {scene.frames} frame(s) of {pixels:,} pixels")
+        run = draw_frames(spans, variant, w, h, scene.frames, geometry.colour)
+        expect_z, expect_f = raster.simulate_frame(spans, variant, w, h)
+        same = bool(np.array_equal(run.zbuf.view(np.uint8), expect_z.view(np.uint8)) and np.array_equal(run.fbuf, expect_f))
+        if not same:
+            raise RetrosimError(f"{scene.path}: variant {variant}: the emulated frame differs from the numpy "
+                                "reference model of the kernel (a kernel or emulator bug)")
+        vis = depth = None
+        if "visibility" in wanted:
+            vis = metrics.visibility_errors(run.fbuf, ref_owner, geometry.colour).as_dict()
+        if "depth_error" in wanted:
+            depth = metrics.depth_error(run.zbuf, variant, ref_depth, ref_owner).as_dict()
+        result.accuracy[variant] = Accuracy(variant, same, vis, depth)
+        for (cpu, memory), model in models.items():
+            say(f"{scene.name}: {variant} on {cpu} with {model.dram.name}: timing")
+            timed = time_emulation(run.emulation, model)
+            result.timings.append(Timing(variant, cpu, model.dram.name, run.pixels, timed.last))
+    if "fp16_precision" in wanted:
+        result.precision = metrics.fp16_precision(0.0, 1.0, 16).as_dict()
+    return result
