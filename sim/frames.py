@@ -12,24 +12,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import raster
 from .kernels import kernels_root
 from .timing import Emulation, emulate
 
-# variant -> (kernel file, depth element type, depth value the buffer is cleared to)
-VARIANTS: dict[str, tuple[str, type, int]] = {
-    "z32": ("zbuffer/z32.S", np.uint32, 0xFFFFFFFF),
-    "z16": ("zbuffer/z16.S", np.uint16, 0xFFFF),
-    "fp16z": ("zbuffer/fp16z.S", np.uint16, 0xFFFF),
-    "zf32": ("zbuffer/zf32.S", np.float32, 0x7F800000),  # +inf
-}
+VARIANTS = {v: f"zbuffer/{v}.S" for v in raster.VARIANTS}  # kernel source per variant
 VARIANT_LABELS = {"z32": "32-bit integer", "z16": "16-bit integer", "fp16z": "16-bit float (BSR/SHRD/SHRD)",
                   "zf32": "32-bit float (x87)"}
-
-
-def zclear_word(variant: str) -> int:
-    """The dword the driver's clear loop stores: two 16-bit far values, or one 32-bit one."""
-    _, dtype, far = VARIANTS[variant]
-    return far | (far << 16) if np.dtype(dtype).itemsize == 2 else far
 
 
 @dataclass(frozen=True)
@@ -43,11 +32,8 @@ class FrameLayout:
 
 def span_records(spans, variant: str, width: int, zbuf: int, fbuf: int, colours: np.ndarray) -> np.ndarray:
     """[n, 8] uint32 records for the driver: zbuf pointer, fbuf pointer, count, z, dz, colour, 0, 0."""
-    _, dtype, _ = VARIANTS[variant]
-    size = np.dtype(dtype).itemsize
+    size = raster.ZBUF_DTYPE[variant].itemsize
     pixel = spans.y.astype(np.int64) * width + spans.x0.astype(np.int64)
-    from . import raster
-
     z0, dz = raster.span_parameters(spans, variant)
     rec = np.zeros((spans.y.size, 8), np.uint32)
     rec[:, 0] = zbuf + size * pixel
@@ -59,15 +45,14 @@ def span_records(spans, variant: str, width: int, zbuf: int, fbuf: int, colours:
     else:
         rec[:, 3] = np.asarray(z0).astype(np.uint64) & 0xFFFFFFFF
         rec[:, 4] = np.asarray(dz).astype(np.int64).astype(np.uint64) & 0xFFFFFFFF
-    rec[:, 5] = colours[spans.tri]
+    rec[:, 5] = np.asarray(colours)[spans.tri]
     return rec
 
 
 def frame_setup(spans, variant: str, width: int, height: int, colours: np.ndarray, layout: list):
     """A setup function for sim.timing.emulate: builds the frame in a fresh machine's arena and
     returns the driver's arguments. The chosen addresses are appended to `layout`."""
-    _, dtype, _ = VARIANTS[variant]
-    zbytes = -(-width * height * np.dtype(dtype).itemsize // 32) * 32  # the clear works in 32-byte lines
+    zbytes = -(-width * height * raster.ZBUF_DTYPE[variant].itemsize // 32) * 32  # the clear works in 32-byte lines
 
     def setup(machine):
         arena = machine.arena
@@ -76,7 +61,7 @@ def frame_setup(spans, variant: str, width: int, height: int, colours: np.ndarra
         fbuf = arena.alloc(2 * width * height, align=4096)
         machine.uc.mem_write(records, span_records(spans, variant, width, zbuf, fbuf, colours).tobytes())
         layout.append(FrameLayout(records, int(spans.y.size), zbuf, zbytes // 4, fbuf))
-        return [records, int(spans.y.size), zbuf, zbytes // 4, zclear_word(variant)]
+        return [records, int(spans.y.size), zbuf, zbytes // 4, raster.clear_dword(variant)]
 
     return setup
 
@@ -95,7 +80,7 @@ def draw_frames(spans, variant: str, width: int, height: int, frames: int = 2,
     """Emulate `frames` frames of one variant (the last one is the one a report times)."""
     if variant not in VARIANTS:
         raise ValueError(f"unknown Z-buffer variant '{variant}' (choose one of: {', '.join(VARIANTS)})")
-    path, dtype, _ = VARIANTS[variant]
+    path, dtype = VARIANTS[variant], raster.ZBUF_DTYPE[variant]
     if colours is None:
         colours = (np.arange(int(spans.tri.max(initial=-1)) + 1) + 1).astype(np.uint16)
     layout: list[FrameLayout] = []

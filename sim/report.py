@@ -112,7 +112,7 @@ def accuracy_table(result: SceneResult) -> tuple[list[str], list[list[str]]]:
     for v in result.scene.variants:
         acc = result.accuracy[v]
         vis, dep = acc.visibility or {}, acc.depth_error or {}
-        rows.append([v, f"{vis.get('wrong', '-'):,}" if vis else "-",
+        rows.append([v, f"{vis['errors']:,}" if vis else "-",
                      f"{vis.get('fraction', 0):.4%}" if vis else "-",
                      f"{dep.get('worst', 0):.3g}" if dep else "-", f"{dep.get('mean', 0):.3g}" if dep else "-"])
     return header, rows

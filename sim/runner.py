@@ -43,6 +43,7 @@ class Accuracy:
     matches_reference_model: bool  # Unicorn's buffers equal sim.raster.simulate_frame bit for bit
     visibility: dict | None
     depth_error: dict | None
+    z_fighting: dict | None = None
 
 
 @dataclass
@@ -81,12 +82,12 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
     say = progress or (lambda msg: None)
     geometry = scene.build_geometry()
     w, h = scene.width, scene.height
-    spans = raster.rasterize(geometry, w, h, keep_empty=scene.keep_empty_spans)
+    spans = raster.rasterize(geometry, w, h)
     pixels = int(spans.count.sum())
     result = SceneResult(scene, w, h, int(geometry.z.shape[0]), int(spans.y.size), pixels, pixels / (w * h))
     wanted = set(scene.metrics)
     ref_depth = ref_owner = None
-    if wanted & {"visibility", "depth_error"}:
+    if scene.needs.reference:
         ref_depth, ref_owner = raster.reference(spans, w, h)
     models = {}
     for cpu, memory in _cpu_keys(cpus or scene.cpus):
@@ -99,16 +100,21 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
         if not same:
             raise RetrosimError(f"{scene.path}: variant {variant}: the emulated frame differs from the numpy "
                                 "reference model of the kernel (a kernel or emulator bug)")
-        vis = depth = None
+        vis = depth = fight = None
         if "visibility" in wanted:
-            vis = metrics.visibility_errors(run.fbuf, ref_owner, geometry.colour).as_dict()
+            vis = metrics.visibility_errors(run.fbuf, ref_owner, geometry.colour, run.zbuf, variant).as_dict()
         if "depth_error" in wanted:
             depth = metrics.depth_error(run.zbuf, variant, ref_depth, ref_owner).as_dict()
-        result.accuracy[variant] = Accuracy(variant, same, vis, depth)
+        if "z_fighting" in wanted:
+            fight = metrics.z_fighting(run.fbuf, spans, geometry.pairs, ref_owner, geometry.colour).as_dict()
+        result.accuracy[variant] = Accuracy(variant, same, vis, depth, fight)
         for (cpu, memory), model in models.items():
             say(f"{scene.name}: {variant} on {cpu} with {model.dram.name}: timing")
             timed = time_emulation(run.emulation, model)
             result.timings.append(Timing(variant, cpu, model.dram.name, run.pixels, timed.last))
     if "fp16_precision" in wanted:
-        result.precision = metrics.fp16_precision(0.0, 1.0, 16).as_dict()
+        table = metrics.fp16_precision(2.0 ** -24, 1.0, 12)
+        result.precision = {"rows": [{"depth from": r["depth_lo"], "depth to": r["depth_hi"],
+                                      **{f"{f} step/depth": r[f"{f}_worst_relative"] for f in table.step}}
+                                     for r in table.rows()]}
     return result
