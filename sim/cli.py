@@ -362,7 +362,19 @@ def report_cmd(scenes, cpus, out):
     for r in results:
         paths = write_reports(r, out)
         err_console.print(f"wrote {', '.join(str(p) for p in paths)}")
+    if not scenes and not cpus:  # the default set also regenerates the conversion report
+        err_console.print("[dim]conversion report: timing kernels/convert/loops.S ...[/]")
+        err_console.print(f"wrote {_write_conversion_report(out)}")
     console.print(_summary_table(results))
+
+
+def _write_conversion_report(out: Path) -> Path:
+    from .microreport import conversion_markdown, conversion_results
+    from .report import atomic_write
+
+    path = Path(out) / "conversion.md"
+    atomic_write(path, conversion_markdown(conversion_results()).encode())
+    return path
 
 
 @main.command("check")
@@ -387,11 +399,13 @@ def check_cmd(scenes, update, check_reports):
         import tempfile
 
         with tempfile.TemporaryDirectory() as tmp:
-            for r in results:
-                for path in write_reports(r, Path(tmp), formats=("md", "json", "csv")):
-                    committed = REPORTS_DIR / path.name
-                    if not committed.is_file() or committed.read_bytes() != path.read_bytes():
-                        stale.append(committed)
+            fresh = [p for r in results for p in write_reports(r, Path(tmp), formats=("md", "json", "csv"))]
+            if not scenes:
+                fresh.append(_write_conversion_report(Path(tmp)))
+            for path in fresh:
+                committed = REPORTS_DIR / path.name
+                if not committed.is_file() or committed.read_bytes() != path.read_bytes():
+                    stale.append(committed)
     if drifts:
         t = Table(title=f"{len(drifts)} counter(s) differ from reports/baselines.json")
         for col in ("scene", "case", "counter", "old", "new", "delta", "percent"):

@@ -105,6 +105,16 @@ def cycles_table(result: SceneResult) -> tuple[list[str], list[list[str]]]:
     return header, rows
 
 
+def ns_table(result: SceneResult) -> tuple[list[str], list[list[str]]]:
+    from .cpus import presets
+
+    mhz = {k: presets.load(k.split(":")[0]).core_mhz for k in result.cpu_keys}
+    header = ["variant"] + [_cpu_label(k) for k in result.cpu_keys]
+    rows = [[v] + [_f(1000.0 * result.timing(v, k).per_pixel("cycles") / mhz[k]) for k in result.cpu_keys]
+            for v in result.scene.variants]
+    return header, rows
+
+
 def accuracy_table(result: SceneResult) -> tuple[list[str], list[list[str]]]:
     header = ["variant", "wrong visibility (pixels)", "wrong visibility (share)", "worst depth error",
               "mean depth error"]
@@ -179,7 +189,9 @@ def to_json(result: SceneResult) -> dict:
                          "depth_error": a.depth_error} for v, a in result.accuracy.items()},
         "precision": result.precision,
         "claims": evaluate_claims(result),
-        "findings": list(s.findings(result)) if hasattr(s, "findings") else [],
+        "findings": findings(result),
+        "hazard_pixels": result.hazard_pixels, "zero_length_spans": result.zero_spans,
+        "single_pixel_spans": result.single_spans,
     }
 
 
@@ -194,6 +206,50 @@ def to_csv(result: SceneResult) -> str:
     return buf.getvalue()
 
 
+def findings(result: SceneResult) -> list[str]:
+    """Plain statements of what this scene shows, computed from its results (never hand-written)."""
+    out = []
+    acc = result.accuracy
+    if any(a.visibility for a in acc.values()):
+        exact = [v for v, a in acc.items() if a.visibility and a.visibility["errors"] == 0]
+        wrong = sorted((a.visibility["errors"], v) for v, a in acc.items() if a.visibility and a.visibility["errors"])
+        parts = [f"exact visibility: {', '.join(exact)}" if exact else "no variant is exact"]
+        for n, v in wrong:
+            a = acc[v].visibility
+            parts.append(f"{v} gets {n:,} of {a['covered']:,} covered pixels wrong ({a['fraction']:.3%})"
+                         + (f", {a['unwritten']:,} of them never written (a depth that rounds to the clear value "
+                            "ties with it, and ties fail)" if a.get("unwritten") else ""))
+        out.append("; ".join(parts) + ".")
+    fights = [(v, a.z_fighting) for v, a in acc.items() if a.z_fighting]
+    if fights:
+        f0 = fights[0][1]
+        out.append(f"Z-fighting over {f0['contested']:,} contested pixels of {f0['pairs']} coplanar pairs: "
+                   + "; ".join(f"{v} loses the nearer surface on {f['fraction']:.1%} "
+                               f"({f['far_first_fraction']:.1%} where the far surface is drawn first)"
+                               for v, f in fights) + ".")
+    if any(a.depth_error for a in acc.values()):
+        out.append("Worst stored-depth error, in units of the scene's depth range: "
+                   + ", ".join(f"{v} {a.depth_error['worst']:.3g}" for v, a in acc.items() if a.depth_error) + ".")
+    hz = result.hazard_pixels
+    if hz is not None:
+        if hz["below_2048"]:
+            out.append(f"{hz['below_2048']:,} pixels have a 32-bit depth below 2048, where the 16-bit float's mantissa "
+                       f"takes bits from a stale EDX, and {hz['zero']:,} a depth of exactly 0, where BSR keeps the "
+                       "previous exponent; the emulated frame equals the bit-exact model of these hazards, and the "
+                       "visibility errors above include their effect.")
+        else:
+            out.append("No pixel has a 32-bit depth below 2048: the 16-bit float conversion's stale-register "
+                       "hazards cannot occur in this scene.")
+    if result.zero_spans + result.single_spans > result.spans // 4:
+        out.append(f"{result.zero_spans:,} zero-length and {result.single_spans:,} single-pixel spans of "
+                   f"{result.spans:,}: per-span set-up dominates the cost per pixel.")
+    for key in result.cpu_keys:
+        ranked = sorted((result.timing(v, key).per_pixel("cycles"), v) for v in result.scene.variants)
+        out.append(f"On {_cpu_label(key)} the cheapest format is {ranked[0][1]} ({ranked[0][0]:.2f} cycles/pixel), "
+                   f"the dearest {ranked[-1][1]} ({ranked[-1][0]:.2f}).")
+    return out
+
+
 def to_markdown(result: SceneResult, png_name: str | None, findings: list[str]) -> str:
     s = result.scene
     parts = [f"# {s.name}", "", s.description.strip(), "",
@@ -203,7 +259,8 @@ def to_markdown(result: SceneResult, png_name: str | None, findings: list[str]) 
              f"{s.frames} frame(s) are drawn in one machine state (clear the depth buffer, then every span); "
              "the last frame is reported, with caches and predictors warm.", ""]
     if result.timings:
-        parts += ["## Cycles per pixel", "", _md_table(*cycles_table(result)), ""]
+        parts += ["## Cycles per pixel", "", _md_table(*cycles_table(result)), "",
+                  "The same in nanoseconds per pixel at each preset's clock:", "", _md_table(*ns_table(result)), ""]
     if any(a.visibility or a.depth_error for a in result.accuracy.values()):
         parts += ["## Error against the exact reference", "",
                   "Against a float64 Z-buffer of the same spans. Depth errors are in units of the scene's exact "
@@ -238,12 +295,12 @@ def _precision_md(precision: dict) -> str:
                               for r in rows])
 
 
-def write_reports(result: SceneResult, out_dir: Path, findings: list[str] | None = None,
+def write_reports(result: SceneResult, out_dir: Path,
                   formats: tuple[str, ...] = ("md", "png", "json", "csv", "html")) -> list[Path]:
     out_dir = Path(out_dir)
     name = result.scene.name
     png = work_precision_png(result) if "png" in formats or "html" in formats else None
-    md = to_markdown(result, f"{name}.png" if png else None, findings or [])
+    md = to_markdown(result, f"{name}.png" if png else None, findings(result))
     written = []
     payloads = {
         "md": md.encode(),

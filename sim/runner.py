@@ -55,6 +55,9 @@ class SceneResult:
     spans: int
     pixels: int
     depth_complexity: float
+    zero_spans: int = 0
+    single_spans: int = 0
+    hazard_pixels: dict | None = None  # fp16z: pixels whose interpolated depth is below 2048, or 0
     timings: list[Timing] = field(default_factory=list)
     accuracy: dict[str, Accuracy] = field(default_factory=dict)
     precision: dict | None = None
@@ -68,6 +71,16 @@ class SceneResult:
     @property
     def cpu_keys(self) -> list[str]:
         return list(dict.fromkeys(t.key for t in self.timings))
+
+
+def fp16z_hazards(spans) -> dict:
+    """Pixels where the article's conversion meets its documented hazards: a 32-bit depth below
+    2048 (stale EDX bits in the mantissa) and exactly 0 (BSR leaves ECX unchanged)."""
+    z0, dz = raster.span_parameters(spans, "fp16z")
+    counts = spans.count.astype(np.int64)
+    k = np.arange(int(counts.sum()), dtype=np.int64) - np.repeat(np.cumsum(counts) - counts, counts)
+    z = (np.repeat(z0.astype(np.int64), counts) + k * np.repeat(dz.astype(np.int64), counts)) & 0xFFFFFFFF
+    return {"below_2048": int(np.count_nonzero(z < 2048)), "zero": int(np.count_nonzero(z == 0))}
 
 
 def _cpu_keys(cpus: list[str]) -> list[tuple[str, str | None]]:
@@ -84,7 +97,10 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
     w, h = scene.width, scene.height
     spans = raster.rasterize(geometry, w, h)
     pixels = int(spans.count.sum())
-    result = SceneResult(scene, w, h, int(geometry.z.shape[0]), int(spans.y.size), pixels, pixels / (w * h))
+    result = SceneResult(scene, w, h, int(geometry.z.shape[0]), int(spans.y.size), pixels, pixels / (w * h),
+                         int(np.count_nonzero(spans.count == 0)), int(np.count_nonzero(spans.count == 1)))
+    if "fp16z" in scene.variants:
+        result.hazard_pixels = fp16z_hazards(spans)
     wanted = set(scene.metrics)
     ref_depth = ref_owner = None
     if scene.needs.reference:
