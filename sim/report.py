@@ -299,8 +299,9 @@ def write_reports(result: SceneResult, out_dir: Path,
                   formats: tuple[str, ...] = ("md", "png", "json", "csv", "html")) -> list[Path]:
     out_dir = Path(out_dir)
     name = result.scene.name
-    png = work_precision_png(result) if "png" in formats or "html" in formats else None
-    md = to_markdown(result, f"{name}.png" if png else None, findings(result))
+    has_plot = any(a.visibility for a in result.accuracy.values())
+    png = work_precision_png(result) if has_plot and ("png" in formats or "html" in formats) else None
+    md = to_markdown(result, f"{name}.png" if has_plot else None, findings(result))
     written = []
     payloads = {
         "md": md.encode(),
