@@ -76,3 +76,40 @@ def test_bench_json_has_the_three_figures():
     for key in ("unicorn_bare_ips", "python_hook_ips", "native_trace_ips"):
         assert out[key] > 0
     assert out["instructions"] > 9 * 20000  # the span loop runs 9 or 11 instructions per pixel
+
+
+def test_time_json_has_the_required_keys():
+    r = run("time", "micro/pipeline.S", "-e", "imul_chain", "--args", "100", "--json")
+    assert r.exit_code == 0, r.output
+    out = json.loads(r.output)
+    for key in ("cpu", "cycles", "instructions", "uops", "l1d_misses", "l2_misses", "dram_cycles", "port0",
+                "stall_dependency", "decoder0"):
+        assert key in out
+    assert out["cpu"] == "pentium2-233" and out["cycles"] >= 0.95 * 4 * 8 * 100
+
+
+def test_explain_shows_decoders_rows_and_timeline():
+    args = ("explain", "convert/loops.S", "-e", "convert_plain", "--args", "buf:u32:64:4096,buf:u16:64,64")
+    r = run(*args)
+    assert r.exit_code == 0, r.output
+    assert "bsr" in r.output and "shrd" in r.output and "timeline" in r.output
+    out = json.loads(run(*args, "--json").output)
+    rows = {row["instruction"].split()[0]: row for row in out["instructions"]}
+    assert rows["bsr"]["row"] == "bsr r32,r32" and rows["bsr"]["decoder_class"] == "complex"  # the table row used
+    assert rows["bsr"]["uops"] == 2 and "Agner" not in rows["bsr"]["row"] and rows["bsr"]["source"]
+    assert out["timeline"] and {"decode", "dispatch", "retire", "cause"} <= set(out["timeline"][0])
+
+
+def test_unknown_cpu_and_scene_are_clear_errors():
+    r = CliRunner().invoke(main, ["time", "micro/pipeline.S", "-e", "imul_chain", "--args", "1", "--cpu", "pentium9"])
+    assert r.exit_code == 2 and "unknown CPU preset 'pentium9'" in r.output
+    r = CliRunner().invoke(main, ["report", "no-such-scene"])
+    assert r.exit_code == 2 and "no scene 'no-such-scene'" in r.output
+
+
+def test_cpus_lists_presets_and_memory():
+    r = run("cpus", "--json")
+    out = json.loads(r.output)
+    assert out["cpus"]["celeron-266"]["l2"] is None
+    assert "128 KB" in out["cpus"]["celeron-300a"]["l2"]
+    assert set(out["memory"]) >= {"edo", "sdram-pc66", "sdram-pc100"}
