@@ -17,7 +17,7 @@ import numpy as np
 
 from .cpus import make_model
 from .decode import Decoder
-from .emu import Machine, RdtscEvent
+from .emu import Machine
 from .errors import RetrosimError
 from .trace import Trace
 

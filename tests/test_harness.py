@@ -9,7 +9,7 @@ from sim.errors import ArgumentError, AssemblerError, AssemblerMissing, GuestFau
 from sim.trace import Trace
 
 
-def kernel(tmp_path, body: str, name: str = "k.S") -> "Path":
+def kernel(tmp_path, body: str, name: str = "k.S"):
     src = tmp_path / name
     src.write_text(".intel_syntax noprefix\n.text\n" + body)
     return src

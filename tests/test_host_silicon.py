@@ -66,8 +66,7 @@ def host_convert(tmp_path_factory):
         fn(src.ctypes.data, dst.ctypes.data, src.size, edx_in, ecx_in)
         return dst
 
-    yield convert
-    del fn
+    yield convert  # `buf` (the executable page) stays mapped until the module's tests are done
 
 
 def sample() -> np.ndarray:

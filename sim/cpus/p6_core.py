@@ -29,7 +29,7 @@ import numpy as np
 from numba import njit
 
 from ..memory.hierarchy import memory_fills, memory_writebacks, served_level, service
-from .lowering import (BR_CALL, BR_COND, BR_DIRECT, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, COMPUTE, DEC_MSROM,
+from .lowering import (BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM,
                        DEC_SIMPLE, LOAD, NREGS, NUNITS, REG_FLAGS, REG_ST0, STA, STD)
 
 # parameter vector indices
@@ -154,10 +154,9 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     nstatic = s_len.shape[0]
     rob_n, rs_n, rename_w, retire_w = P[P_ROB], P[P_RS], P[P_RENAME], P[P_RETIRE]
     queue_n, block = P[P_QUEUE], P[P_FETCH_BLOCK]
-    l1_lat, l2_lat = P[P_L1_LAT], P[P_L2_LAT]
+    l2_lat = P[P_L2_LAT]
     mshr_n, sb_n = P[P_MSHR], P[P_SB]
     d_levels = dconfig.shape[0]
-    i_levels = iconfig.shape[0]
 
     reg_ready = np.zeros(NREGS, np.int64)
     reg_pmask = np.full(NREGS, 15, np.int64)    # bytes written by the last (partial) writer
@@ -322,10 +321,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         cause_disp = 0
         branch_done = 0
         is_store = False
-        store_addr = 0
-        store_size = 0
         store_std = 0
-        store_sta = 0
         for k in range(nu):
             u = u0 + k
             kind = u_kind[u]
@@ -435,7 +431,6 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
             complete = disp + lat + max(mem_wait, fwd_wait)
             if kind == STA:
                 is_store = True
-                store_sta = complete
                 if complete > last_sta_done:
                     last_sta_done = complete
             if kind == STD:
@@ -590,8 +585,6 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                 if decode_time + 1 + bubble > fe_ready:
                     fe_ready = decode_time + 1 + bubble
                 dec_pos = 3
-            elif redirect:
-                pass
 
         # ---- RDTSC values, timeline, per-static sums ------------------------------------------
         if nrdtsc < rdtsc_out.shape[0] and rdtsc_sid[sid] == 1:
