@@ -41,4 +41,8 @@ def make_model(cpu: str, memory: str | None = None):
         from .p6 import P6Model
 
         return P6Model(preset, mem)
+    if preset.family == "k6":
+        from .k6 import K6Model
+
+        return K6Model(preset, mem)
     raise RetrosimError(f"CPU preset '{cpu}': no timing model for family '{preset.family}' yet")

@@ -166,7 +166,10 @@ def _uops_for(rec: InsnRecord, match: Match, load_latency: int) -> list[tuple[in
 
 
 def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int = 3,
-          simple_max_len: int = 7) -> StaticProgram:
+          simple_max_len: int = 7, uops_for=None, decoder_for=None) -> StaticProgram:
+    """The static program of `records`. A family other than the P6 passes its own rules:
+    `uops_for(rec, match, load_latency)` -> [(kind, ports, latency, unit, occupancy)] and
+    `decoder_for(rec, match, uops)` -> DEC_* (the K6 model does; see sim/cpus/k6.py)."""
     n = len(records)
     s = {k: np.zeros(n, np.int64) for k in ("len", "pc", "dec", "lcp", "branch", "target", "fpdelta", "zero",
                                            "nuops", "uop0", "nsrc", "ndst")}
@@ -177,7 +180,7 @@ def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int 
     for i, rec in enumerate(records):
         match = table.require(rec.mnemonic, rec.signature, f"pc {rec.pc:#010x} ({rec.mnemonic} {rec.op_str})")
         matches.append(match)
-        us = _uops_for(rec, match, load_latency)
+        us = (uops_for or _uops_for)(rec, match, load_latency)
         s["uop0"][i], s["nuops"][i] = len(uops), len(us)
         uops.extend(us)
         dec = DECODER_NAMES.get(match.row.decoder, DEC_COMPLEX)
@@ -187,6 +190,8 @@ def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int 
             dec = DEC_COMPLEX
         elif dec == DEC_SIMPLE and rec.length > simple_max_len:
             dec = DEC_COMPLEX  # the simple decoders take instructions of at most 7 bytes
+        if decoder_for is not None:
+            dec = decoder_for(rec, match, us)
         s["dec"][i] = dec
         s["len"][i], s["pc"][i] = rec.length, rec.pc
         s["lcp"][i] = int(rec.opsize_prefix and rec.imm_size == 2) or int(rec.addrsize_prefix and rec.disp_size == 2)

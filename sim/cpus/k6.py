@@ -1,0 +1,347 @@
+"""The AMD K6 family model (K6 model 6/7, K6-2 model 8, K6-III model 9): parameters from
+sim/cpus/tables/k6_machine.toml and the CPU/memory presets, instruction facts (RISC86 ops, decoder,
+units, latency, throughput) from sim/cpus/tables/k6.toml, the cycle loop in :mod:`sim.cpus.k6_core`.
+
+The interface is the P6 model's (:class:`sim.cpus.p6.P6Model`): ``run(trace, decoder, segments,
+timeline, stat_first)`` returns a :class:`K6CoreRun` whose counters carry the P6 core's names at the
+P6 core's indices, followed by the K6's own (``k6_core.C_NAMES``).
+
+How a table row becomes ops (:class:`K6Rules`):
+- one op per entry of ``units``: int-x -> issue slot X, int-y -> Y, int-xy -> X or Y, load, store
+  (a store op carries address and data; LEA, which writes no memory, is an ordinary op on the store
+  slot), branch; fpu -> the x87 unit (no issue-slot calendar: it is not pipelined, busy for the
+  row's reciprocal throughput); mmx -> X on the K6 model 6/7, X or Y on the K6-2/K6-III; mmx-mul,
+  mmx-shift, 3dnow -> the same slots plus the single multiplier / shifter / 3DNow! unit (one op per
+  clock; on the K6 the multiplier holds X for its throughput); no units -> an op that completes
+  when it enters the scheduler (MOV r,imm, NOP);
+- latency: the row's, which includes the 2-clock load for r,m forms; the ops after the load form a
+  chain, 1 clock each except the last, which takes the rest;
+- the integer multiplier and divider are not pipelined: the last op holds X for the rest of the
+  row's throughput (IMUL r32,r32 = 2 ops on X: 1 + 2 clocks, X busy 3);
+- decoder: the row's class, promoted when the encoding breaks the class's limits (short: <= 7
+  bytes and <= 2 ops; long: <= 11 bytes and <= 4 ops; else vector);
+- decode clocks: a short instruction without prefixes pairs (0); long 1; vector: the vector
+  decoder and ROM sequencer are busy for max(2, ceil(ops / 4), the row's throughput when no
+  non-pipelined unit explains it) clocks; prefixes: the measured rate (one prefix 1 clock alone, 2
+  with a 16-bit immediate; two prefixes 3; n >= 3: 2n - 2).
+
+Vector sequences. The table gives BSR/BSF one op with latency 10 and throughput 10 (measured on
+three K6 generations; the op count is 86Box's guess). One pipelined op cannot have throughput 10,
+and a non-pipelined op on X or Y would give 5 with two units; the model therefore reads such a
+throughput as the length of the ROM sequence: the vector decoder is busy for 10 clocks and decodes
+nothing else meanwhile (ESTIMATES["vector_sequence"]). The same rule gives ADC, ROL, CDQ, SETcc
+their measured 2-2.5 and RDTSC its 8.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import re
+import tomllib
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..decode import Decoder, InsnRecord
+from ..elf import EXIT_ADDR
+from ..errors import RetrosimError
+from ..memory.cache import CacheGeometry
+from ..memory.dram import DramTiming, bus_ratio, core_clocks
+from ..memory.hierarchy import Hierarchy
+from ..trace import Trace
+from . import k6_core as core
+from .lowering import BRANCH, COMPUTE, DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE, LOAD, STA, StaticProgram, lower
+from .p6 import CoreRun, DramCost
+from .presets import CpuPreset
+from .table import TABLES, InstructionTable, Match, load_table
+
+# Model choices with no figure in the sources (each says why it is what it is).
+ESTIMATES = {
+    "bus_overhead_bus_clocks": (5, "bus clocks from an L1 miss to the first transfer beyond the memory's own "
+                                "lead-off: the K6-233's board cache measures 8 bus clocks end to end "
+                                "(k6-233.toml [l2] latency_cycles 28 at 3.5x) with a 3-clock first transfer"),
+    "board_miss_bus_clocks": (7, "bus clocks a read that misses the board cache spends before the DRAM "
+                              "lead-off (tag check, row activation: no figure found); calibrated so a K6-233 "
+                              "pointer chase beyond the board cache costs the measured 62 clocks (k6-233.toml "
+                              "[memory] measured_latency_cycles linear_16mb, with the sdram-pc66 default): "
+                              "2 + (5 + 7 + 5) x 3.5 = 62. The same rule gives 58 and 75 where the K6-2 334 "
+                              "and K6-III 400 dumps measure 72 and 98"),
+    "mispredict_restart": (2, "cycles from a mispredicted branch's result to the decode of the correct path: "
+                           "a branch whose condition is ready completes 3 cycles after its decode (scheduler "
+                           "entry, issue, execute), so the correct path decodes 5 cycles after it instead of "
+                           "1: the 4-cycle penalty of k6_machine.toml [branch] (itself an estimate: NOT FOUND)"),
+    "store_queue": (8, "store-queue entries: NOT FOUND in any source (k6_machine.toml [units.store])"),
+    "bus_write_bus_clocks": (10, "front-side-bus clocks per write that misses L1 and is not allocated: "
+                             "InstLatX64 K6-233 measured 36 core clocks per such store (k6-233.toml "
+                             "[write_allocate]) = 10.3 bus clocks at 3.5x"),
+    "ondie_l2_port": (4, "core cycles the K6-III's on-die L2 port is busy per 32-byte line (four 8-byte "
+                      "transfers); width not found"),
+    "bht_history_bits": (13, "global-history bits XORed into the 8192-entry BHT index (gshare); AMD gives "
+                         "only 'two-level adaptive, global history' (k6_machine.toml [branch])"),
+    "vector_sequence": (None, "a vector instruction whose measured throughput no non-pipelined unit explains "
+                        "keeps the vector decoder busy that many clocks (BSR/BSF 10): see the module docstring"),
+}
+
+PORT_BITS = {"int-x": core.X, "int-y": core.Y, "int-xy": core.X | core.Y, "load": core.LOAD_SLOT,
+             "store": core.STORE_SLOT, "branch": core.BRANCH_SLOT}
+NON_PIPELINED_INT = {"imul", "mul", "div", "idiv"}
+
+
+@functools.cache
+def _machine_table() -> dict:
+    with open(TABLES / "k6_machine.toml", "rb") as f:
+        return tomllib.load(f)
+
+
+def model_key(preset: CpuPreset) -> str:
+    """'k6', 'k6-2' or 'k6-3' from the preset's CPUID model (k6_machine.toml [models])."""
+    m = re.search(r"model\s+(\d+)", str(preset.raw.get("cpuid_signature", "")))
+    if m:
+        for key, info in _machine_table()["models"].items():
+            if isinstance(info, dict) and int(m.group(1)) in info.get("models", ()):
+                return key
+    raise RetrosimError(f"CPU preset {preset.name}: cpuid_signature {preset.raw.get('cpuid_signature')!r} "
+                        "names no K6 model of k6_machine.toml [models]")
+
+
+def _whole(x: float) -> int:
+    """Clocks from a measured figure: nearest integer, halves up (SETcc 2.5 -> 3)."""
+    return int(math.floor(x + 0.5))
+
+
+class K6Rules:
+    """The K6's reading of its table rows (see the module docstring), for one model."""
+
+    def __init__(self, key: str, machine: dict):
+        self.key = key
+        d = machine["decode"]
+        self.short_len, self.short_ops = d["short"]["max_length_bytes"], d["short"]["max_ops"]
+        self.long_len, self.long_ops = d["long"]["max_length_bytes"], d["long"]["max_ops"]
+        self.vector_rate = d["vector"]["ops_per_cycle"]
+        self.vector_min = d["vector"]["min_cycles_per_instruction"]
+        self.mmx_first_only = bool(d["short"]["mmx_first_decoder_only"][key])
+
+    def field(self, row, name):
+        """A row field with the model's override applied (k6.toml model_overrides)."""
+        over = row.extra.get("model_overrides", {}).get(self.key, {})
+        if name in over:
+            return over[name]
+        return getattr(row, name) if hasattr(row, name) else row.extra.get(name)
+
+    def uops(self, rec: InsnRecord, match: Match, load_latency: int) -> list[tuple[int, int, int, int, int]]:
+        row = match.row
+        models = row.extra.get("models")
+        if models and self.key not in models:
+            raise RetrosimError(f"pc {rec.pc:#010x} ({rec.mnemonic} {rec.op_str}): not on the {self.key} "
+                                f"(k6.toml row '{row.key}' models = {models}); the CPU raises #UD")
+        units = list(row.extra.get("units", [])) or ["none"] * max(1, row.uops)
+        latency = self.field(row, "latency")
+        throughput = self.field(row, "throughput")
+        mmx_slot = core.X if self.key == "k6" else core.X | core.Y
+        ops = []  # [kind, slots, unit, occupancy]
+        for name in units:
+            if name in ("load", "branch") or name.startswith("int-"):
+                kind = LOAD if name == "load" else BRANCH if name == "branch" else COMPUTE
+                ops.append([kind, PORT_BITS[name], core.U_NONE, 0])
+            elif name == "store":
+                ops.append([STA if rec.writes_memory else COMPUTE, core.STORE_SLOT, core.U_NONE, 0])
+            elif name == "fpu":
+                occ = _whole(throughput or latency or 2)
+                ops.append([COMPUTE, 0, core.U_FPU, max(1, occ)])
+            elif name == "mmx":
+                ops.append([COMPUTE, mmx_slot, core.U_NONE, 0])
+            elif name in ("mmx-mul", "mmx-shift", "3dnow"):
+                if self.key == "k6":  # one multimedia pipe, on X
+                    occ = _whole(throughput or 1)
+                    ops.append([COMPUTE, core.X, core.U_HOLD if occ > 1 else core.U_NONE, occ])
+                else:
+                    unit = {"mmx-mul": core.U_MMX_MUL, "mmx-shift": core.U_MMX_SHIFT, "3dnow": core.U_3DNOW}[name]
+                    ops.append([COMPUTE, mmx_slot, unit, 1])
+            elif name == "none":
+                ops.append([COMPUTE, 0, core.U_NONE, 0])
+            else:
+                raise RetrosimError(f"k6.toml row '{row.key}': unknown unit {name!r}")
+        chain = [j for j, op in enumerate(ops) if op[0] in (COMPUTE, BRANCH)]
+        has_load = any(op[0] == LOAD for op in ops)
+        total = 1 if latency is None else latency
+        work = max(0 if has_load else 1, _whole(total - (load_latency if has_load else 0)))
+        if rec.mnemonic in NON_PIPELINED_INT and chain:
+            occ = _whole(throughput or total) - (len(chain) - 1)
+            ops[chain[-1]][2:] = [core.U_HOLD, max(1, occ)]
+        out = []
+        for j, (kind, slots, unit, occ) in enumerate(ops):
+            if kind == LOAD:
+                lat = load_latency
+            elif kind == STA:
+                lat = 1
+            elif slots == 0 and unit == core.U_NONE:
+                lat = 0 if latency is None else _whole(latency)
+            elif chain and j == chain[-1]:
+                lat = max(0, work - (len(chain) - 1))
+            else:
+                lat = 1
+            out.append((kind, slots, lat, unit, occ))
+        return out
+
+    def decoder(self, rec: InsnRecord, match: Match, uops) -> int:
+        dec = {"short": DEC_SIMPLE, "long": DEC_COMPLEX}.get(match.row.decoder, DEC_MSROM)
+        if dec == DEC_SIMPLE and (rec.length > self.short_len or len(uops) > self.short_ops):
+            dec = DEC_COMPLEX
+        if dec == DEC_COMPLEX and (rec.length > self.long_len or len(uops) > self.long_ops):
+            dec = DEC_MSROM
+        return dec
+
+    def vector_cycles(self, match: Match, uops) -> int:
+        cycles = max(self.vector_min, -(-len(uops) // self.vector_rate))
+        explained = any(u[3] == core.U_FPU or (u[3] == core.U_HOLD and u[4] > 1) for u in uops)
+        throughput = self.field(match.row, "throughput")
+        if throughput and not explained:
+            cycles = max(cycles, _whole(throughput))
+        return cycles
+
+    @staticmethod
+    def prefix_cycles(rec: InsnRecord) -> int:
+        """Decode clocks of an instruction with legacy prefixes, alone (k6_machine.toml
+        [decode.prefixes], measured); 0 without prefixes."""
+        n = len(rec.prefixes)
+        if n == 0:
+            return 0
+        if n == 1:
+            return 2 if rec.opsize_prefix and rec.imm_size == 2 else 1
+        return 3 if n == 2 else 2 * n - 2
+
+    def decode_arrays(self, program: StaticProgram):
+        """(s_cyc, s_first, s_pfx): decode clocks when alone (0 = pairs in the short decoders),
+        first-short-decoder-only flag, decode clocks added by prefixes."""
+        n = len(program.records)
+        cyc, first, pfx = (np.zeros(n, np.int64) for _ in range(3))
+        for s, (rec, match) in enumerate(zip(program.records, program.matches)):
+            dec = program.s_dec[s]
+            u0, nu = program.s_uop0[s], program.s_nuops[s]
+            uops = [tuple(int(a[u]) for a in (program.u_kind, program.u_ports, program.u_lat, program.u_unit,
+                                                program.u_occ)) for u in range(u0, u0 + nu)]
+            own = self.vector_cycles(match, uops) if dec == DEC_MSROM else 1
+            p = self.prefix_cycles(rec)
+            cyc[s] = max(own, p) if (p or dec != DEC_SIMPLE) else 0
+            pfx[s] = max(0, p - own)
+            first[s] = int(rec.is_x87 or (self.mmx_first_only and rec.is_mmx))
+        return cyc, first, pfx
+
+
+def dram_cost(memory: DramTiming, preset: CpuPreset) -> DramCost:
+    """DRAM behind the board cache, in core clocks (rounded up): lead-off = the Socket 7 bus
+    overhead estimate + the board-cache miss estimate (when the board has a cache) + the memory's
+    first transfer; a fill or writeback keeps the bus for the whole burst."""
+    if preset.fsb_mhz > memory.bus_mhz + 0.5:
+        raise RetrosimError(f"{preset.name} with {memory.name}: memory rated for {memory.bus_mhz:g} MHz, "
+                            f"below the {preset.fsb_mhz:g} MHz bus")
+    ratio = bus_ratio(preset.core_mhz, preset.fsb_mhz)
+    board_miss = ESTIMATES["board_miss_bus_clocks"][0] if (preset.l2 or preset.board_cache) else 0
+    lead = core_clocks(ESTIMATES["bus_overhead_bus_clocks"][0] + board_miss + memory.first_access_bus_clocks, ratio)
+    return DramCost(memory.name, lead, core_clocks(memory.line_fill_bus_clocks, ratio),
+                    core_clocks(memory.line_writeback_bus_clocks, ratio))
+
+
+@dataclass
+class K6CoreRun(CoreRun):
+    """A K6 run: the P6 run's fields; counters named by k6_core.C_NAMES (the P6 names first)."""
+
+    def segment(self, k: int = -1) -> dict[str, int]:
+        return dict(zip(core.C_NAMES, map(int, self.counters[k])))
+
+
+class K6Model:
+    family = "k6"
+
+    def __init__(self, preset: CpuPreset, memory: DramTiming):
+        if preset.family != "k6":
+            raise ValueError(f"{preset.name} is a {preset.family} part, not K6")
+        self.preset = preset
+        self.memory = memory
+        self.key = model_key(preset)
+        self.machine = _machine_table()
+        self.table: InstructionTable = load_table("k6")
+        self.rules = K6Rules(self.key, self.machine)
+        self.dram = dram_cost(memory, preset)
+        self.ratio = bus_ratio(preset.core_mhz, preset.fsb_mhz)
+        self.l1_latency = int(preset.l1d.latency_cycles or self.machine["units"]["load"]["l1_hit_latency"])
+        try:
+            self.dside = Hierarchy.from_preset(preset)
+        except ValueError as e:
+            raise RetrosimError(str(e)) from None
+        l1i = preset.l1i
+        self.iside = Hierarchy([CacheGeometry("L1I", l1i.size_bytes, l1i.ways, l1i.line_bytes, replacement="lru",
+                                              write_allocate=False)])
+        self.params = self._params()
+
+    def _board(self) -> tuple[int, dict]:
+        """(level index in the data hierarchy, raw preset section) of the motherboard cache."""
+        raw = self.preset.raw
+        if self.preset.board_cache is not None:  # K6-III: on-die L2, board cache = L3
+            return 2, raw.get("l3") or raw["board_cache"]
+        if self.preset.l2 is not None:
+            return 1, raw["l2"]
+        return 0, {}
+
+    def _params(self) -> np.ndarray:
+        m, p = self.machine, self.preset
+        P = np.zeros(core.NPARAMS, np.int64)
+        P[core.P_QUADS] = m["scheduler"]["entries_risc86_ops"] // m["decode"]["risc86_ops_per_decode_cycle"]
+        P[core.P_L1_LAT] = self.l1_latency
+        level, section = self._board()
+        P[core.P_BOARD_LEVEL] = level
+        if level:
+            P[core.P_BOARD_LAT] = int(section["latency_cycles"])
+            P[core.P_BOARD_BUSY] = core_clocks(sum(section.get("burst_bus_clocks", [3, 1, 1, 1])), self.ratio)
+        if level == 2:
+            P[core.P_ONDIE] = 1
+            P[core.P_L2_LAT] = int(p.l2.latency_cycles)
+            P[core.P_L2_BUS] = ESTIMATES["ondie_l2_port"][0]
+        P[core.P_IMISS] = P[core.P_L2_LAT] if level == 2 else (P[core.P_BOARD_LAT] or self.dram.lead_off)
+        P[core.P_DRAM_LAT] = self.dram.lead_off
+        P[core.P_DRAM_LINE] = self.dram.line_busy
+        P[core.P_DRAM_WB] = self.dram.writeback_busy
+        P[core.P_BUS_WRITE] = core_clocks(ESTIMATES["bus_write_bus_clocks"][0], self.ratio)
+        P[core.P_SQ] = ESTIMATES["store_queue"][0]
+        P[core.P_MISPREDICT] = ESTIMATES["mispredict_restart"][0]
+        b = m["branch"]
+        P[core.P_BTC] = b["btc_entries"]
+        P[core.P_BTC_MISS] = b["btc_miss_taken_penalty_cycles"]
+        P[core.P_BHT] = b["bht_entries"]
+        P[core.P_HIST_BITS] = ESTIMATES["bht_history_bits"][0]
+        P[core.P_RSB] = b["return_stack_entries"]
+        P[core.P_PARTIAL] = m["partial_register"]["penalty_cycles"]
+        P[core.P_EXIT_ADDR] = EXIT_ADDR
+        return P
+
+    def reset(self) -> None:
+        """Cold caches (each run starts from reset, as the P6 model's does)."""
+        for side in (self.dside, self.iside):
+            side.reset()
+
+    def lower(self, records: list[InsnRecord]) -> StaticProgram:
+        return lower(records, self.table, self.l1_latency, uops_for=self.rules.uops, decoder_for=self.rules.decoder)
+
+    def run(self, trace: Trace, decoder: Decoder, segments: list[int] | None = None,
+            timeline: tuple[int, int] = (0, 0), stat_first: int = 0) -> K6CoreRun:
+        """Time `trace` from a cold machine (the arguments and result are those of P6Model.run)."""
+        records, index = decoder.decode_trace(trace.pc)
+        program = self.lower(records)
+        k6_static = self.rules.decode_arrays(program)
+        per_insn = np.bincount(trace.mem_insn, minlength=trace.instructions).astype(np.int64, copy=False)
+        first_access = np.cumsum(per_insn) - per_insn
+        cuts = np.asarray(segments or [trace.instructions], dtype=np.int64)
+        is_rdtsc = np.array([r.mnemonic == "rdtsc" for r in records], np.int64)
+        executed = np.flatnonzero(is_rdtsc)
+        rdtsc = np.zeros(int(np.isin(index, executed).sum()) if executed.size else 0, np.int64)
+        counters = np.zeros((cuts.size, core.NC), np.int64)
+        per_static = np.zeros((len(records) + 1, core.NS), np.int64)  # the last row is a sink
+        rows = np.zeros((timeline[1], core.NT), np.int64)
+        self.reset()
+        data_counts, code_counts = self.dside.new_counts(), self.iside.new_counts()
+        end = core.simulate(index, trace.pc, first_access, per_insn, trace.mem_addr, trace.mem_size,
+                            trace.mem_write, cuts, *program.arrays(), *k6_static, self.params,
+                            *self.dside.arrays(), data_counts, *self.iside.arrays(), code_counts,
+                            counters, per_static, stat_first, rows, timeline[0], is_rdtsc, rdtsc)
+        return K6CoreRun(program, counters, per_static[:-1], rows, rdtsc, int(end))

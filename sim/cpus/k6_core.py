@@ -1,0 +1,571 @@
+"""The compiled AMD K6 cycle model: one pass over the dynamic instruction stream, in program order.
+
+The machine (AMD-K6 data sheet 20695H ch. 2; numbers in sim/cpus/tables/k6_machine.toml):
+
+Front end. Decode clocks produce *opquads*, groups of four RISC86 ops padded with RISC86 NOPs.
+In one clock either both short decoders work (two instructions of at most 7 bytes and 2 ops each;
+an x87 instruction, and on the K6 model 6/7 an MMX instruction, only in the first), or the long
+decoder (one instruction, up to 4 ops), or the vector decoder with its ROM sequencer (one
+instruction, alone, for S_CYC clocks: at least two, and as many as the sequence runs). An
+instruction with prefixes decodes alone at the measured prefix rate. A predicted-taken branch ends
+the group; the branch target cache (BTC) supplies the target's bytes at once, and a BTC miss costs
+a fetch clock. Branch prediction at decode: a 2-bit counter table of BHT entries indexed by the
+branch address XOR a global history of the last HIST_BITS conditional outcomes; direct targets are
+computed at decode (never mispredicted); returns use a return stack; indirect targets are guessed
+from the BTC. A misprediction restarts decoding MISPREDICT clocks after the branch executes.
+Scheduler. The centralised scheduler holds QUADS opquads (24 ops = 6 x 4, NOP padding included):
+it is both the window and the reservation station. An opquad enters the clock after it is decoded
+if its slot is free (the opquad QUADS older has retired); otherwise the decoder holds it. Ops issue
+from any position, oldest first, to the units: X and Y (integer; shifts, multiplies, divides and on
+the K6 MMX only on X), load, store (also LEA), branch, each one op per clock (the ``_book_port``
+calendar shared with the P6 core), the x87 unit (not pipelined: busy for the op's reciprocal
+throughput) and, on the K6-2/K6-III, one MMX multiplier, one MMX shifter and one 3DNow! unit
+behind the X/Y issue slots. The multiplier and divider hold X for their whole occupancy. Opquads
+retire in order, one per clock (four ops, padding included).
+Memory. L1D/L1I, the board cache (L2; on the K6-III the on-die L2, and the board cache as L3) and
+DRAM through :mod:`sim.memory.hierarchy`. The board cache and DRAM share the Socket 7 front-side
+bus, serially; the K6-III's on-die L2 has its own port. Stores wait in a store queue of SQ entries
+and write L1 after retirement; a write miss either allocates (a line fill) or, when the write-allocate
+mode says no, becomes a single write on the bus. Loads take data from an overlapping older store in
+the queue with the ordinary load latency once the store has issued (trace addresses: perfect
+disambiguation). Reading a full register after a partial write costs PARTIAL extra clocks.
+
+Counters, per-static columns, timeline and stall causes are those of :mod:`sim.cpus.p6_core`, with
+the same indices, so views and reports read both models alike; the K6 fills what applies and adds
+its own counters after the shared ones. Mapping: decoder0 = the first short decoder or the long
+decoder, decoder1 = the second short decoder, decoder2 = 0, msrom_uops = vector-path ops,
+port0..port4 = X, Y, load, store, branch; fpu_ops counts the x87 unit; stall_rob = scheduler full,
+stall_rs = 0, lcp_stalls = decode clocks added by prefixes; l2_* = the level below L1 (the board
+cache, or the K6-III's on-die L2), l3_* = the K6-III's board cache.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..memory.hierarchy import S_FILLS, S_WRITEBACKS, memory_fills, memory_writebacks, served_level, service
+from .lowering import BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, LOAD, NREGS, REG_ST0, STA
+from .p6_core import (C_BRANCHES, C_DECODE_GROUPS, C_DECODER0, C_DRAM_BUS_CYCLES, C_DRAM_FILLS, C_DRAM_WRITEBACKS,
+                      C_INSTRUCTIONS, C_L1D_LOAD_MISSES, C_L1D_LOADS, C_L1D_STORE_MISSES, C_L1D_STORES,
+                      C_L1I_MISSES, C_L2_ACCESSES, C_L2_MISSES, C_LCP_STALLS, C_MISPREDICTS, C_MSROM_UOPS,
+                      C_NAMES as P6_C_NAMES, C_PORT0, C_STALL_DECODE, C_STALL_DEPENDENCY, C_STALL_FETCH,
+                      C_STALL_MEMORY, C_STALL_MISPREDICT, C_STALL_PARTIAL_REGISTER, C_STALL_PORT, C_STALL_ROB,
+                      C_STALL_STORE_BUFFER, C_STALL_STORE_FORWARD, C_STORE_FORWARDS, C_UOPS, C_CYCLES,
+                      CAUSES, NT, S_DECODE_TO_RETIRE, S_DECODER0, S_EXECUTIONS, S_ISSUE_TO_RETIRE, S_L1D_MISSES,
+                      S_L2_MISSES, S_MISPREDICTS, S_MSROM, S_NAMES as P6_S_NAMES, S_PORT0, S_STALL_DECODE,
+                      S_STALL_DEPENDENCY, S_STALL_MEMORY, S_STALL_MISPREDICT, S_STALL_PARTIAL, S_STALL_PORT,
+                      S_STALL_STORE_FORWARD, S_STALL_WINDOW, S_UOPS, T_NAMES, WINDOW, _book_port, _btb_alloc)
+
+__all__ = ["C_NAMES", "S_NAMES", "T_NAMES", "CAUSES", "NC", "NS", "NT", "simulate"]
+
+# parameter vector indices
+(P_QUADS, P_L1_LAT, P_ONDIE, P_L2_LAT, P_L2_BUS, P_BOARD_LEVEL, P_BOARD_LAT, P_BOARD_BUSY, P_DRAM_LAT,
+ P_DRAM_LINE, P_DRAM_WB, P_BUS_WRITE, P_SQ, P_MISPREDICT, P_BTC, P_BTC_MISS, P_BHT, P_HIST_BITS, P_RSB,
+ P_PARTIAL, P_IMISS, P_EXIT_ADDR) = range(22)
+NPARAMS = 24
+
+# K6 execution resources behind the issue slots (u_unit of a lowered op)
+U_NONE, U_FPU, U_MMX_MUL, U_MMX_SHIFT, U_3DNOW, U_HOLD = range(6)
+NUNITS = 6
+# issue-slot bits (u_ports of a lowered op): the P6 "port" counters 0-4
+X, Y, LOAD_SLOT, STORE_SLOT, BRANCH_SLOT = 1, 2, 4, 8, 16
+
+# the P6 counters first (same indices), then the K6's own
+C_NAMES = P6_C_NAMES + ("fpu_ops", "vector_cycles", "nop_slots", "l3_accesses", "l3_misses", "bus_writes")
+NC = len(C_NAMES)
+C_FPU_OPS = len(P6_C_NAMES)
+C_VECTOR_CYCLES = C_FPU_OPS + 1
+C_NOP_SLOTS = C_FPU_OPS + 2
+C_L3_ACCESSES = C_FPU_OPS + 3
+C_L3_MISSES = C_FPU_OPS + 4
+C_BUS_WRITES = C_FPU_OPS + 5
+S_NAMES = P6_S_NAMES + ("fpu",)
+NS = len(S_NAMES)
+S_FPU = len(P6_S_NAMES)
+
+FW = 16  # store-queue entries searched for forwarding (the queue itself has P_SQ entries)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _book_run(book, ports, c, occ):
+    """Earliest cycle >= c at which one allowed issue slot is free for `occ` consecutive cycles
+    (a non-pipelined multiply or divide holds Integer X); books all of them. Same calendar as
+    p6_core._book_port, which books a single cycle. Returns (cycle, slot)."""
+    while True:
+        for p in range(5):
+            bit = 1 << p
+            if ports & bit == 0:
+                continue
+            free = True
+            for k in range(occ):
+                e = book[(c + k) & (WINDOW - 1)]
+                if (e >> 5) == c + k and e & bit:
+                    free = False
+                    break
+            if free:
+                for k in range(occ):
+                    slot = (c + k) & (WINDOW - 1)
+                    e = book[slot]
+                    used = e & 31 if (e >> 5) == c + k else 0
+                    book[slot] = ((c + k) << 5) | used | bit
+                return c, p
+        c += 1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _access_of(mem_write, acc, acc_end, write):
+    """Index of the instruction's next memory access of the given direction (from `acc`), or -1."""
+    for j in range(acc, acc_end):
+        if mem_write[j] == write:
+            return j
+    return -1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _queued_store(fw_addr, fw_size, fw_commit, fw_n, a, size, t):
+    """The youngest store still in the queue at cycle t that overlaps [a, a + size), or -1."""
+    for back in range(1, min(fw_n, FW) + 1):
+        e = (fw_n - back) % FW
+        if fw_commit[e] > t and a < fw_addr[e] + fw_size[e] and fw_addr[e] < a + size:
+            return e
+    return -1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _new_writebacks(stats, seen, level):
+    """Dirty victims `level` wrote back since the last call (0 for a level the hierarchy lacks)."""
+    if level + 1 >= stats.shape[0]:
+        return 0
+    new = stats[level, S_WRITEBACKS] - seen[level]
+    seen[level] = stats[level, S_WRITEBACKS]
+    return new
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _slot_of(rid, top, rel):
+    """Register-file slot: x87 stack names are relative to TOP."""
+    return REG_ST0 + ((top + rel) & 7) if rid == REG_ST0 else rid
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _k6_miss(r, lvl, start, P, bus, wb1, wb2, ctr):
+    """Extra cycles beyond an L1 hit for an L1 miss served by level `lvl` (service() levels:
+    1 = L2, ..., the last = memory). `bus[0]`: the front-side bus (board cache and DRAM), free from
+    that cycle; `bus[1]`: the K6-III's on-die L2 port. `wb1`/`wb2`: dirty victims the access made
+    L1 / L2 write back. The P6 helper (_miss_latency) has a private backside L2 and one bus level;
+    on Socket 7 the board cache itself sits on the front-side bus, and the K6-III adds a level."""
+    board = P[P_BOARD_LEVEL]
+    t = start
+    board_wb = wb1
+    if P[P_ONDIE] == 1:
+        ctr[C_L2_ACCESSES] += 1
+        s = max(t, bus[1])
+        bus[1] = s + P[P_L2_BUS] * (1 + wb1)
+        if lvl == 1:
+            return s + P[P_L2_LAT] - P[P_L1_LAT] - start
+        ctr[C_L2_MISSES] += 1
+        t = s + P[P_L2_LAT] - P[P_L1_LAT]  # the miss is known when a hit would have delivered
+        board_wb = wb2
+    fills = memory_fills(r)
+    wbs = memory_writebacks(r)
+    s = max(t, bus[0])
+    busy = fills * P[P_DRAM_LINE] + wbs * P[P_DRAM_WB]
+    done = s + P[P_DRAM_LAT] if fills > 0 else s
+    if board > 0:
+        busy += board_wb * P[P_BOARD_BUSY]
+        c_acc = C_L2_ACCESSES if board == 1 else C_L3_ACCESSES
+        ctr[c_acc] += 1
+        if lvl == board:
+            busy += P[P_BOARD_BUSY]
+            done = start + P[P_BOARD_LAT] - P[P_L1_LAT] + (s - t)
+        else:
+            ctr[c_acc + 1] += 1  # C_L2_MISSES / C_L3_MISSES
+    bus[0] = s + busy
+    ctr[C_DRAM_FILLS] += fills
+    ctr[C_DRAM_WRITEBACKS] += wbs
+    ctr[C_DRAM_BUS_CYCLES] += fills * P[P_DRAM_LINE] + wbs * P[P_DRAM_WB]
+    return max(0, done - start)
+
+
+@njit(cache=True, nogil=True)
+def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_write, seg_end,
+             s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
+             s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ, s_cyc, s_first, s_pfx,
+             P, dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
+             counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out):
+    n = dyn_sid.shape[0]
+    nstatic = s_len.shape[0]
+    quads, sq_n = P[P_QUADS], P[P_SQ]
+    d_levels = dconfig.shape[0]
+
+    reg_ready = np.zeros(NREGS, np.int64)
+    reg_pmask = np.full(NREGS, 15, np.int64)  # bytes written by the last writer (15 = whole register)
+    fp_top = 0
+    book = np.full(WINDOW, -1 << 5, np.int64)
+    unit_free = np.zeros(NUNITS, np.int64)
+    qring = np.zeros(quads, np.int64)          # retire cycle of the last `quads` opquads
+    nq = 0
+    q_slot = 0
+    q_entry = 0
+    prev_entry = -1
+    sq_ring = np.zeros(sq_n, np.int64)         # commit cycle of the last sq_n stores
+    nstores = 0
+    last_commit = 0
+    bus = np.zeros(2, np.int64)
+    fw_addr = np.full(FW, -1, np.int64)
+    fw_size = np.zeros(FW, np.int64)
+    fw_ready = np.zeros(FW, np.int64)
+    fw_commit = np.zeros(FW, np.int64)
+    fw_n = 0
+    wb_seen = np.zeros(2, np.int64)  # L1 and L2 writebacks already charged
+    l1_fill_seen = 0
+
+    bht_mask = P[P_BHT] - 1
+    hist_mask = (1 << P[P_HIST_BITS]) - 1
+    bht = np.full(P[P_BHT], 2, np.int64)
+    ghist = 0
+    btc_ways = P[P_BTC]
+    btc_tag = np.full((1, btc_ways), -1, np.int64)
+    btc_stamp = np.zeros((1, btc_ways), np.int64)
+    btc_target = np.zeros(btc_ways, np.int64)
+    rsb_n = P[P_RSB]
+    rsb = np.zeros(rsb_n, np.int64)
+    rsb[0] = P[P_EXIT_ADDR]  # the harness's call into the kernel: its return is predictable
+    rsb_top = 1
+
+    dec_free = 0      # first cycle the decoders can start a new group
+    fe_ready = 0      # first cycle the front end has bytes after a redirect or an L1I miss
+    fe_cause = 0      # what set fe_ready: 1 mispredict, 2 fetch (L1I miss, BTC miss)
+    grp_cycle = 0
+    grp_open = False  # the current group has the second short decoder free
+    known = np.full(64, -1, np.int64)
+    hold_psid = -1    # per-static row of the last group's multi-clock decode (vector, prefixes)
+    hold_cycles = 0
+    last_retire = 0
+    cur_slot = 0
+    seg = 0
+    last_seg = counters.shape[0] - 1
+    seg_start = 0
+    nrdtsc = 0
+
+    for i in range(n):
+        sid = dyn_sid[i]
+        pc = dyn_pc[i]
+        nu = s_nuops[sid]
+        u0 = s_uop0[sid]
+        cyc = s_cyc[sid]
+        psid = sid if i >= stat_first else nstatic
+        ctr = counters[min(seg, last_seg)]
+
+        # ---- fetch: the L1I ----------------------------------------------------------------------
+        # Only code fills the L1I, so a line that hit stays resident until the next miss: `known`
+        # remembers such lines and skips their lookups (their LRU refresh is lost, which matters
+        # only for code larger than the 32 KB L1I).
+        iline = pc >> 5
+        if known[iline & 63] != iline:
+            known[iline & 63] = iline
+            if served_level(service(itags, istamps, idirty, iconfig, iclock, istats, pc, 1, False)) > 0:
+                known[:] = -1
+                known[iline & 63] = iline
+                ctr[C_L1I_MISSES] += 1
+                t = max(dec_free, fe_ready) + P[P_IMISS]
+                if t > fe_ready:
+                    fe_ready = t
+                    fe_cause = 2
+                grp_open = False
+
+        # ---- decode: join the open group in the second short decoder, or start an opquad -------
+        new_quad = not (cyc == 0 and grp_open and s_first[sid] == 0)
+        cause_alloc = 0
+        if new_quad:
+            d = dec_free
+            if fe_ready > d:
+                ctr[C_STALL_MISPREDICT if fe_cause == 1 else C_STALL_FETCH] += fe_ready - d
+                if fe_cause == 1:
+                    per_static[psid, S_STALL_MISPREDICT] += fe_ready - d
+                d = fe_ready
+                cause_alloc = 1 if fe_cause == 2 else 8
+            free_at = qring[q_slot] if nq >= quads else 0
+            entry = max(d + 1, free_at)
+            if free_at > d + 1:
+                ctr[C_STALL_ROB] += free_at - (d + 1)
+                per_static[psid, S_STALL_WINDOW] += free_at - (d + 1)
+                cause_alloc = 2
+            if nq > 0:
+                # the scheduler could take an opquad but the decoders have none (redirects apart):
+                # charged to the multi-clock decode that held the decoders, if any, else to this one
+                starved = min(d, dec_free) + 1 - max(prev_entry + 1, free_at)
+                if starved > 0:
+                    ctr[C_STALL_DECODE] += starved
+                    held = min(starved, hold_cycles) if hold_psid >= 0 else 0
+                    if held > 0:
+                        per_static[hold_psid, S_STALL_DECODE] += held
+                    per_static[psid, S_STALL_DECODE] += starved - held
+            hold_psid = psid if cyc > 1 else -1
+            hold_cycles = cyc - 1
+            prev_entry = entry
+            q_entry = entry
+            cur_slot = q_slot
+            q_slot = q_slot + 1 if q_slot + 1 < quads else 0
+            nq += 1
+            dec_free = max(d + max(cyc, 1), entry)  # the decoder holds its group until it enters
+            grp_cycle = d
+            grp_open = cyc == 0
+            ctr[C_DECODE_GROUPS] += 1
+            ctr[C_NOP_SLOTS] += 4 - nu
+            slot = 0
+        else:
+            d = grp_cycle
+            entry = q_entry
+            grp_open = False
+            ctr[C_NOP_SLOTS] -= nu
+            slot = 1
+        if s_dec[sid] == DEC_MSROM:
+            ctr[C_MSROM_UOPS] += nu
+            ctr[C_VECTOR_CYCLES] += cyc
+            per_static[psid, S_MSROM] += 1
+        else:
+            ctr[C_DECODER0 + slot] += 1
+            per_static[psid, S_DECODER0 + slot] += 1
+        ctr[C_LCP_STALLS] += s_pfx[sid]
+
+        # ---- ops: issue, execute ---------------------------------------------------------------
+        top_before = fp_top
+        top_after = (fp_top - s_fpdelta[sid]) & 7
+        acc = acc_start[i]
+        acc_end = acc + acc_count[i]
+        intra = 0           # latest result of this instruction's earlier ops (the op chain)
+        inst_complete = entry
+        first_dispatch = entry
+        branch_done = 0
+        store_ready = -1    # issue cycle of the store op (its data is in the queue from then)
+        cause_disp = 0
+        for k in range(nu):
+            u = u0 + k
+            kind = u_kind[u]
+            ready = entry + 1
+            partial = 0
+            for j in range(s_nsrc[sid]):
+                if s_src[sid, j, 2] != k:
+                    continue
+                rid = _slot_of(s_src[sid, j, 0], top_before, s_src[sid, j, 3])
+                r = reg_ready[rid]
+                if rid < 8 and (s_src[sid, j, 1] & ~reg_pmask[rid]) != 0:
+                    r += P[P_PARTIAL]  # merge a partial write (k6_machine.toml [partial_register])
+                    if r > ready:
+                        partial = max(partial, min(P[P_PARTIAL], r - ready))
+                if r > ready:
+                    ready = r
+            if kind != LOAD and intra > ready:
+                ready = intra  # the instruction's own earlier ops (load -> ALU -> store)
+            dep_wait = ready - (entry + 1)
+            if kind == STA and nstores >= sq_n and sq_ring[nstores % sq_n] > ready:
+                w = sq_ring[nstores % sq_n]
+                ctr[C_STALL_STORE_BUFFER] += w - ready
+                ready = w
+            unit = u_unit[u]
+            ports = u_ports[u]
+            rdy_u = ready
+            if unit != U_NONE and unit != U_HOLD and unit_free[unit] > rdy_u:
+                rdy_u = unit_free[unit]
+            port = -1
+            if ports == 0:
+                disp = rdy_u if unit != U_NONE else entry  # MOV r,imm and NOP complete at decode
+            elif unit == U_HOLD and u_occ[u] > 1:
+                disp, port = _book_run(book, ports, rdy_u, u_occ[u])
+            else:
+                disp, port = _book_port(book, ports, rdy_u)
+            if unit != U_NONE and unit != U_HOLD:
+                unit_free[unit] = disp + u_occ[u]
+            lat = u_lat[u]
+            mem_wait = 0
+            fwd_wait = 0
+            if kind == LOAD:
+                j = _access_of(mem_write, acc, acc_end, False)
+                if j >= 0:
+                    acc = j + 1
+                    a, sz = np.int64(mem_addr[j]), np.int64(mem_size[j])
+                    e = _queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
+                    if e >= 0:  # the queued store's data, with the ordinary load latency
+                        ctr[C_STORE_FORWARDS] += 1
+                        fwd_wait = max(0, fw_ready[e] - disp)
+                        ctr[C_STALL_STORE_FORWARD] += fwd_wait
+                        per_static[psid, S_STALL_STORE_FORWARD] += fwd_wait
+                    r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False)
+                    lvl = served_level(r)
+                    ctr[C_L1D_LOADS] += 1
+                    if lvl > 0:
+                        ctr[C_L1D_LOAD_MISSES] += 1
+                        per_static[psid, S_L1D_MISSES] += 1
+                        wb1 = _new_writebacks(dstats, wb_seen, 0)
+                        wb2 = _new_writebacks(dstats, wb_seen, 1)
+                        l1_fill_seen = dstats[0, S_FILLS]
+                        mem_wait = _k6_miss(r, lvl, disp, P, bus, wb1, wb2, ctr)
+                        if lvl == d_levels:
+                            per_static[psid, S_L2_MISSES] += 1
+                        if fwd_wait == 0:
+                            ctr[C_STALL_MEMORY] += mem_wait
+                            per_static[psid, S_STALL_MEMORY] += mem_wait
+            complete = disp + lat + max(mem_wait, fwd_wait)
+            if kind == STA:
+                store_ready = disp
+            else:
+                intra = max(intra, complete)
+            if kind == BRANCH:
+                branch_done = complete
+            for j in range(s_ndst[sid]):
+                if s_dst[sid, j, 2] != k:
+                    continue
+                reg_ready[_slot_of(s_dst[sid, j, 0], top_after, s_dst[sid, j, 3])] = complete
+            if port >= 0:
+                ctr[C_PORT0 + port] += 1
+                per_static[psid, S_PORT0 + port] += 1
+            elif unit == U_FPU:
+                ctr[C_FPU_OPS] += 1
+                per_static[psid, S_FPU] += 1
+            if k == 0:
+                first_dispatch = disp
+            if partial > 0:
+                ctr[C_STALL_PARTIAL_REGISTER] += partial
+                per_static[psid, S_STALL_PARTIAL] += partial
+                cause_disp = max(cause_disp, 3)
+            if dep_wait - partial > 0:
+                ctr[C_STALL_DEPENDENCY] += dep_wait - partial
+                per_static[psid, S_STALL_DEPENDENCY] += dep_wait - partial
+                cause_disp = max(cause_disp, 4)
+            if disp - ready > 0:
+                ctr[C_STALL_PORT] += disp - ready
+                per_static[psid, S_STALL_PORT] += disp - ready
+                cause_disp = max(cause_disp, 5)
+            if mem_wait > 0:
+                cause_disp = max(cause_disp, 6)
+            if fwd_wait > 0:
+                cause_disp = max(cause_disp, 7)
+            if complete > inst_complete:
+                inst_complete = complete
+
+        # ---- retire: in order, one opquad per cycle ---------------------------------------------
+        rt = inst_complete + 1
+        floor = last_retire + 1 if new_quad else last_retire
+        if rt < floor:
+            rt = floor
+        last_retire = rt
+        qring[cur_slot] = rt
+        for j in range(s_ndst[sid]):
+            rid = s_dst[sid, j, 0]
+            if rid < 8:
+                reg_pmask[rid] = s_dst[sid, j, 1]
+        fp_top = top_after
+
+        # ---- stores: commit to L1 after retirement, in order -----------------------------------
+        if store_ready >= 0:
+            commit = max(rt, last_commit + 1)
+            j = _access_of(mem_write, acc, acc_end, True)
+            if j >= 0:
+                a, sz = np.int64(mem_addr[j]), np.int64(mem_size[j])
+                r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True)
+                lvl = served_level(r)
+                ctr[C_L1D_STORES] += 1
+                if lvl > 0 or dstats[0, S_FILLS] != l1_fill_seen:
+                    ctr[C_L1D_STORE_MISSES] += 1
+                    per_static[psid, S_L1D_MISSES] += 1
+                    wb1 = _new_writebacks(dstats, wb_seen, 0)
+                    wb2 = _new_writebacks(dstats, wb_seen, 1)
+                    if dstats[0, S_FILLS] != l1_fill_seen:  # write-allocate: fetch the line first
+                        l1_fill_seen = dstats[0, S_FILLS]
+                        commit += _k6_miss(r, max(lvl, 1), commit, P, bus, wb1, wb2, ctr)
+                    else:  # not allocated: one write on the front-side bus
+                        s = max(commit, bus[0])
+                        extra = memory_fills(r) * P[P_DRAM_LINE] + memory_writebacks(r) * P[P_DRAM_WB]
+                        bus[0] = s + P[P_BUS_WRITE] + extra + wb1 * P[P_BOARD_BUSY]
+                        commit = s + P[P_BUS_WRITE]
+                        ctr[C_BUS_WRITES] += 1
+                    if lvl == d_levels:
+                        per_static[psid, S_L2_MISSES] += 1
+                e = fw_n % FW
+                fw_addr[e] = a
+                fw_size[e] = sz
+                fw_ready[e] = store_ready
+                fw_commit[e] = commit
+                fw_n += 1
+            sq_ring[nstores % sq_n] = commit
+            nstores += 1
+            last_commit = commit
+
+        # ---- branches: predicted at decode, resolved by the branch op ---------------------------
+        br = s_branch[sid]
+        if br != BR_NONE:
+            ctr[C_BRANCHES] += 1
+            fall = pc + s_len[sid]
+            nxt = dyn_pc[i + 1] if i + 1 < n else fall
+            taken = nxt != fall
+            predict_taken = True
+            mispredicted = False
+            if br == BR_COND:
+                h = (pc ^ ghist) & bht_mask
+                cnt = bht[h]
+                predict_taken = cnt >= 2
+                bht[h] = min(3, cnt + 1) if taken else max(0, cnt - 1)
+                ghist = ((ghist << 1) | (1 if taken else 0)) & hist_mask
+                mispredicted = predict_taken != taken
+            elif br == BR_RET:
+                rsb_top -= 1
+                mispredicted = rsb_top < 0 or rsb[rsb_top % rsb_n] != nxt
+                if rsb_top < 0:
+                    rsb_top = 0
+            else:
+                if br == BR_CALL:
+                    rsb[rsb_top % rsb_n] = fall
+                    rsb_top += 1
+                if s_target[sid] < 0 or br == BR_INDIRECT:  # target unknown at decode: the BTC's guess
+                    mispredicted = True
+                    for w in range(btc_ways):
+                        if btc_tag[0, w] == pc and btc_target[w] == nxt:
+                            mispredicted = False
+            way = -1
+            hit = False
+            if taken:
+                for w in range(btc_ways):
+                    if btc_tag[0, w] == pc:
+                        way = w
+                        btc_stamp[0, w] = i
+                hit = way >= 0
+                if not hit:
+                    way = _btb_alloc(btc_tag, btc_stamp, 0, btc_ways, pc, i)
+                btc_target[way] = nxt
+            if mispredicted:
+                ctr[C_MISPREDICTS] += 1
+                per_static[psid, S_MISPREDICTS] += 1
+                restart = (branch_done if branch_done > 0 else inst_complete) + P[P_MISPREDICT]
+                if restart > fe_ready:
+                    fe_ready = restart
+                    fe_cause = 1
+                grp_open = False
+            elif predict_taken and taken:
+                bubble = d + 1 + (0 if hit else P[P_BTC_MISS])
+                if bubble > fe_ready:
+                    fe_ready = bubble
+                    fe_cause = 2
+                grp_open = False
+
+        # ---- RDTSC values, timeline, per-static sums, segments ---------------------------------
+        if rdtsc_sid[sid] == 1 and nrdtsc < rdtsc_out.shape[0]:
+            rdtsc_out[nrdtsc] = first_dispatch  # what the guest's RDTSC reads in the replay
+            nrdtsc += 1
+        ctr[C_INSTRUCTIONS] += 1
+        ctr[C_UOPS] += nu
+        per_static[psid, S_EXECUTIONS] += 1
+        per_static[psid, S_UOPS] += nu
+        per_static[psid, S_ISSUE_TO_RETIRE] += rt - first_dispatch
+        per_static[psid, S_DECODE_TO_RETIRE] += rt - d
+        k = i - tl_first
+        if 0 <= k < timeline.shape[0]:
+            cause = cause_disp if cause_disp > 0 else cause_alloc
+            for col, v in enumerate((i, np.int64(sid), d, entry, first_dispatch, inst_complete, rt, cause)):
+                timeline[k, col] = v
+        if seg < seg_end.shape[0] and i + 1 == seg_end[seg]:
+            ctr[C_CYCLES] = last_retire - seg_start
+            seg_start = last_retire
+            seg += 1
+    return last_retire
