@@ -49,9 +49,12 @@ def run_bench(pixels: int = 1 << 20, progress=None) -> dict:
         results[f"{mode}_seconds"] = seconds
     if progress is not None:
         progress.print("[dim]measuring end to end (emulate + trace + decode + P6 model on pentium2-233) ...[/]")
-    results["end_to_end_seconds"] = _end_to_end(zinit, z, dz, colour, pixels)
+    results["end_to_end_seconds"] = _end_to_end(zinit, z, dz, colour, pixels, "pentium2-233")
+    if progress is not None:
+        progress.print("[dim]measuring end to end with the K6 model (k6-233) ...[/]")
+    results["k6_end_to_end_seconds"] = _end_to_end(zinit, z, dz, colour, pixels, "k6-233")
     n = results["instructions"]
-    for mode in ("unicorn_bare", "python_hook", "native_trace", "end_to_end"):
+    for mode in ("unicorn_bare", "python_hook", "native_trace", "end_to_end", "k6_end_to_end"):
         results[f"{mode}_ips"] = n / results[f"{mode}_seconds"]
     results["native_vs_python"] = results["native_trace_ips"] / results["python_hook_ips"]
     results["bare_vs_native"] = results["unicorn_bare_ips"] / results["native_trace_ips"]
@@ -59,16 +62,19 @@ def run_bench(pixels: int = 1 << 20, progress=None) -> dict:
     return results
 
 
-def _end_to_end(zinit, z, dz, colour, pixels) -> float:
-    """Seconds to emulate (traced), decode and time one call on pentium2-233 with its caches."""
+def _end_to_end(zinit, z, dz, colour, pixels, cpu: str) -> float:
+    """Seconds to emulate (traced), decode and time one call on `cpu` with its caches."""
     from .timing import time_kernel
 
     def setup(m):
         return [m.arena.put(zinit[:n]), m.arena.put(np.zeros(n, np.uint16)), n, z, dz, colour]
 
     n = 4096
-    time_kernel(kernels_root() / SPAN_KERNEL, "fp16z_span", setup, cpu="pentium2-233", repeat=1)  # warm up
+    time_kernel(kernels_root() / SPAN_KERNEL, "fp16z_span", setup, cpu=cpu, repeat=1)  # warm up
     n = pixels
-    start = time.perf_counter()
-    time_kernel(kernels_root() / SPAN_KERNEL, "fp16z_span", setup, cpu="pentium2-233", repeat=1, budget=0)
-    return time.perf_counter() - start
+    best = float("inf")
+    for _ in range(2):  # the best of two: the first also pays for first-touch page faults
+        start = time.perf_counter()
+        time_kernel(kernels_root() / SPAN_KERNEL, "fp16z_span", setup, cpu=cpu, repeat=1, budget=0)
+        best = min(best, time.perf_counter() - start)
+    return best

@@ -16,7 +16,7 @@ from .views import explain_rows
 KERNEL = "convert/loops.S"
 ENTRIES = ("convert_plain", "convert_interleaved")
 ELEMENTS = 1024  # 4 KB in, 2 KB out: fits every L1D (8 KB on the Pentium Pro), so decode is what varies
-DEFAULT_CPUS = ("pentium-pro-200", "pentium2-233", "celeron-300a", "pentium3-500")
+DEFAULT_CPUS = ("pentium-pro-200", "pentium2-233", "celeron-300a", "pentium3-500", "k6-233", "k6-2-300", "k6-3-450")
 
 
 def _inputs() -> np.ndarray:

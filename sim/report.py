@@ -31,7 +31,7 @@ PER_PIXEL = [  # (counter, column title) for the "where the cycles go" tables
 STALL_COLUMNS = [("stall_dependency", "dep"), ("stall_port", "port"), ("stall_decode", "decode"),
                  ("stall_partial_register", "partial"), ("stall_memory", "memory"),
                  ("stall_store_forward", "fwd"), ("stall_mispredict", "branch")]
-EXPLAIN_COUNTERS = ["uops", "decode_groups", "l1d_load_misses", "l1d_store_misses", "l2_misses", "dram_bus_cycles",
+EXPLAIN_COUNTERS = ["uops", "msrom_uops", "decode_groups", "l1d_load_misses", "l1d_store_misses", "l2_misses", "dram_bus_cycles",
                     "stall_memory", "stall_partial_register", "mispredicts"]
 
 
