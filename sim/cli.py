@@ -257,7 +257,7 @@ def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
 def cpus_cmd(as_json):
     """List CPU and memory presets with their caches, clocks and default memory."""
-    from .cpus import load_memory, memory_presets, presets
+    from .cpus import load_dram, memory_presets, presets
 
     cpus = [presets.load(n) for n in presets.available()]
     if as_json:
@@ -266,7 +266,7 @@ def cpus_cmd(as_json):
                                                  "l2": c.l2.describe() if c.l2 else None,
                                                  "board_cache": c.board_cache.describe() if c.board_cache else None,
                                                  "memory": c.memory} for c in cpus},
-                               "memory": {m: load_memory(m).get("type", "") for m in memory_presets()}}, indent=2))
+                               "memory": {m: load_dram(m).describe() for m in memory_presets()}}, indent=2))
         return
     t = Table(title="CPU presets (sources in sim/cpus/presets/*.toml)")
     for col in ("preset", "family", "core", "MHz", "FSB", "L1I", "L1D", "L2", "memory"):
@@ -280,8 +280,8 @@ def cpus_cmd(as_json):
     for col in ("preset", "type", "burst (bus clocks)"):
         m.add_column(col)
     for name in memory_presets():
-        d = load_memory(name)
-        m.add_row(name, d.get("type", ""), "-".join(str(x) for x in d.get("burst", [])))
+        d = load_dram(name)
+        m.add_row(name, d.kind, "-".join(str(x) for x in d.burst))
     console.print(m)
 
 

@@ -2,34 +2,22 @@
 
 from __future__ import annotations
 
-import tomllib
-
 from ..errors import RetrosimError
+from ..memory import dram
 from . import presets
-
-MEMORY_PRESETS = presets.PRESETS / "memory"
 
 
 def memory_presets() -> list[str]:
-    return sorted(p.stem for p in MEMORY_PRESETS.glob("*.toml"))
+    return dram.available_memory_presets()
 
 
-def load_memory(name: str) -> dict:
-    """The raw memory preset (for listings); timing models use sim.memory.dram."""
-    path = MEMORY_PRESETS / f"{name}.toml"
-    if not path.is_file():
-        raise RetrosimError(f"unknown memory preset '{name}' (choose one of: {', '.join(memory_presets())})")
-    with open(path, "rb") as f:
-        return tomllib.load(f)
-
-
-def load_dram(name: str):
-    from ..memory.dram import load_memory_preset
-
-    load_memory(name)  # the unknown-name error with the preset list
+def load_dram(name: str) -> dram.DramTiming:
+    """A memory preset (sim/cpus/presets/memory/NAME.toml), or one clear error."""
     try:
-        return load_memory_preset(name)
+        return dram.load_memory_preset(name)
     except ValueError as e:
+        if name not in memory_presets():
+            raise RetrosimError(f"unknown memory preset '{name}' (choose one of: {', '.join(memory_presets())})") from None
         raise RetrosimError(f"memory preset '{name}': {e}") from None
 
 

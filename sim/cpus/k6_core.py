@@ -55,7 +55,8 @@ from .p6_core import (C_BRANCHES, C_DECODE_GROUPS, C_DECODER0, C_DRAM_BUS_CYCLES
                       CAUSES, NT, S_DECODE_TO_RETIRE, S_DECODER0, S_EXECUTIONS, S_ISSUE_TO_RETIRE, S_L1D_MISSES,
                       S_L2_MISSES, S_MISPREDICTS, S_MSROM, S_NAMES as P6_S_NAMES, S_PORT0, S_STALL_DECODE,
                       S_STALL_DEPENDENCY, S_STALL_MEMORY, S_STALL_MISPREDICT, S_STALL_PARTIAL, S_STALL_PORT,
-                      S_STALL_STORE_FORWARD, S_STALL_WINDOW, S_UOPS, T_NAMES, WINDOW, _book_port, _btb_alloc)
+                      S_STALL_STORE_FORWARD, S_STALL_WINDOW, S_UOPS, T_NAMES, WINDOW, _book_port, _btb_alloc,
+                      FW, _queued_store, _remember_store)
 
 __all__ = ["C_NAMES", "S_NAMES", "T_NAMES", "CAUSES", "NC", "NS", "NT", "simulate"]
 
@@ -84,7 +85,6 @@ S_NAMES = P6_S_NAMES + ("fpu",)
 NS = len(S_NAMES)
 S_FPU = len(P6_S_NAMES)
 
-FW = 16  # store-queue entries searched for forwarding (the queue itself has P_SQ entries)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -119,16 +119,6 @@ def _access_of(mem_write, acc, acc_end, write):
     for j in range(acc, acc_end):
         if mem_write[j] == write:
             return j
-    return -1
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _queued_store(fw_addr, fw_size, fw_commit, fw_n, a, size, t):
-    """The youngest store still in the queue at cycle t that overlaps [a, a + size), or -1."""
-    for back in range(1, min(fw_n, FW) + 1):
-        e = (fw_n - back) % FW
-        if fw_commit[e] > t and a < fw_addr[e] + fw_size[e] and fw_addr[e] < a + size:
-            return e
     return -1
 
 
@@ -483,12 +473,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                         ctr[C_BUS_WRITES] += 1
                     if lvl == d_levels:
                         per_static[psid, S_L2_MISSES] += 1
-                e = fw_n % FW
-                fw_addr[e] = a
-                fw_size[e] = sz
-                fw_ready[e] = store_ready
-                fw_commit[e] = commit
-                fw_n += 1
+                fw_n = _remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_ready, commit)
             sq_ring[nstores % sq_n] = commit
             nstores += 1
             last_commit = commit

@@ -125,6 +125,30 @@ CAUSES = ("none", "decode", "window", "partial", "dependency", "port", "memory",
 WINDOW = 8192  # port reservation ring: no in-flight uop dispatches more than this far from another
 
 
+FW = 16  # recent stores remembered for forwarding (more than either family's store queue holds)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _queued_store(fw_addr, fw_size, fw_commit, fw_n, a, size, t):
+    """The youngest remembered store not yet in the cache at cycle t that overlaps [a, a + size), or -1."""
+    for back in range(1, min(fw_n, FW) + 1):
+        e = (fw_n - back) % FW
+        if fw_commit[e] > t and a < fw_addr[e] + fw_size[e] and fw_addr[e] < a + size:
+            return e
+    return -1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, size, ready, commit):
+    """Record a store (its data is ready at `ready`, it reaches the cache at `commit`); returns fw_n + 1."""
+    e = fw_n % FW
+    fw_addr[e] = a
+    fw_size[e] = size
+    fw_ready[e] = ready
+    fw_commit[e] = commit
+    return fw_n + 1
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _book_port(book, ports, c):
     """Earliest cycle >= c where one of the allowed ports is free; books it. Callers go in program
@@ -179,7 +203,6 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     mshr = np.zeros(mshr_n, np.int64)
     bus_free = 0
     l2bus_free = 0
-    FW = 16
     fw_addr = np.full(FW, -1, np.int64)
     fw_size = np.zeros(FW, np.int64)
     fw_ready = np.zeros(FW, np.int64)
@@ -399,12 +422,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                     sz = np.int64(mem_size[acc])
                     acc += 1
                     # store forwarding: newest older store still in the store buffer that overlaps
-                    fwd = -1
-                    for q in range(min(fw_n, FW)):
-                        e = (fw_n - 1 - q) % FW
-                        if fw_commit[e] > disp and fw_addr[e] < a + sz and a < fw_addr[e] + fw_size[e]:
-                            fwd = e
-                            break
+                    fwd = _queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
                     r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False)
                     lvl = served_level(r)
                     counters[seg, C_L1D_LOADS] += 1
@@ -514,12 +532,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                         per_static[psid, S_L2_MISSES] += 1
                     w, bus_free, l2bus_free = _miss_latency(r, lvl, d_levels, commit, P, mshr, bus_free, l2bus_free, counters[seg])
                     commit += w
-                e = fw_n % FW
-                fw_addr[e] = a
-                fw_size[e] = sz
-                fw_ready[e] = store_std
-                fw_commit[e] = commit
-                fw_n += 1
+                fw_n = _remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_std, commit)
             sb_ring[nstores % sb_n] = commit
             nstores += 1
             last_commit = commit
