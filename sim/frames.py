@@ -18,7 +18,7 @@ from .timing import Emulation, emulate
 
 VARIANTS = {v: f"zbuffer/{v}.S" for v in raster.VARIANTS}  # kernel source per variant
 VARIANT_LABELS = {"z32": "32-bit integer", "z16": "16-bit integer", "fp16z": "16-bit float (BSR/SHRD/SHRD)",
-                  "zf32": "32-bit float (x87)"}
+                  "fp16t": "16-bit float (table, no BSR)", "zf32": "32-bit float (x87)"}
 
 
 @dataclass(frozen=True)

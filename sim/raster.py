@@ -28,15 +28,15 @@ from numba import njit
 
 from . import reference as ref
 
-VARIANTS = ("z32", "z16", "fp16z", "zf32")
-INTEGER_VARIANTS = ("z32", "z16", "fp16z")
+VARIANTS = ("z32", "z16", "fp16z", "fp16t", "zf32")
+INTEGER_VARIANTS = ("z32", "z16", "fp16z", "fp16t")
 TWO32 = float(1 << 32)
 MAX_TRIANGLES = 0xFFFF  # colours are triangle index + 1 in a 16-bit frame buffer
 
 # what each variant stores per pixel, and the value its buffer is cleared to (the far value)
 ZBUF_DTYPE = {"z32": np.dtype(np.uint32), "z16": np.dtype(np.uint16), "fp16z": np.dtype(np.uint16),
-              "zf32": np.dtype(np.float32)}
-CLEAR_VALUE = {"z32": 0xFFFFFFFF, "z16": 0xFFFF, "fp16z": 0xFFFF, "zf32": np.inf}
+              "fp16t": np.dtype(np.uint16), "zf32": np.dtype(np.float32)}
+CLEAR_VALUE = {"z32": 0xFFFFFFFF, "z16": 0xFFFF, "fp16z": 0xFFFF, "fp16t": 0xFFFF, "zf32": np.inf}
 
 
 def _check_variant(variant: str) -> None:
@@ -506,7 +506,7 @@ def reference(spans: Spans, width: int, height: int) -> tuple[np.ndarray, np.nda
 def span_parameters(spans: Spans, variant: str) -> tuple[np.ndarray, np.ndarray]:
     """(z0, dz) per span, as the kernel variant is called.
 
-    Integer variants (z32, z16, fp16z) interpolate the 32-bit fixed-point depth z = depth x 2^32:
+    Integer variants (z32, z16, fp16z, fp16t) interpolate the 32-bit fixed-point depth z = depth x 2^32:
       z0 = round(depth0 x 2^32) clipped into [0, 2^32 - 1] (uint32),
       dz = round(ddepth x 2^32) as a signed integer taken modulo 2^32 (uint32; a negative step is
            its two's complement, and the kernel's 32-bit ADD wraps exactly as a signed add would).
@@ -531,9 +531,10 @@ def span_parameters(spans: Spans, variant: str) -> tuple[np.ndarray, np.ndarray]
 def stored_depth(values, variant: str) -> np.ndarray:
     """Decode a z-buffer's stored values back to depth in [0, 1) (float64).
 
-    z32: v / 2^32; z16: v / 2^16; zf32: the float itself. fp16z: fp16z_decode(v) / 2^32, the lower
-    end of the interval of 32-bit depths that encode to v. The lower end is chosen for consistency
-    with z16 (whose v / 2^16 is equally the lower end of a truncation interval): both 16-bit formats
+    z32: v / 2^32; z16: v / 2^16; zf32: the float itself. fp16z, and fp16t (the same format converted
+    without BSR): fp16z_decode(v) / 2^32, the lower end of the interval of 32-bit depths that
+    encode to v. The lower end is chosen for consistency with z16 (whose v / 2^16 is equally the
+    lower end of a truncation interval): both 16-bit formats
     then report a one-sided error of up to one step, comparable like for like, and the decoded value
     is what the format's integer comparison actually orders. (The midpoint would halve the worst
     error of both.) A cleared pixel decodes to the far value's own depth (zf32: +inf)."""
@@ -543,7 +544,7 @@ def stored_depth(values, variant: str) -> np.ndarray:
         return v.astype(np.uint32).astype(np.float64) / TWO32
     if variant == "z16":
         return v.astype(np.uint16).astype(np.float64) / 65536.0
-    if variant == "fp16z":
+    if variant in ("fp16z", "fp16t"):
         return ref.fp16z_decode(v.astype(np.uint16)).astype(np.float64) / TWO32
     return v.astype(np.float32).astype(np.float64)
 
@@ -586,8 +587,10 @@ def simulate_frame(spans: Spans, variant: str, width: int, height: int, *, edx: 
     EDX/ECX carry from span to span; they are modelled exactly (sim.reference.fp16z_span, carried
     across spans). The entry EDX matters only if the frame's first pixel has z < 2048.
 
-    z32, z16 and zf32 are computed for all pixels at once and tested in draw order by a compiled
-    loop; the result equals calling sim.reference's span functions span by span (tested)."""
+    z32, z16, fp16t and zf32 are computed for all pixels at once and tested in draw order by a
+    compiled loop; the result equals calling sim.reference's span functions span by span (tested).
+    fp16t converts every pixel's depth afresh (sim.reference.fp16t_convert = fp16z_encode), so
+    nothing carries between pixels or spans and edx has no effect on it."""
     _check_variant(variant)
     zdtype = ZBUF_DTYPE[variant]
     fb = np.zeros(width * height, np.uint16) if fbuf is None else np.array(fbuf, np.uint16).reshape(-1).copy()
@@ -620,6 +623,8 @@ def simulate_frame(spans: Spans, variant: str, width: int, height: int, *, edx: 
         values = z.astype(np.int64)
         if variant == "z16":
             values >>= 16
+        elif variant == "fp16t":
+            values = ref.fp16t_convert(z.astype(np.uint32)).astype(np.int64)
         zb64 = np.full(width * height, CLEAR_VALUE[variant], np.int64)
         _scan_int(pix, values, span_of, zb64, winner)
         zb = zb64.astype(zdtype)

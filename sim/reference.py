@@ -110,6 +110,53 @@ def fp16z_span(zbuf, fbuf, z: int, dz: int, colour: int, edx_in: int = 0, ecx_in
                        np.int64(edx_in & U32), np.int64(ecx_in & U32))
 
 
+def _fp16t_table() -> np.ndarray:
+    """kernels/*/fp16t.S's table: entry b (the top byte of z, 1..255) = ((e - 1) << 11) | (e - 11)
+    with e = 24 + msb(b): the shift count in the low 5 bits (the only bits of CL that SHR uses) and
+    the exponent minus one already in bits 11..15; entry 0 = 0 (z = 0 shifts by 0 and adds 0)."""
+    b = np.arange(256, dtype=np.int64)
+    e = 24 + msb_index(b)
+    return np.where(b == 0, 0, ((e - 1) << 11) | (e - 11)).astype(np.uint32)
+
+
+FP16T_TABLE = _fp16t_table()
+FP16T_TABLE.setflags(write=False)
+
+
+def fp16t_convert(z) -> np.ndarray:
+    """The BSR-free conversion of kernels/*/fp16t.S, step by step (uint32 arithmetic):
+    top byte b = z >> 24; t = FP16T_TABLE[b]; EDX = (z >> (t & 31)) + (t & ~31). For z < 2^24
+    (b = 0, z != 0) z is first shifted left by 8 k bits until its top byte is non-zero and 8k << 11
+    is subtracted at the end; z = 0 gives 0. Returns the 16-bit floats (uint16); equal to
+    :func:`fp16z_encode` for every uint32 (tests/test_fp16t.py checks all 2^32)."""
+    z = np.asarray(z, dtype=np.uint32)
+    shape, z = z.shape, z.ravel()
+    top = z >> np.uint32(24)
+    corr = None
+    if z.size and z.min() < (1 << 24):  # the kernel's rarely taken path
+        small = np.flatnonzero(top == 0)
+        small = small[z[small] != 0]
+        z = z.copy()
+        corr = np.zeros(z.shape, np.uint32)
+        while small.size:  # at most three rounds
+            z[small] <<= np.uint32(8)
+            corr[small] += np.uint32(8 << 11)
+            top[small] = z[small] >> np.uint32(24)
+            small = small[top[small] == 0]
+    t = FP16T_TABLE.take(top, mode="wrap")  # top < 256: "wrap" only skips the bounds check
+    edx = z >> (t & np.uint32(31))
+    edx += t & np.uint32(0xFFFFFFE0)
+    if corr is not None:
+        edx -= corr
+    return edx.astype(np.uint16).reshape(shape)
+
+
+def fp16t_span(zbuf: np.ndarray, fbuf: np.ndarray, z: int, dz: int, colour: int) -> int:
+    """kernels/zbuffer/fp16t.S: fp16z's span without its hazards (every pixel's conversion is
+    fp16z_encode of its depth, nothing carries from pixel to pixel); returns the pixels written."""
+    return _depth_test(zbuf, fbuf, fp16t_convert(interpolate_u32(z, dz, zbuf.size)), colour)
+
+
 def x87_extended_available() -> bool:
     """True when numpy's longdouble is the x87 80-bit format (64-bit mantissa), as on x86 Linux."""
     return np.finfo(np.longdouble).nmant == 63

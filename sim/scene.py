@@ -21,7 +21,7 @@ Format::
     #   default: the triangle's index + 1)
 
     [run]
-    variants = ["z32", "z16", "fp16z", "zf32"]     # required: z32 z16 fp16z zf32
+    variants = ["z32", "z16", "fp16z", "zf32"]     # required: z32 z16 fp16z fp16t zf32
     cpus = ["pentium2-233:edo", "celeron-300a"]    # required: CPU preset[:memory preset]
     metrics = ["visibility", "depth_error", "fp16_precision"]   # optional (default none)
     frames = 2                      # optional (default 1): frames drawn in one machine state,
@@ -181,7 +181,7 @@ class Needs:
                    the builder does not read back, keep or compare fbuf. The kernels still store a
                    16-bit colour wherever the depth test passes, so they must still be given a
                    writable 2-byte-per-pixel target; the arena check counts it either way;
-    zbuf_bytes:    bytes per depth-buffer pixel per variant (z32, zf32: 4; z16, fp16z: 2);
+    zbuf_bytes:    bytes per depth-buffer pixel per variant (z32, zf32: 4; z16, fp16z, fp16t: 2);
     arena_bytes:   the most guest arena one frame of any requested variant takes (see
                    :func:`frame_arena_bytes`).
     """

@@ -135,7 +135,7 @@ BAD = {
     "missing table": (lambda t: t[:t.index("[run]")], None, None, "run", "missing required table [run]"),
     "unknown table": (lambda t: t + "\n[extra]\nx = 1\n", None, 20, "extra", "unknown table"),
     "unknown variant": (sub('"fp16z"', '"fp24z"'), None, 15, "run.variants[2]",
-                        "unknown variant 'fp24z' (known: z32, z16, fp16z, zf32)"),
+                        "unknown variant 'fp24z' (known: z32, z16, fp16z, fp16t, zf32)"),
     "duplicate variant": (sub('"fp16z", "zf32"', '"fp16z", "z16"'), None, 15, "run.variants[3]", "'z16' is listed twice"),
     "unknown cpu": (sub('"celeron-266"', '"celeron-433"'), None, 16, "run.cpus[3]", "unknown CPU preset 'celeron-433'"),
     "unknown memory": (sub("pentium2-233:edo", "pentium2-233:ddr-266"), None, 16, "run.cpus[0]",
