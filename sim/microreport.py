@@ -73,6 +73,15 @@ def conversion_markdown(results: dict) -> str:
         rows.append([cpu, f"{p['cycles_per_element']:.2f}", f"{p['decode_groups_per_element']:.2f}",
                      f"{i['cycles_per_element']:.2f}", f"{i['decode_groups_per_element']:.2f}", f"{saved:.0%}"])
     parts += [_md_table(header, rows), ""]
+    saves = {cpu: 1 - d["convert_interleaved"]["cycles_per_element"] / d["convert_plain"]["cycles_per_element"]
+             for cpu, d in results["cpus"].items()}
+    helped = [c for c, x in saves.items() if x > 0.02]
+    not_helped = [c for c, x in saves.items() if x <= 0.02]
+    if helped:
+        parts += [f"Interleaving pays on {', '.join(helped)} (4-1-1 decoders: a simple instruction decodes beside a "
+                  "long-decoded one for free)" + (f"; it does not on {', '.join(not_helped)}, whose decoders take "
+                  "either two short instructions or one long or vector-decoded instruction per cycle, so there is "
+                  "no free slot beside BSR or SHRD to fill." if not_helped else "."), ""]
     parts += ["## How the three instructions decode", "",
               "From the model's per-instruction table of `convert_plain` (decoder slot actually used, uops, "
               "ports, average issue-to-retire cycles) and the instruction-table row it used, with its source.", ""]
