@@ -98,6 +98,7 @@ from typing import Callable, Iterable, Iterator
 
 import capstone
 import numpy as np
+from numba import njit
 from capstone import x86_const as X
 
 __all__ = [
@@ -940,6 +941,25 @@ def iter_decode(code: bytes, pc: int) -> Iterator[InsnRecord]:
 # --------------------------------------------------------------------------
 
 
+@njit(cache=True, nogil=True)
+def _index_by_first_appearance(pcs, lo, span):
+    """(distinct PCs in order of first appearance, int32 index of each pc into them)."""
+    slot_of = np.full(span, -1, np.int32)
+    firsts = np.empty(min(span, pcs.size), np.int64)
+    index = np.empty(pcs.size, np.int32)
+    k = 0
+    for i in range(pcs.size):
+        off = np.int64(pcs[i]) - lo
+        slot = slot_of[off]
+        if slot < 0:
+            slot = k
+            slot_of[off] = k
+            firsts[k] = pcs[i]
+            k += 1
+        index[i] = slot
+    return firsts[:k], index
+
+
 class Decoder:
     """Decodes each static PC once.
 
@@ -992,21 +1012,11 @@ class Decoder:
             return [], np.empty(0, dtype=np.int32)
 
         lo, hi = int(pcs.min()), int(pcs.max())
-        if hi - lo < (1 << 24):
-            # Code is compact: a dense table over the PC range replaces np.unique's sort (O(n)),
-            # and first appearances are found in a growing prefix (loops show every PC early).
-            offset = pcs - pcs.dtype.type(lo)  # stays in the PCs' own (unsigned) dtype: no copy to int64
-            seen = np.zeros(hi - lo + 1, dtype=bool)
-            seen[offset] = True
-            uniq = np.flatnonzero(seen) + lo
-            inverse = (np.cumsum(seen, dtype=np.int32) - 1)[offset]
-            first = np.full(uniq.size, -1, dtype=np.int64)
-            head_slots, head_first = np.unique(inverse[:4096], return_index=True)
-            first[head_slots] = head_first
-            for slot in np.flatnonzero(first < 0):  # PCs first seen late (an epilogue): one scan each
-                first[slot] = int(np.argmax(inverse == slot))
-        else:
-            uniq, first, inverse = np.unique(pcs, return_index=True, return_inverse=True)
+        if hi - lo < (1 << 22):
+            # Code is compact: one compiled pass over a dense slot table (no sort).
+            firsts, index = _index_by_first_appearance(pcs, lo, hi - lo + 1)
+            return [self.at(int(pc)) for pc in firsts], index
+        uniq, first, inverse = np.unique(pcs, return_index=True, return_inverse=True)
         if len(uniq) > np.iinfo(np.int32).max:
             raise ValueError("too many distinct PCs for an int32 index")
         order = np.argsort(first, kind="stable")  # sorted-unique slot -> appearance order

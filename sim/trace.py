@@ -140,6 +140,8 @@ class Trace:
     def concatenate(cls, parts: list[Trace]) -> Trace:
         if not parts:
             return cls.empty()
+        if len(parts) == 1:
+            return parts[0]  # traces are immutable by convention: no copy
         offsets = np.cumsum([0] + [p.pc.size for p in parts[:-1]]).astype(np.uint32)
         return cls(
             pc=np.concatenate([p.pc for p in parts]),

@@ -151,7 +151,8 @@ class P6Model:
         per_static = np.zeros((len(records) + 1, core.NS), np.int64)
         tl = np.zeros((timeline[1], core.NT), np.int64)
         rdtsc_sid = np.array([int(r.mnemonic == "rdtsc") for r in records], np.int64)
-        rdtsc_out = np.zeros(int(np.bincount(index, minlength=len(records))[rdtsc_sid == 1].sum()), np.int64)
+        rdtsc_runs = int(np.isin(index, np.flatnonzero(rdtsc_sid)).sum()) if rdtsc_sid.any() else 0
+        rdtsc_out = np.zeros(rdtsc_runs, np.int64)
         self.reset()
         dstats, istats = self.dside.new_counts(), self.iside.new_counts()
         dt, ds, dd, dc, dclk = self.dside.arrays()
