@@ -26,3 +26,30 @@ def machine():
         return m
 
     return get
+
+
+RDTSC_KERNEL = """.intel_syntax noprefix
+.text
+# @entry timed(n) -> EAX = cycles measured by RDTSC around n dependent IMULs
+.globl timed
+timed:
+    push ebx
+    mov ecx, [esp+8]
+    rdtsc
+    mov ebx, eax
+    mov eax, 3
+1:  imul eax, eax
+    dec ecx
+    jnz 1b
+    rdtsc
+    sub eax, ebx
+    pop ebx
+    ret
+"""
+
+
+def rdtsc_kernel(tmp_path):
+    """A kernel that times n dependent IMULs with RDTSC itself (for the timing models' RDTSC tests)."""
+    src = tmp_path / "tsc.S"
+    src.write_text(RDTSC_KERNEL)
+    return src

@@ -10,7 +10,7 @@ from sim.cpus import k6_core, make_model, p6_core, presets
 from sim.cpus.table import MissingTiming
 from sim.timing import emulate, time_emulation, time_kernel
 
-from conftest import KERNELS
+from conftest import KERNELS, rdtsc_kernel
 from test_p6 import chase_setup
 
 PIPE = KERNELS / "micro" / "pipeline.S"
@@ -164,25 +164,7 @@ def test_deterministic():
 
 
 def test_rdtsc_returns_simulated_cycles(tmp_path):
-    src = tmp_path / "tsc.S"
-    src.write_text(""".intel_syntax noprefix
-.text
-# @entry timed(n) -> EAX = cycles measured by RDTSC around n dependent IMULs
-.globl timed
-timed:
-    push ebx
-    mov ecx, [esp+8]
-    rdtsc
-    mov ebx, eax
-    mov eax, 3
-1:  imul eax, eax
-    dec ecx
-    jnz 1b
-    rdtsc
-    sub eax, ebx
-    pop ebx
-    ret
-""")
+    src = rdtsc_kernel(tmp_path)
     r = time_kernel(src, "timed", lambda m: [200], cpu="k6-233", repeat=2)
     assert r.run.rdtsc.size == 4
     measured = r.run.rdtsc[3] - r.run.rdtsc[2]  # the warm call

@@ -7,7 +7,7 @@ import pytest
 from sim.cpus import make_model, presets
 from sim.timing import time_kernel
 
-from conftest import KERNELS
+from conftest import KERNELS, rdtsc_kernel
 
 PIPE = KERNELS / "micro" / "pipeline.S"
 N = 400
@@ -138,25 +138,7 @@ def test_every_timing_row_names_a_source():
 
 
 def test_rdtsc_returns_simulated_cycles(tmp_path):
-    src = tmp_path / "tsc.S"
-    src.write_text(""".intel_syntax noprefix
-.text
-# @entry timed(n) -> EAX = cycles measured by RDTSC around n dependent IMULs
-.globl timed
-timed:
-    push ebx
-    mov ecx, [esp+8]
-    rdtsc
-    mov ebx, eax
-    mov eax, 3
-1:  imul eax, eax
-    dec ecx
-    jnz 1b
-    rdtsc
-    sub eax, ebx
-    pop ebx
-    ret
-""")
+    src = rdtsc_kernel(tmp_path)
     r = time_kernel(src, "timed", lambda m: [200], cpu="pentium2-233", repeat=1)
     measured = r.run.rdtsc[1] - r.run.rdtsc[0]
     # 200 IMULs at latency 4, plus the loop-exit mispredict and the RDTSC microcode

@@ -9,19 +9,7 @@
 # z: nothing stale enters it (no hazards to preset, unlike fp16z_convert_array).
 .intel_syntax noprefix
 
-.section .rodata
-.p2align 5
-# fp16t_table[b] = ((e - 1) << 11) | (e - 11) with e = 24 + msb(b); fp16t_table[0] = 0 (unused)
-fp16t_table:
-    .fill 1, 4, 0
-    .fill 1, 4, (23 << 11) | 13           # b = 1
-    .fill 2, 4, (24 << 11) | 14           # b = 2..3
-    .fill 4, 4, (25 << 11) | 15           # b = 4..7
-    .fill 8, 4, (26 << 11) | 16           # b = 8..15
-    .fill 16, 4, (27 << 11) | 17          # b = 16..31
-    .fill 32, 4, (28 << 11) | 18          # b = 32..63
-    .fill 64, 4, (29 << 11) | 19          # b = 64..127
-    .fill 128, 4, (30 << 11) | 20         # b = 128..255
+.include "../zbuffer/fp16t_table.inc"
 
 .text
 
