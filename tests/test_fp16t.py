@@ -14,6 +14,7 @@ from sim import raster as R
 from sim import reference as ref
 
 from conftest import KERNELS
+from test_zbuffer import SPANS as ZBUFFER_SPANS
 
 CONVERT = "convert/fp16t.S"
 SPAN = "zbuffer/fp16t.S"
@@ -116,14 +117,7 @@ def run_span(m, zbuf, fbuf, z, dz, colour, regs=None, entry="fp16t_span"):
 
 
 SPANS = {
-    "count0": (0, 0x40000000, 1000),
-    "count1": (1, 0x40000000, 1000),
-    "plain": (257, 0x20000000, 0x00100000),
-    "overflow": (300, 0xFFFF0000, 0x00001000),             # the 32-bit interpolator wraps mid-span
-    "steep": (64, 0x00000800, 0x07FFFFFF),
-    "negative": (200, 0xF0000000, -0x00C00000),
-    "negative_overflow": (100, 0x00010000, -0x00004000),   # wraps below zero
-    "near_zero": (600, 0x00000000, 7),                     # fp16z's stale-register region
+    **ZBUFFER_SPANS,  # the edge cases every span kernel is tested on, plus fp16t's own:
     "slow_path": (700, 0x01800000, -0x00010001),           # crosses 2^24, 2^16, 2^8 and 0 downwards
     "every_exponent": (33, 0xFFFFFFFF, -0x7FFFFFFF),       # large steps: top bytes all over
 }
