@@ -191,8 +191,11 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     fp_top = 0
 
     rob_ring = np.zeros(rob_n, np.int64)
-    rs_heap = np.zeros(rs_n + 1, np.int64)
-    rs_size = 0
+    # RS occupancy: uops allocated but not yet dispatched, counted by dispatch cycle in a ring
+    # (exact, like a heap of dispatch times, but O(1) per uop: allocation times only move forward)
+    rs_by_cycle = np.zeros(WINDOW, np.int64)
+    rs_pending = 0  # uops in the RS at cycle rs_time (dispatch cycle > rs_time)
+    rs_time = 0
     queue_ring = np.zeros(max(queue_n, 1), np.int64)
     book = np.full(WINDOW, -1 << 5, np.int64)
     unit_free = np.zeros(NUNITS, np.int64)
@@ -360,17 +363,24 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                 per_static[psid, S_STALL_WINDOW] += rob_ring[rob_pos] - t
                 t = rob_ring[rob_pos]
                 cause_alloc = max(cause_alloc, 2)
-            # RS entries are freed at dispatch
-            while rs_size > 0 and rs_heap[0] <= t:
-                rs_size = _heap_pop(rs_heap, rs_size)
-            if rs_size >= rs_n:
-                w = rs_heap[0]
+            # RS entries are freed at dispatch; a full RS holds allocation until one leaves
+            while rs_time < t:
+                rs_time += 1
+                slot = rs_time & (WINDOW - 1)
+                rs_pending -= rs_by_cycle[slot]
+                rs_by_cycle[slot] = 0
+            if rs_pending >= rs_n:
+                w = t
+                while rs_pending >= rs_n:
+                    w += 1
+                    slot = w & (WINDOW - 1)
+                    rs_pending -= rs_by_cycle[slot]
+                    rs_by_cycle[slot] = 0
+                rs_time = w
                 counters[seg, C_STALL_RS] += w - t
                 per_static[psid, S_STALL_WINDOW] += w - t
                 t = w
                 cause_alloc = max(cause_alloc, 2)
-                while rs_size > 0 and rs_heap[0] <= t:
-                    rs_size = _heap_pop(rs_heap, rs_size)
             # a store needs a store-buffer entry
             if kind == STA and nstores >= sb_n and sb_ring[nstores % sb_n] > t:
                 counters[seg, C_STALL_STORE_BUFFER] += sb_ring[nstores % sb_n] - t
@@ -477,7 +487,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
             rob_pos = rob_pos + 1 if rob_pos + 1 < rob_n else 0
             # enter the RS (left at dispatch)
             if u_ports[u] != 0:
-                rs_size = _heap_push(rs_heap, rs_size, disp)
+                rs_by_cycle[disp & (WINDOW - 1)] += 1
+                rs_pending += 1
             if port >= 0:
                 counters[seg, C_PORT0 + port] += 1
                 per_static[psid, S_PORT0 + port] += 1
@@ -678,35 +689,3 @@ def _btb_alloc(tag, stamp, s, ways, pc, now):
     tag[s, victim] = pc
     stamp[s, victim] = now
     return victim
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _heap_push(h, size, v):
-    h[size] = v
-    i = size
-    while i > 0:
-        p = (i - 1) >> 1
-        if h[p] <= h[i]:
-            break
-        h[p], h[i] = h[i], h[p]
-        i = p
-    return size + 1
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _heap_pop(h, size):
-    size -= 1
-    h[0] = h[size]
-    i = 0
-    while True:
-        l = 2 * i + 1
-        if l >= size:
-            break
-        c = l
-        if l + 1 < size and h[l + 1] < h[l]:
-            c = l + 1
-        if h[i] <= h[c]:
-            break
-        h[i], h[c] = h[c], h[i]
-        i = c
-    return size
