@@ -269,10 +269,10 @@ def cpus_cmd(as_json):
                                "memory": {m: load_dram(m).describe() for m in memory_presets()}}, indent=2))
         return
     t = Table(title="CPU presets (sources in sim/cpus/presets/*.toml)")
-    for col in ("preset", "family", "core", "MHz", "FSB", "L1I", "L1D", "L2", "memory"):
-        t.add_column(col)
+    for col in ("preset", "family", "MHz", "FSB", "L1I", "L1D", "L2", "memory"):
+        t.add_column(col, no_wrap=col in ("preset", "memory"))
     for c in cpus:
-        t.add_row(c.name, c.family, c.core, f"{c.core_mhz:g}", f"{c.fsb_mhz:g}", c.l1i.describe(), c.l1d.describe(),
+        t.add_row(c.name, c.family, f"{c.core_mhz:g}", f"{c.fsb_mhz:g}", c.l1i.describe(), c.l1d.describe(),
                   (c.l2.describe() if c.l2 else "none") + (f" + board {c.board_cache.describe()}" if c.board_cache else ""),
                   c.memory)
     console.print(t)
