@@ -231,13 +231,33 @@ def time_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, a
     console.print(views.summary_table(result))
 
 
-@main.command("explain")
+EXPLAIN_HELP = """Per-instruction table of the last call (decoder, uops, ports, latency, stalls) and a timeline.
+
+\b
+Columns (each family's own names: P6 ports p0-p4 and decoders D0/D1/D2/MS, K6 units
+X/Y/load/store/branch and short S1/S2, long L, vector V decode; the legend under the tables
+spells them out for the CPU asked):
+  runs      executions in the last call
+  dec       decoder that took the instruction
+  uops/ops  uops (K6: RISC86 ops) per execution; ports/units: per execution on each
+  iss->ret  average cycles from the first uop issuing to retirement
+  dep port decode partial mem fwd window branch
+            stall cycles per execution by kind: waiting for an operand, for a busy
+            unit, for the decoders, for a partial-register merge, for memory beyond
+            L1, for store-to-load forwarding, for room in the window (reorder buffer
+            or reservation station; K6: scheduler), for the front end after a branch
+  mispred   mispredictions per execution (the `branch` stall also counts
+            taken-branch fetch bubbles on P6, so it can be large with few mispredictions)
+  table row the instruction-table row used; (est.) = estimated figures
+Narrow terminals get the table in three parts keyed by the instruction."""
+
+
+@main.command("explain", help=EXPLAIN_HELP)
 @with_kernel_options
 @with_timing_options
 @click.option("--iterations", default=3, show_default=True, help="hot-loop iterations in the timeline")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object (rows and timeline)")
 def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations, as_json):
-    """Per-instruction table of the last call (decoder, uops, ports, latency, stalls) and a timeline."""
     from . import views
 
     result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations)
@@ -246,8 +266,12 @@ def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat
                                "timeline": views.timeline_rows(result)}, indent=2))
         return
     console.print(views.summary_table(result))
-    console.print(views.explain_table(result))
-    text = views.timeline_text(result)
+    console.print(views.stall_table(result))
+    for table in views.explain_tables(result, console.width):
+        console.print(table)
+    for line in views.explain_legend(result):
+        console.print(line, markup=False, highlight=False)
+    text = views.timeline_text(result, columns=console.width)
     if text:
         console.print(f"[bold]timeline[/]: {iterations} iterations of the hot loop, from the middle of the last call")
         console.print(text, markup=False, highlight=False, soft_wrap=True)

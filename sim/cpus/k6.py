@@ -54,6 +54,7 @@ from . import k6_core as core
 from .lowering import BRANCH, COMPUTE, DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE, LOAD, STA, StaticProgram, lower
 from .p6 import CoreRun, DramCost
 from .presets import CpuPreset
+from . import vocabulary
 from .table import TABLES, InstructionTable, Match, load_table
 
 # Model choices with no figure in the sources (each says why it is what it is).
@@ -253,6 +254,7 @@ class K6CoreRun(CoreRun):
 
 class K6Model:
     family = "k6"
+    vocabulary = vocabulary.K6  # the words views use for its ports, decoders and stalls
 
     def __init__(self, preset: CpuPreset, memory: DramTiming):
         if preset.family != "k6":

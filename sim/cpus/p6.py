@@ -21,6 +21,7 @@ from ..trace import Trace
 from . import p6_core as core
 from .lowering import StaticProgram, lower
 from .presets import CacheSpec, CpuPreset
+from . import vocabulary
 from .table import TABLES, InstructionTable, load_table
 
 # Model choices with no figure in the sources (each says why it is what it is).
@@ -76,6 +77,7 @@ def _geometry(name: str, spec: CacheSpec, policy: dict) -> CacheGeometry:
 
 class P6Model:
     family = "p6"
+    vocabulary = vocabulary.P6  # the words views use for its ports, decoders and stalls
 
     def __init__(self, preset: CpuPreset, memory: DramTiming):
         if preset.family != "p6":
