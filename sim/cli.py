@@ -351,45 +351,37 @@ def _run_scenes(scenes, cpus) -> list:
     return results
 
 
-def _summary_table(results) -> Table:
-    t = Table(title="cycles per pixel (last frame) and pixels with wrong visibility")
-    t.add_column("scene")
-    t.add_column("variant")
-    keys = list(dict.fromkeys(k for r in results for k in r.cpu_keys))
-    for k in keys:
-        t.add_column(k.replace(":", "\n"), justify="right")
-    t.add_column("wrong visibility", justify="right")
-    for r in results:
-        for i, v in enumerate(r.scene.variants):
-            cells = []
-            for k in keys:
-                try:
-                    cells.append(f"{r.timing(v, k).per_pixel('cycles'):.2f}")
-                except KeyError:
-                    cells.append("")
-            vis = r.accuracy[v].visibility
-            t.add_row(r.scene.name if i == 0 else "", v, *cells,
-                      f"{vis['fraction']:.3%}" if vis else "-")
-    return t
+PARTIAL_DIR = REPORTS_DIR.parent / "build" / "reports"
 
 
 @main.command("report")
 @click.argument("scenes", nargs=-1)
-@click.option("--cpu", "cpus", multiple=True, help="run on these presets instead of the scene's (preset[:memory])")
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=REPORTS_DIR, show_default=True,
-              help="directory for the Markdown, HTML, JSON, CSV and PNG reports")
+@click.option("--cpu", "cpus", multiple=True, help="run on these presets instead of the scene's (preset[:memory]); "
+              "without --out the reports then go to build/reports/, never over the committed ones")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="directory for the Markdown, HTML, JSON, CSV and PNG reports [default: reports/, or "
+                   "build/reports/ for a run restricted with --cpu]")
 def report_cmd(scenes, cpus, out):
     """Run scenes (default: every shipped scene) and write their reports; print a summary."""
-    from .report import write_reports
+    from .report import summary_tables, write_reports
 
-    results = _run_scenes(_scenes(scenes), cpus)
+    chosen = _scenes(scenes)
+    if out is None:
+        # reports/ holds the committed reports, which CI compares with fresh ones: a run with other
+        # CPUs would silently replace them with different content
+        out = PARTIAL_DIR if cpus else REPORTS_DIR
+        if cpus:
+            err_console.print(f"--cpu changes the reports' content: writing to {out}/ (not over the committed "
+                              f"reports in {REPORTS_DIR}/; choose a directory with --out)", highlight=False)
+    results = _run_scenes(chosen, cpus)
     for r in results:
         paths = write_reports(r, out)
-        err_console.print(f"wrote {', '.join(str(p) for p in paths)}")
+        err_console.print(f"wrote {', '.join(str(p) for p in paths)}", highlight=False)
     if not scenes and not cpus:  # the default set also regenerates the conversion report
         err_console.print("[dim]conversion report: timing kernels/convert/loops.S ...[/]")
-        err_console.print(f"wrote {_write_conversion_report(out)}")
-    console.print(_summary_table(results))
+        err_console.print(f"wrote {_write_conversion_report(out)}", highlight=False)
+    for part in summary_tables(results):
+        console.print(part, highlight=False)
 
 
 def _write_conversion_report(out: Path) -> Path:

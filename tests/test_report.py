@@ -127,3 +127,93 @@ def test_committed_baselines_cover_every_shipped_scene():
         scene = load_scene(path)
         cases = data.get(scene.name, {})
         assert len(cases) == len(scene.variants) * len(scene.cpus), scene.name
+
+
+# -- output a person can read: the terminal summary, mixed families, partial runs ----------------
+def render(parts, width):
+    """Rich renderables as the terminal would show them at `width` columns (no colour codes)."""
+    import io
+
+    from rich.console import Console
+
+    console = Console(width=width, file=io.StringIO(), color_system=None)
+    for part in parts:
+        console.print(part)
+    return console.file.getvalue()
+
+
+def assert_fits(text, width):
+    assert "…" not in text and "..." not in text, text  # nothing cut or ellipsised
+    for line in text.splitlines():
+        assert len(line.rstrip()) <= width, (len(line), line)
+
+
+CLAIM_ON_ANOTHER_CPU = """
+[[claims]]
+text = "fp16z costs more than z32 on the Pentium II"
+cpu = "pentium2-233"
+variants = ["fp16z", "z32"]
+expect = "slower"
+"""
+
+
+def test_mixed_family_run_writes_every_report(tmp_path):
+    # a K6 preset first, then a P6 one: the CSV's columns are the union of both families' counters
+    scene = write_scene(tmp_path, claims=CLAIM_ON_ANOTHER_CPU)
+    result = run_scene(scene, ["k6-233", "celeron-300a:edo"])
+    paths = report.write_reports(result, tmp_path / "out")
+    assert {p.suffix for p in paths} == {".md", ".png", ".json", ".csv", ".html"}
+    import csv
+
+    rows = list(csv.DictReader((tmp_path / "out" / "tiny-test.csv").open()))
+    assert len(rows) == 2 * 2
+    k6 = next(r for r in rows if r["cpu"] == "k6-233")
+    p6 = next(r for r in rows if r["cpu"] == "celeron-300a")
+    assert int(k6["fpu_ops"]) >= 0 and p6["fpu_ops"] == ""  # the P6 model has no such counter
+    assert int(p6["cycles"]) > 0 and int(k6["cycles"]) > 0
+    # the claim names a CPU this run did not include: listed as not checked, not a crash
+    md = (tmp_path / "out" / "tiny-test.md").read_text()
+    assert "Not checked in this run" in md and "fp16z costs more than z32 on the Pentium II" in md
+    assert json.loads((tmp_path / "out" / "tiny-test.json").read_text())["claims"] == []
+
+
+def test_summary_fits_80_columns_and_says_how_many_claims_held(tmp_path):
+    claim = CLAIM_ON_ANOTHER_CPU.replace('"pentium2-233"', '"pentium2-233:edo"')
+    claims = claim + claim.replace("slower", "faster").replace("on the", "vs the")
+    scene = write_scene(tmp_path, variants='["z32", "z16", "fp16z", "fp16t", "zf32"]',
+                        cpus='["pentium2-233:edo", "pentium2-233:sdram-pc100", "k6-2-300"]', claims=claims)
+    result = run_scene(scene)
+    for width in (80, 200):
+        text = render(report.summary_tables([result]), width)
+        assert_fits(text, width)
+        for label in ("pentium2-233 edo", "pentium2-233 sdram-pc100", "k6-2-300 sdram-pc100"):
+            assert label in text  # every CPU named in full, the two memories apart
+        header = next(line for line in text.splitlines() if "fp16z" in line)
+        assert header.split() == ["CPU", "(memory)", "z32", "z16", "fp16z", "fp16t", "zf32"]
+        assert "claims: 1 of 2 hold" in text.replace("\n", " ")
+        cells = {line.split()[0]: line.split()[-5:] for line in text.splitlines() if line.startswith(" k6-2-300")}
+        want = [f"{result.timing(v, 'k6-2-300:sdram-pc100').per_pixel('cycles'):.2f}"
+                for v in ("z32", "z16", "fp16z", "fp16t", "zf32")]
+        assert cells["k6-2-300"] == want
+
+
+def test_a_cpu_restricted_run_does_not_replace_the_committed_reports(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    from sim import cli
+
+    committed, partial = tmp_path / "reports", tmp_path / "build" / "reports"
+    committed.mkdir()
+    (committed / "tiny-test.md").write_text("committed report")
+    monkeypatch.setattr(cli, "REPORTS_DIR", committed)
+    monkeypatch.setattr(cli, "PARTIAL_DIR", partial)
+    scene = write_scene(tmp_path, metrics="[]")
+    r = CliRunner().invoke(cli.main, ["report", str(scene.path), "--cpu", "k6-233"], catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    assert (committed / "tiny-test.md").read_text() == "committed report"
+    assert sorted(p.name for p in committed.iterdir()) == ["tiny-test.md"]
+    assert "k6-233" in (partial / "tiny-test.md").read_text()
+    assert str(partial) in r.output.replace("\n", "")  # says where the reports went
+    # --out still chooses the directory
+    r = CliRunner().invoke(cli.main, ["report", str(scene.path), "--cpu", "k6-233", "--out", str(tmp_path / "x")])
+    assert r.exit_code == 0 and (tmp_path / "x" / "tiny-test.md").is_file()
