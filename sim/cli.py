@@ -8,7 +8,9 @@ from pathlib import Path
 
 import click
 import numpy as np
+from rich import box
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from . import kernels as catalogue_mod
@@ -125,12 +127,13 @@ def kernels_cmd(as_json: bool):
         click.echo(json.dumps({str(p.relative_to(root)): [e.signature() for e in entries.values()]
                                for p, entries in cat.items()}, indent=2))
         return
-    table = Table(title=f"kernels in {root}")
-    table.add_column("file")
-    table.add_column("entry point")
+    table = Table(title=escape(f"kernels in {root}"), box=box.SIMPLE_HEAD, title_justify="left", show_lines=True,
+                  caption="`# @entry` declarations: see kernels/README.md", caption_justify="left")
+    table.add_column("file", no_wrap=True)
+    table.add_column("entry point and what it returns", overflow="fold")
     for path, entries in cat.items():
         for i, e in enumerate(entries.values()):
-            table.add_row(str(path.relative_to(root)) if i == 0 else "", e.signature())
+            table.add_row(escape(str(path.relative_to(root))) if i == 0 else "", escape(e.signature()))
         if not entries:
             table.add_row(str(path.relative_to(root)), "[dim](no @entry declared)[/]")
     console.print(table)
@@ -292,21 +295,57 @@ def cpus_cmd(as_json):
                                                  "memory": c.memory} for c in cpus},
                                "memory": {m: load_dram(m).describe() for m in memory_presets()}}, indent=2))
         return
-    t = Table(title="CPU presets (sources in sim/cpus/presets/*.toml)")
-    for col in ("preset", "family", "MHz", "FSB", "L1I", "L1D", "L2", "memory"):
-        t.add_column(col, no_wrap=col in ("preset", "memory"))
-    for c in cpus:
-        t.add_row(c.name, c.family, f"{c.core_mhz:g}", f"{c.fsb_mhz:g}", c.l1i.describe(), c.l1d.describe(),
-                  (c.l2.describe() if c.l2 else "none") + (f" + board {c.board_cache.describe()}" if c.board_cache else ""),
-                  c.memory)
-    console.print(t)
-    m = Table(title="memory presets (sources in sim/cpus/presets/memory/*.toml)")
+    for t in _cpu_tables(cpus, console.width):
+        console.print(t)
+    m = Table(title="memory presets (sources in sim/cpus/presets/memory/*.toml)", box=box.SIMPLE_HEAD,
+              title_justify="left", pad_edge=False)
     for col in ("preset", "type", "burst (bus clocks)"):
-        m.add_column(col)
+        m.add_column(col, no_wrap=True)
     for name in memory_presets():
         d = load_dram(name)
         m.add_row(name, d.kind, "-".join(str(x) for x in d.burst))
     console.print(m)
+
+
+def _cpu_tables(cpus, width: int) -> list:
+    """The presets in one wide table (every cache in full) when `width` holds it, else a compact one:
+    sizes only, with the latencies and clock ratios one `--json` away."""
+    from .views import _natural_width
+
+    def level(c, section: dict | None) -> str:
+        return ("board " if "motherboard" in str((section or {}).get("location", "")) else "") + f"{c.size_kb}"
+
+    def caches(c, full: bool) -> str:
+        if c.l2 is None:
+            return "no L2"
+        raw = c.raw
+        text = c.l2.describe() if full else level(c.l2, raw.get("l2"))
+        if not full and c.l2.speed_ratio != 1.0:
+            text += f" at {c.l2.speed_ratio:g}x"
+        if c.board_cache:
+            text += " + " + (f"board {c.board_cache.describe()}" if full else
+                             level(c.board_cache, raw.get("l3") or raw.get("board_cache")))
+        return text
+
+    def build(full: bool) -> Table:
+        t = Table(title="CPU presets (sources in sim/cpus/presets/*.toml)", box=box.SIMPLE_HEAD, title_justify="left",
+                  pad_edge=False,
+                  caption=("L1: size, ways, line, load-to-use clocks; L2 'x clock': its clock over the core's"
+                           if full else "'board': the motherboard cache; 'at 0.5x': L2 at half the core clock; "
+                           "ways and latencies with --json or a wider terminal"), caption_justify="left")
+        cols = (["preset", "family", "MHz", "bus MHz", "L1I", "L1D", "L2", "memory"] if full else
+                ["preset", "family", "MHz", "bus MHz", "L1 I+D KB", "L2 KB", "memory"])
+        for col in cols:
+            t.add_column(col, no_wrap=True, justify="right" if "MHz" in col else "left")
+        for c in cpus:
+            l1 = [c.l1i.describe(), c.l1d.describe()] if full else [f"{c.l1i.size_kb}+{c.l1d.size_kb}"]
+            # truncated, as the parts are sold: 266.67 MHz is a Celeron 266 on a 66 MHz bus
+            t.add_row(c.name, c.family.upper(), f"{int(c.core_mhz)}", f"{int(c.fsb_mhz)}", *l1, caches(c, full),
+                      c.memory)
+        return t
+
+    wide = build(True)
+    return [wide] if _natural_width(wide) <= width else [build(False)]
 
 
 REPORTS_DIR = Path(__file__).resolve().parent.parent / "reports"

@@ -5,6 +5,12 @@ kernels and check argument counts without parsing assembly:
 
     # @entry fp16z_span(zbuf, fbuf, count, z, dz, colour) -> pixels written
 
+A description too long for one line continues on the comment lines right below it (up to a line
+that is not a `#` comment, an empty comment, or the next `@` tag):
+
+    # @entry div_window(n) -> per iteration: DIV r32 (20 clocks on X), then
+    # 16 independent ADD r32,i8 and DEC/JNZ
+
 The names are documentation; the count is enforced by :meth:`sim.emu.Machine.call`.
 """
 
@@ -16,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 KERNELS_ENV = "RETROSIM_KERNELS"
+_CONTINUATION = re.compile(r"^\s*#(?!\s*@)\s*(?P<text>\S.*?)\s*$")
 _ENTRY = re.compile(r"^\s*#\s*@entry\s+(?P<name>[A-Za-z_.$][\w.$]*)\s*\((?P<args>[^)]*)\)\s*(?:->\s*(?P<ret>.*?))?\s*$")
 
 
@@ -39,13 +46,30 @@ def kernels_root() -> Path:
 def entry_points(source: str | os.PathLike) -> dict[str, EntryPoint]:
     """The entry points a source file declares with `# @entry` comments, in file order."""
     found: dict[str, EntryPoint] = {}
-    text = Path(source).read_text(encoding="utf-8", errors="replace")
-    for lineno, line in enumerate(text.splitlines(), 1):
+    lines = Path(source).read_text(encoding="utf-8", errors="replace").splitlines()
+    for lineno, line in enumerate(lines, 1):
         m = _ENTRY.match(line)
         if m:
             args = tuple(a.strip() for a in m["args"].split(",") if a.strip())
-            found[m["name"]] = EntryPoint(m["name"], args, m["ret"] or "", lineno)
+            text = [m["ret"] or ""]
+            for more in lines[lineno:]:
+                c = _CONTINUATION.match(more)
+                if not c:
+                    break
+                text.append(c["text"])
+            found[m["name"]] = EntryPoint(m["name"], args, _join(text), lineno)
     return found
+
+
+def _join(parts: list[str]) -> str:
+    """Continuation lines joined into one description; a line that starts a new sentence (capital
+    letter after a line without closing punctuation) is set off with a semicolon."""
+    out = ""
+    for part in filter(None, parts):
+        if out and part[:1].isupper() and out[-1] not in ".;:,":
+            out += ";"
+        out = f"{out} {part}" if out else part
+    return out
 
 
 def catalogue(root: Path | None = None) -> dict[Path, dict[str, EntryPoint]]:
