@@ -331,12 +331,12 @@ def _cpu_tables(cpus, width: int) -> list:
         t = Table(title="CPU presets (sources in sim/cpus/presets/*.toml)", box=box.SIMPLE_HEAD, title_justify="left",
                   pad_edge=False,
                   caption=("L1: size, ways, line, load-to-use clocks; L2 'x clock': its clock over the core's"
-                           if full else "'board': the motherboard cache; 'at 0.5x': L2 at half the core clock; "
+                           if full else "MHz: core and bus clocks; L1: instruction + data; 'board': the motherboard cache; 'at 0.5x': L2 at half the core clock; "
                            "ways and latencies with --json or a wider terminal"), caption_justify="left")
         cols = (["preset", "family", "MHz", "bus MHz", "L1I", "L1D", "L2", "memory"] if full else
-                ["preset", "family", "MHz", "bus MHz", "L1 I+D KB", "L2 KB", "memory"])
+                ["preset", "family", "MHz", "bus", "L1 KB", "L2 KB", "memory"])
         for col in cols:
-            t.add_column(col, no_wrap=True, justify="right" if "MHz" in col else "left")
+            t.add_column(col, no_wrap=True, justify="right" if col in ("MHz", "bus", "bus MHz") else "left")
         for c in cpus:
             l1 = [c.l1i.describe(), c.l1d.describe()] if full else [f"{c.l1i.size_kb}+{c.l1d.size_kb}"]
             # truncated, as the parts are sold: 266.67 MHz is a Celeron 266 on a 66 MHz bus
