@@ -161,7 +161,22 @@ def breakdown_table(result: SceneResult, key: str) -> tuple[list[str], list[list
 
 # -- plot --------------------------------------------------------------------------------------
 def work_precision_png(result: SceneResult) -> bytes | None:
-    """x: cycles per pixel (one marker per CPU), y: share of pixels with wrong visibility."""
+    fig = work_precision_figure(result)
+    if fig is None:
+        return None
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", metadata={"Software": None})
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def work_precision_figure(result: SceneResult):
+    """Work against precision as a dot plot: one row per variant (ordered by its share of pixels with
+    wrong visibility, which is the same on every CPU and is written in the row's label), cycles per
+    pixel along x, one marker per CPU (offset within the row so none hides another). Exact variants
+    sit in their own shaded band: zero is not a small error, and a log axis has no place for it."""
     if not any(a.visibility for a in result.accuracy.values()):
         return None
     import matplotlib
@@ -169,30 +184,51 @@ def work_precision_png(result: SceneResult) -> bytes | None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7.5, 4.5), dpi=100)
-    markers = "osD^vP*X"
-    floor = 0.5 / max(1, result.pixels)  # zero errors are drawn on this floor, labelled "exact"
-    for i, key in enumerate(result.cpu_keys):
-        xs = [result.timing(v, key).per_pixel("cycles") for v in result.scene.variants]
-        ys = [max(floor, result.accuracy[v].visibility["fraction"]) for v in result.scene.variants]
-        ax.scatter(xs, ys, marker=markers[i % len(markers)], label=_cpu_label(key), s=40)
-    for v in result.scene.variants:
-        key = result.cpu_keys[0]
-        x = result.timing(v, key).per_pixel("cycles")
-        y = max(floor, result.accuracy[v].visibility["fraction"])
-        ax.annotate(v, (x, y), textcoords="offset points", xytext=(4, 4), fontsize=8)
-    ax.set_yscale("log")
-    ax.axhline(floor, color="0.8", lw=0.8)
-    ax.text(ax.get_xlim()[0], floor, " exact", va="bottom", fontsize=7, color="0.5")
-    ax.set_xlabel("cycles per pixel (last frame, caches warm)")
-    ax.set_ylabel("pixels with wrong visibility (share)")
-    ax.set_title(f"{result.scene.name}: error against run time")
-    ax.legend(fontsize=7, loc="best")
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata={"Software": None})
-    plt.close(fig)
-    return buf.getvalue()
+    variants = [v for v in result.scene.variants if result.accuracy[v].visibility]
+    share = {v: result.accuracy[v].visibility["fraction"] for v in variants}
+    exact = [v for v in variants if result.accuracy[v].visibility["errors"] == 0]
+    wrong = sorted((v for v in variants if v not in exact), key=lambda v: -share[v])
+    rows = wrong + exact  # top to bottom
+    keys = result.cpu_keys
+    legend_rows = -(-(len(keys) + bool(exact)) // 3)
+    fig_h = 1.3 + 0.22 * legend_rows + 0.45 * len(rows) * max(1.0, len(keys) / 4)
+    fig, ax = plt.subplots(figsize=(8, fig_h), dpi=100, layout="constrained")
+    # the same CPU has the same colour in every plot, the same memory the same marker
+    from .cpus import memory_presets, presets
+
+    cpu_names, memories = presets.available(), memory_presets()
+    palette = plt.get_cmap("tab10" if len(cpu_names) <= 10 else "tab20")
+    markers = "osD^vP*Xh<>"
+    spread = min(0.7, 0.12 * len(keys))
+    ypos = {v: len(rows) - 1 - i for i, v in enumerate(rows)}
+    if exact:
+        ax.axhspan(-0.5, len(exact) - 0.5, color="#dcefdc", zorder=0, label="exact: no pixel with wrong visibility")
+    for i, key in enumerate(keys):
+        offset = (i - (len(keys) - 1) / 2) * (spread / max(1, len(keys) - 1)) if len(keys) > 1 else 0.0
+        xs = [result.timing(v, key).per_pixel("cycles") for v in rows]
+        ys = [ypos[v] - offset for v in rows]
+        cpu, memory = key.split(":")
+        colour = palette(cpu_names.index(cpu) % palette.N) if cpu in cpu_names else "0.5"
+        marker = markers[memories.index(memory) % len(markers)] if memory in memories else "X"
+        ax.scatter(xs, ys, marker=marker, s=46, color=colour, label=_cpu_label(key), zorder=3,
+                   edgecolors="black", linewidths=0.4)
+    for k in range(len(rows) - 1):
+        ax.axhline(k + 0.5, color="0.85", lw=0.8, zorder=1)
+    labels = []
+    for v in rows:
+        f = share[v]
+        text = "exact" if v in exact else (f"{f:.2%} wrong" if f >= 0.001 else f"{f:.4%} wrong")
+        labels.append(f"{v}: {text}\n{VARIANT_LABELS[v]}")
+    ax.set_yticks([ypos[v] for v in rows], labels, fontsize=9)
+    ax.set_ylim(-0.5, len(rows) - 0.5)
+    ax.set_xlabel("cycles per pixel (last frame, caches warm); fewer is faster", fontsize=10)
+    ax.set_title(f"{result.scene.name}: cycles per pixel of each depth format on each CPU\n"
+                 "(rows from most to fewest pixels with wrong visibility)", fontsize=10)
+    ax.grid(axis="x", color="0.9", zorder=0)
+    ax.tick_params(axis="x", labelsize=9)
+    ax.margins(x=0.04)
+    fig.legend(fontsize=9, loc="outside lower center", ncol=3, frameon=False, handletextpad=0.3, columnspacing=1.2)
+    return fig
 
 
 # -- documents ---------------------------------------------------------------------------------

@@ -217,3 +217,38 @@ def test_a_cpu_restricted_run_does_not_replace_the_committed_reports(tmp_path, m
     # --out still chooses the directory
     r = CliRunner().invoke(cli.main, ["report", str(scene.path), "--cpu", "k6-233", "--out", str(tmp_path / "x")])
     assert r.exit_code == 0 and (tmp_path / "x" / "tiny-test.md").is_file()
+
+
+def test_work_precision_plot_names_every_point_and_nothing_collides(tmp_path):
+    import matplotlib.pyplot as plt
+
+    scene = write_scene(tmp_path, variants='["z32", "z16", "fp16z", "fp16t", "zf32"]',
+                        cpus='["pentium2-233:edo", "pentium2-233:sdram-pc100", "celeron-266", "k6-233", "k6-2-300"]')
+    result = run_scene(scene)
+    fig = report.work_precision_figure(result)
+    ax = fig.axes[0]
+    ticks = {t.get_text().split(":")[0]: t.get_text() for t in ax.get_yticklabels()}
+    assert set(ticks) == set(scene.variants)  # every row names its variant and its error
+    for v in scene.variants:
+        vis = result.accuracy[v].visibility
+        assert ("exact" in ticks[v]) == (vis["errors"] == 0)
+    assert ax.get_yscale() == "linear"  # no log axis with a made-up floor for zero
+    legend = [t.get_text() for t in fig.legends[0].get_texts()]
+    for key in result.cpu_keys:
+        assert report._cpu_label(key) in legend  # every marker names its CPU and memory
+    # one marker per (variant, CPU), at that pair's cycles per pixel
+    points = [tuple(p) for c in ax.collections for p in c.get_offsets()]
+    assert len(points) == len(scene.variants) * len(result.cpu_keys)
+    want = sorted(round(result.timing(v, k).per_pixel("cycles"), 6) for v in scene.variants for k in result.cpu_keys)
+    assert sorted(round(float(x), 6) for x, _ in points) == want
+    # no two markers share a spot, and no two texts overlap
+    assert len(set(points)) == len(points)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    texts = [t for t in fig.findobj(plt.Text) if t.get_text().strip() and t.get_visible()]
+    boxes = [t.get_window_extent(renderer) for t in texts]
+    for i in range(len(boxes)):
+        for j in range(i + 1, len(boxes)):
+            assert not boxes[i].overlaps(boxes[j]), (texts[i].get_text(), texts[j].get_text())
+    assert min(t.get_fontsize() for t in texts) >= 9  # legible at the committed size
+    plt.close(fig)
