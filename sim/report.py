@@ -148,15 +148,37 @@ def accuracy_table(result: SceneResult) -> tuple[list[str], list[list[str]]]:
 
 
 def breakdown_table(result: SceneResult, key: str) -> tuple[list[str], list[list[str]]]:
-    header = ["variant", "cycles"] + [t for _, t in PER_PIXEL] + ["p0/p1/p2/p3/p4"] + \
+    """Where one CPU's cycles go, per pixel, in its family's words (P6 ports p0-p4, K6 units X, Y,
+    load, store, branch and FPU); 'no L2' where the CPU has none."""
+    from .cpus import presets, vocabulary
+
+    cpu = key.split(":")[0]
+    voc = vocabulary.for_preset(cpu)
+    has_l2 = presets.load(cpu).l2 is not None
+    units = list(voc.ports) + [name for counter, name in voc.extra_units]
+    unit_counters = [f"port{p}" for p in range(len(voc.ports))] + [counter for counter, _ in voc.extra_units]
+    title = {"uops": voc.op + "s", "decode_groups": voc.group.split(" (")[0]}
+    header = ["variant", "cycles"] + [title.get(c, t) for c, t in PER_PIXEL] + ["/".join(units)] + \
              ["stalls " + "/".join(t for _, t in STALL_COLUMNS)]
     rows = []
     for v in result.scene.variants:
         t = result.timing(v, key)
-        ports = "/".join(_f(t.per_pixel(f"port{p}"), 1) for p in range(5))
+        ports = "/".join(_f(t.per_pixel(c), 1) if c in t.counters else "-" for c in unit_counters)
         stalls = "/".join(_f(t.per_pixel(c), 1) for c, _ in STALL_COLUMNS)
-        rows.append([v, _f(t.per_pixel("cycles"))] + [_f(t.per_pixel(c), 3) for c, _ in PER_PIXEL] + [ports, stalls])
+        cells = [("no L2" if c == "l2_misses" and not has_l2 else _f(t.per_pixel(c), 3)) for c, _ in PER_PIXEL]
+        rows.append([v, _f(t.per_pixel("cycles"))] + cells + [ports, stalls])
     return header, rows
+
+
+def breakdown_legend(key: str) -> str:
+    """The family's words for one breakdown table, in one sentence under it."""
+    from .cpus import vocabulary
+
+    voc = vocabulary.for_preset(key.split(":")[0])
+    units = "; ".join(voc.port_help) + ("; " + ", ".join(f"{n}: x87 unit" for c, n in voc.extra_units)
+                                        if voc.extra_units else "")
+    return (f"{voc.op}s per pixel on each {'unit' if voc.family == 'k6' else 'port'} ({units}). "
+            f"Decode: {voc.group}. Branch stall: {voc.stall_help.get('mispredict', '')}.")
 
 
 # -- plot --------------------------------------------------------------------------------------
@@ -386,7 +408,8 @@ def to_markdown(result: SceneResult, png_name: str | None, findings: list[str]) 
                   "a port, the decoders, a partial-register merge, memory, a store forward, a branch restart); "
                   "they overlap, so they do not add up to the cycle count.", ""]
         for key in result.cpu_keys:
-            parts += [f"### {_cpu_label(key)}", "", _md_table(*breakdown_table(result, key)), ""]
+            parts += [f"### {_cpu_label(key)}", "", _md_table(*breakdown_table(result, key)), "",
+                      breakdown_legend(key), ""]
     if result.precision:
         parts += ["## Precision of the stored depth formats", "",
                   "Relative quantization step (distance to the next representable depth, divided by the depth) "
