@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import reference as ref
+from .cpus import vocabulary
 from .errors import RetrosimError
 from .kernels import kernels_root
 from .report import _md_table
@@ -86,8 +87,11 @@ def conversion_markdown(results: dict) -> str:
               "From the model's per-instruction table of `convert_plain` (decoder slot actually used, uops, "
               "ports, average issue-to-retire cycles) and the instruction-table row it used, with its source.", ""]
     for cpu, d in results["cpus"].items():
+        voc = vocabulary.for_preset(cpu)  # each family's words: P6 uops on ports, K6 RISC86 ops on units
         rows = [[r["instruction"], r["decoder"], r["decoder_class"], str(r["uops"]), r["ports"],
                  f"{r['issue_to_retire']:g}", r["row"], r["source"]] for r in d["convert_plain"]["conversion"]]
-        parts += [f"### {cpu}", "", _md_table(["instruction", "decoder", "class", "uops", "ports", "issue->retire",
-                                               "table row", "source"], rows), ""]
+        parts += [f"### {cpu}", "", _md_table(["instruction", "decoder", "class", voc.op + "s",
+                                               "units" if voc.family == "k6" else "ports", "issue->retire",
+                                               "table row", "source"], rows), "",
+                  f"Decoders: {voc.decode_help}.", ""]
     return "\n".join(parts).rstrip() + "\n"
