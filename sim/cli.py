@@ -232,26 +232,31 @@ def time_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, a
         click.echo(json.dumps(views.summary(result), indent=2))
         return
     console.print(views.summary_table(result))
+    console.print(views.stall_table(result))
 
 
-EXPLAIN_HELP = """Per-instruction table of the last call (decoder, uops, ports, latency, stalls) and a timeline.
+EXPLAIN_HELP = """Per-instruction table of the last call (decoder, uops, ports, latency,
+stalls) and a timeline.
 
 \b
-Columns (each family's own names: P6 ports p0-p4 and decoders D0/D1/D2/MS, K6 units
-X/Y/load/store/branch and short S1/S2, long L, vector V decode; the legend under the tables
-spells them out for the CPU asked):
-  runs      executions in the last call
-  dec       decoder that took the instruction
-  uops/ops  uops (K6: RISC86 ops) per execution; ports/units: per execution on each
-  iss->ret  average cycles from the first uop issuing to retirement
-  dep port decode partial mem fwd window branch
-            stall cycles per execution by kind: waiting for an operand, for a busy
-            unit, for the decoders, for a partial-register merge, for memory beyond
-            L1, for store-to-load forwarding, for room in the window (reorder buffer
-            or reservation station; K6: scheduler), for the front end after a branch
-  mispred   mispredictions per execution (the `branch` stall also counts
-            taken-branch fetch bubbles on P6, so it can be large with few mispredictions)
-  table row the instruction-table row used; (est.) = estimated figures
+Columns, in each family's names (P6: ports p0-p4, decoders D0/D1/D2 and
+MS; K6: units X/Y/load/store/branch, short S1/S2, long L and vector V
+decode); the legend under the tables spells them out for the CPU asked:
+  runs       executions in the last call
+  dec        the decoder that took the instruction
+  uops/ops   uops (K6: RISC86 ops) per execution
+  ports      per execution on each port (K6: units)
+  iss->ret   average cycles from the first uop issuing to retirement
+  stalls     cycles per execution an op waited: dep (an operand),
+             port (a busy unit), decode (the decoders), partial (a
+             partial-register merge), mem (memory beyond L1), fwd
+             (store-to-load forwarding), window (room in the reorder
+             buffer or reservation station; K6: the scheduler), branch
+             (the front end after a branch)
+  mispred    mispredictions per execution; P6's branch stall also counts
+             every taken branch's fetch bubble, so it can be large with
+             few mispredictions
+  table row  the instruction-table row used; (est.) = estimated figures
 Narrow terminals get the table in three parts keyed by the instruction."""
 
 

@@ -66,7 +66,8 @@ def test_explain_speaks_each_familys_language(shown):
 
 def test_a_cpu_without_l2_says_so(shown):
     text = shown(80, "time", *LOOP, "--cpu", "celeron-266")
-    assert "no L2" in text
+    assert_fits(text, 80)
+    assert "no L2" in text and "what it counts" in text  # the stall table says what each kind counts
     assert "no L2" not in shown(80, "time", *LOOP, "--cpu", "celeron-300a")
 
 
@@ -120,3 +121,12 @@ def test_views_take_their_words_from_the_model():
     assert vocabulary.of(make_model("k6-2-300")).ports == ("X", "Y", "load", "store", "branch")
     assert vocabulary.of(make_model("pentium3-500")).ports[0] == "p0"
     assert vocabulary.of(object()) is vocabulary.GENERIC  # a model that brings none gets neutral names
+
+
+def test_explain_help_is_the_legend_one_step_away():
+    r = CliRunner().invoke(cli.main, ["explain", "--help"], terminal_width=80)
+    assert r.exit_code == 0
+    assert_fits(r.output, 80)
+    for column in ("runs", "dec", "iss->ret", "dep", "port", "decode", "partial", "mem", "fwd", "window", "branch",
+                   "mispred", "table row", "(est.)"):
+        assert column in r.output, column
