@@ -317,10 +317,14 @@ def summary_tables(results: list[SceneResult]) -> list:
             t.add_row("wrong visibility", *[_share(r.accuracy[v].visibility) for v in r.scene.variants])
         out.append(t)
         if claims or unchecked:
+            from rich.padding import Padding
+            from rich.text import Text
+
             wrong = [c for c in claims if not c["holds"]]
-            out.append(f"  claims: {held} of {len(claims)} hold"
-                       + (f"; not reproduced: {'; '.join(c['text'] for c in wrong)}" if wrong else "")
-                       + (f"; {len(unchecked)} not checked (their CPU was not run)" if unchecked else ""))
+            lines = [f"claims: {held} of {len(claims)} hold" + (", not reproduced:" if wrong else "")
+                     + (f" ({len(unchecked)} not checked: their CPU was not run)" if unchecked else "")]
+            out.append(Padding(Text(lines[0]), (0, 0, 0, 1)))
+            out += [Padding(Text(f"- {c['text']}"), (0, 0, 0, 3)) for c in wrong]
     return out
 
 
