@@ -91,7 +91,7 @@ def conversion_markdown(results: dict) -> str:
         rows = [[r["instruction"], r["decoder"], r["decoder_class"], str(r["uops"]), r["ports"],
                  f"{r['issue_to_retire']:g}", r["row"], r["source"]] for r in d["convert_plain"]["conversion"]]
         parts += [f"### {cpu}", "", _md_table(["instruction", "decoder", "class", voc.op + "s",
-                                               "units" if voc.family == "k6" else "ports", "issue->retire",
+                                               voc.unit + "s", "issue->retire",
                                                "table row", "source"], rows), "",
                   f"Decoders: {voc.decode_help}.", ""]
     return "\n".join(parts).rstrip() + "\n"

@@ -177,7 +177,7 @@ def breakdown_legend(key: str) -> str:
     voc = vocabulary.for_preset(key.split(":")[0])
     units = "; ".join(voc.port_help) + ("; " + ", ".join(f"{n}: x87 unit" for c, n in voc.extra_units)
                                         if voc.extra_units else "")
-    return (f"{voc.op}s per pixel on each {'unit' if voc.family == 'k6' else 'port'} ({units}). "
+    return (f"{voc.op}s per pixel on each {voc.unit} ({units}). "
             f"Decode: {voc.group}. Branch stall: {voc.stall_help.get('mispredict', '')}.")
 
 

@@ -71,7 +71,7 @@ def summary_table(result: TimingResult) -> Table:
     used = [(name, s[f"decoder{k}"]) for k, name in enumerate(v.decoders) if name]
     t.add_row("decode", f"{s['decode_groups']:,}", f"{v.group}; " + ", ".join(f"{n} {c:,}" for n, c in used))
     units = [(v.port_label(k), s[f"port{k}"]) for k in range(5)] + [(n, s[c]) for c, n in v.extra_units if c in s]
-    t.add_row("units" if v.family == "k6" else "ports", "", "  ".join(f"{n} {c:,}" for n, c in units))
+    t.add_row(v.unit + "s", "", "  ".join(f"{n} {c:,}" for n, c in units))
     t.add_row("branches", f"{s['branches']:,}", f"{s['mispredicts']:,} mispredicted "
                                                 f"(branch stall cycles: {s['stall_mispredict']:,}, see below)")
     t.add_row("L1D", f"{s['l1d_loads'] + s['l1d_stores']:,}",
@@ -160,7 +160,7 @@ def explain_tables(result: TimingResult, width: int) -> list[Table]:
     rows = explain_rows(result)
     z = lambda x: f"{x:g}" if x else ""  # noqa: E731
     ops = "uops" if v.op == "uop" else "ops"
-    units = "ports" if v.family != "k6" else "units"
+    units = v.unit + "s"
     stalls = [(f"stall_{k}", title) for k, title in STALL_KINDS]
     shown = [(k, title) for k, title in stalls if any(r[k] for r in rows)]
     row_text = lambda r: escape(r["row"] + (" (est.)" if r["estimated"] else ""))  # noqa: E731
@@ -220,7 +220,7 @@ def explain_legend(result: TimingResult) -> list[str]:
     family's words (printed under the tables; also in `retrosim explain --help`)."""
     v = _vocab(result)
     ops = "uops" if v.op == "uop" else "ops"
-    units = "ports" if v.family != "k6" else "units"
+    units = v.unit + "s"
     table = getattr(result.model, "family", v.family) or "the family's"
     rows = explain_rows(result)
     kinds = [k for k, _ in STALL_KINDS if any(r[f"stall_{k}"] for r in rows)]
@@ -237,10 +237,7 @@ def explain_legend(result: TimingResult) -> list[str]:
 
 
 def timeline_key(result: TimingResult) -> str:
-    v = _vocab(result)
-    if v.family == "k6":
-        return "D decode, R enter the scheduler, = wait in the scheduler, E execute, - done, C retire"
-    return "D decode, R rename, = wait in the reservation station, E execute, - done, C retire"
+    return _vocab(result).timeline
 
 
 def timeline_rows(result: TimingResult) -> list[dict]:

@@ -39,6 +39,8 @@ class Vocabulary:
     window: str                               # what a `window` stall waits for
     stall_help: dict[str, str] = field(default_factory=dict)  # stall kind -> what it counts
     mispredict_note: str = ""                 # how mispredicted branches relate to `branch` stall cycles
+    unit: str = "port"                        # what port0..port4 are called together ("port", "unit", "pipe")
+    timeline: str = ("D decode, R rename, = wait in the reservation station, E execute, - done, C retire")
 
     def port_label(self, k: int) -> str:
         return self.ports[k] if k < len(self.ports) else f"port{k}"
@@ -100,6 +102,8 @@ K6 = Vocabulary(
                 "mispredict": "decoders idle, restarting after a mispredicted branch"},
     mispredict_note=("'mispredicted' counts branches predicted wrongly; 'branch' stall cycles are the clocks "
                      "the decoders waited to restart after them"),
+    unit="unit",
+    timeline="D decode, R enter the scheduler, = wait in the scheduler, E execute, - done, C retire",
 )
 
 GENERIC = Vocabulary(
