@@ -78,7 +78,8 @@ def summary_table(result: TimingResult) -> Table:
               f"loads {s['l1d_loads']:,} ({s['l1d_load_misses']:,} miss), stores {s['l1d_stores']:,} "
               f"({s['l1d_store_misses']:,} miss)")
     if _has_l2(result):
-        t.add_row("L2", f"{s['l2_accesses']:,}", f"{s['l2_misses']:,} miss")
+        where = str(getattr(result.model.preset, "raw", {}).get("l2", {}).get("location", ""))
+        t.add_row("L2 (board)" if "motherboard" in where else "L2", f"{s['l2_accesses']:,}", f"{s['l2_misses']:,} miss")
     else:
         t.add_row("L2", "", "no L2 (L1 misses go to memory)")
     if s.get("l3_accesses") or getattr(getattr(result.model, "preset", None), "board_cache", None):
