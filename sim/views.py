@@ -4,6 +4,7 @@ model's counters; they never change a simulation (the llvm-mca split)."""
 from __future__ import annotations
 
 import numpy as np
+from rich.markup import escape
 from rich.table import Table
 
 from .cpus import p6_core as core
@@ -98,10 +99,10 @@ def explain_table(result: TimingResult) -> Table:
         t.add_column(name, justify=justify)
     z = lambda x: f"{x:g}" if x else ""  # noqa: E731
     for r in explain_rows(result):
-        t.add_row(f"{r['pc']:#x}", r["instruction"], f"{r['executions']:,}", r["decoder"], str(r["uops"]), r["ports"],
+        t.add_row(f"{r['pc']:#x}", escape(r["instruction"]),  # '[esi]' is not rich markup f"{r['executions']:,}", r["decoder"], str(r["uops"]), r["ports"],
                   f"{r['issue_to_retire']:g}", z(r["stall_dependency"]), z(r["stall_port"]), z(r["stall_decode"]),
                   z(r["stall_partial"]), z(r["stall_memory"]), z(r["stall_store_forward"]), z(r["stall_window"]),
-                  z(r["mispredict_rate"]), r["row"] + (" (est.)" if r["estimated"] else ""))
+                  z(r["mispredict_rate"]), escape(r["row"]) + (" (est.)" if r["estimated"] else ""))
     return t
 
 
