@@ -58,6 +58,7 @@ _LABEL = re.compile(r"^\s*([A-Za-z_.$][\w.$@]*|\d+)\s*:(?!:)")
 _LABEL_RUN = re.compile(r"^(?:\s*(?:[A-Za-z_.$][\w.$@]*|\d+)\s*:(?!:))*")
 _COND = re.compile(r"^(j(?!mp)[a-z]+|loop[a-z]*|jn?e?cxz)$")
 _JUMP = re.compile(r"^(j[a-z]+|loop[a-z]*|call[lw]?|ljmp|lcall)$")
+_REGISTERS = {p + r for r in ("ax", "bx", "cx", "dx", "si", "di", "bp", "sp") for p in ("e", "")}
 _LEAVES = {"ret", "retl", "retn", "retf", "iret", "iretd", "int", "int3", "into", "hlt", "sysenter", "syscall"}
 
 
@@ -115,7 +116,7 @@ def parse_body(text: str, name: str = "<stdin>", syntax: str | None = None) -> B
         op = words[0].lower()
         if op in _LEAVES:
             raise RetrosimError(f"{name}:{number}: '{insn}' leaves the body (a loop body cannot return or trap)")
-        if _JUMP.match(op) and len(words) == 2 and re.fullmatch(r"[A-Za-z_.$][\w.$@]*|\d+[bf]", words[1]):
+        if _JUMP.match(op) and len(words) == 2 and words[1].lower() not in _REGISTERS and re.fullmatch(r"[A-Za-z_.$][\w.$@]*|\d+[bf]", words[1]):
             target = words[1]
             local = re.fullmatch(r"(\d+)[bf]", target)
             if (local.group(1) if local else target) not in labels:
@@ -319,6 +320,8 @@ def _marks(pc: np.ndarray, starts: list[int], loop: bool) -> list[int]:
 
 
 def _fault(machine: Machine, body: Body, fault: GuestFault, lo: int, hi: int) -> RetrosimError:
+    if not lo <= fault.pc <= hi:  # a computed jump left the body and landed on no code
+        return RetrosimError(f"{body.name}: the body branches out of itself: a jump went to {fault.pc:#010x}")
     msg = str(fault).replace(" (retrosim_loop+", " (body+").replace(" (retrosim_iter_0+", " (body+")
     msg = re.sub(r" \(retrosim_\w+\+0x[0-9a-f]+\)", "", msg)
     if fault.address is not None and fault.address < NULL_LIMIT and lo <= fault.pc < hi:
