@@ -521,6 +521,41 @@ def check_cmd(scenes, update, check_reports):
                   "match the baselines" + (" and the committed reports" if check_reports else ""))
 
 
+@main.command("validate")
+@click.option("--family", "fams", multiple=True, help="only these families (default: every validation/*.toml)")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=REPORTS_DIR / "validation.md",
+              show_default=True, help="Markdown report to write")
+@click.option("--check", is_flag=True, help="write nothing; fail if the committed report differs from a fresh one")
+def validate_cmd(fams, out, check):
+    """Time published loop timings (validation/*.toml) and write reports/validation.md."""
+    import time as _time
+
+    from . import validation
+    from .report import atomic_write
+
+    start = _time.perf_counter()
+    results = [validation.run_family(f) for f in validation.families(only=list(fams) or None)]
+    text = validation.markdown(results)
+    if check:
+        committed = out.read_text() if out.is_file() else ""
+        strip = lambda t: "\n".join(x for x in t.splitlines() if not x.startswith("Run time:"))  # noqa: E731
+        if strip(committed) != strip(text):
+            err_console.print(f"stale report: {out} (regenerate with `retrosim validate`)")
+            raise SystemExit(1)
+    else:
+        if not out.parent.is_dir():
+            raise ArgumentError(f"--out {out}: directory {out.parent} does not exist")
+        atomic_write(out, text.encode())
+        err_console.print(f"wrote {out}")
+    t = Table(title=f"validation against published timings ({_time.perf_counter() - start:.1f} s)")
+    for col in ("family", "preset", "cases", "MAPE", "within 1 cycle", "harness errors"):
+        t.add_column(col, justify="left" if col in ("family", "preset") else "right")
+    for fr in results:
+        t.add_row(fr.family.family, fr.family.cpu, str(len(fr.timed)), f"{fr.mape():.1f} %", f"{fr.within_one():.0%}",
+                  str(len(fr.results) - len(fr.timed)))
+    console.print(t)
+
+
 @main.command("bench")
 @click.option("--pixels", default=1 << 20, show_default=True, help="pixels in the Z-buffer span workload")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object with the figures")
