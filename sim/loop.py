@@ -39,13 +39,14 @@ from .errors import ArgumentError, AssemblerError, GuestFault, RetrosimError
 from .timing import TimingResult
 from .trace import NativeTracer, Trace
 
-# Start values. Pointers sit 4 MB apart in unmapped low memory (demand-zero, below the 64 MB that
-# Socket 7 board caches cover), each shifted by a different multiple of 0x440 bytes so that the
-# streams fall in different cache sets (4 KB P6 ways, 16 KB K6 ways) and sectors, as real buffers
-# would. Counters are large, so `dec reg / jnz` loops run as long as needed; EDX is the smallest
-# value so that `div r32` by any other register does not overflow (#DE); it is not shifted, so DL
-# and DH start at 0 (byte-register steps stay still). EAX starts at 0.
-REG_DEFAULTS = {"eax": 0, "ebx": 0x01800000 + 3 * 0x440, "ecx": 0x02000000 + 5 * 0x440,
+# Start values. Every register but ESP is a valid pointer (compilers use any of them as one):
+# regions 4 MB apart in unmapped low memory (demand-zero, below the 64 MB that Socket 7 board
+# caches cover), each shifted by a different multiple of 0x440 bytes so that streams fall in
+# different cache sets (4 KB P6 ways, 16 KB K6 ways) and sectors, as real buffers would. The values
+# are large, so `dec reg / jnz` loops run as long as needed, and distinct, so `cmp reg, reg / jne`
+# loops do too. EDX is the smallest so that `div r32` by any other register cannot overflow (#DE);
+# it is not shifted, so DL and DH start at 0 (byte-register steps stay still).
+REG_DEFAULTS = {"eax": 0x02400000 + 6 * 0x440, "ebx": 0x01800000 + 3 * 0x440, "ecx": 0x02000000 + 5 * 0x440,
                 "edx": 0x00C00000, "esi": 0x01000000, "edi": 0x01400000 + 2 * 0x440,
                 "ebp": 0x01C00000 + 4 * 0x440}
 NULL_LIMIT = 0x10000          # accesses below 64 KB are null-pointer bugs, not data

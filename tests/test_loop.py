@@ -10,8 +10,8 @@ from sim.cli import main
 from sim.cpus import presets
 from sim.errors import RetrosimError
 
-# The reordered texture-mapping inner loop as printed in "Texture Mapping Optimization for Games"
-# (the Alpha engine article; the 5-cycle Pentium version with EBP as the counter), `//` comments kept.
+# The reordered texture-mapping inner loop as printed in John DiCamillo's "Texture Mapping Optimization
+# for Games" (its 5-cycle Pentium version with EBP as the counter), `//` comments kept.
 TEXTURE_LOOP = """
 ml5:
 
