@@ -3,8 +3,8 @@
 The input is instructions only (Intel or AT&T syntax, comments `#`, `//` and, in Intel syntax, `;`).
 Two shapes are accepted:
 
-- a **loop**: the last instruction is a conditional jump (or LOOP/JECXZ) to a label on the first
-  instruction; the body runs as written and its own counter decides when it stops;
+- a **loop**: the last instruction is a conditional jump (or LOOP/JECXZ, or a JMP) to a label on
+  the first instruction; the body runs as written (its own counter must not run out first);
 - a **block**: anything else; it is repeated back to back (unrolled, as uiCA's unrolled mode), so
   no loop counter or branch is added to what is timed.
 
@@ -125,7 +125,9 @@ def parse_body(text: str, name: str = "<stdin>", syntax: str | None = None) -> B
     last = order[-1][1].replace(",", " ").split()
     target = last[1] if len(last) == 2 else ""
     target = target[:-1] if re.fullmatch(r"\d+b", target) else target
-    loop = bool(_COND.match(last[0].lower())) and target in head
+    # a conditional jump back to the first instruction (or an unconditional one: the harness stops
+    # by counting iterations, so an endless loop is fine) makes the body a loop
+    loop = bool(_COND.match(last[0].lower()) or last[0].lower() in ("jmp", "jmpl")) and target in head
     return Body(name, syntax, lines, labels, head, len(order), loop)
 
 

@@ -75,6 +75,13 @@ def test_semicolon_comments_in_intel_syntax():
     assert [r.per_iteration for r in a] == [r.per_iteration for r in b]
 
 
+def test_unconditional_back_edge_is_a_loop():
+    body = loop.parse_body("top:\n  add eax, ebx\n  add ecx, ebx\n  jmp top\n")
+    assert body.loop
+    r, = loop.time_body("top:\n  add eax, ebx\n  add ecx, ebx\n  jmp top\n", ["k6-233"], iterations=20)
+    assert r.per_iteration["instructions"] == 3 and r.per_iteration["branches"] == 1
+
+
 def test_block_without_back_edge_is_repeated_without_a_counter():
     # four instructions, no branch: nothing is added to what is timed
     block = "add eax, ebx\nadd ecx, edx\nxor esi, edi\nmov ebp, eax\n"
