@@ -314,7 +314,7 @@ def loop_cmd(source, cpus, syntax, iterations, regs, timeline, brief, assembler,
     from . import loop, views
 
     if source == "-":
-        text, name = click.get_text_stream("stdin").read(), "<stdin>"
+        text, name = sys.stdin.read(), "<stdin>"
     else:
         path = Path(source)
         if not path.is_file():
