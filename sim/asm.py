@@ -4,6 +4,10 @@ Two back ends produce the same bytes for the kernels in this repository (a test 
 - ``gnu``: binutils ``as --32`` (Debian/Ubuntu: ``apt-get install binutils``);
 - ``zig``: clang's integrated assembler shipped in the ``ziglang`` wheel (``pip install '.[zig]'``).
 
+Sources may be in Intel (``.intel_syntax noprefix``) or AT&T syntax: a file's own directive decides;
+without one, ``syntax`` (or :func:`source_syntax` around a command) chooses, else it is detected where
+unambiguous (``%`` register prefixes mean AT&T; ``ptr`` or bare register names mean Intel).
+
 Objects are cached by content hash (source bytes, included files, assembler identity and flags) so a
 scene that names ten kernels assembles each once per machine, and a stale object can never be used.
 """
@@ -18,6 +22,8 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,9 +40,9 @@ class Assembler:
     command: tuple[str, ...]  # argv prefix; the source and output paths are appended
     version: str
 
-    def argv(self, source: Path, output: Path) -> list[str]:
+    def argv(self, source: Path, output: Path, extra: tuple[str, ...] = ()) -> list[str]:
         # -I: `.include "x"` resolves next to the source, wherever the assembler is started
-        return [*self.command, "-I", str(source.parent), "-o", str(output), str(source)]
+        return [*self.command, *extra, "-I", str(source.parent), "-o", str(output), str(source)]
 
 
 def _first_line(argv: list[str]) -> str:
@@ -112,6 +118,44 @@ def _content_key(source: Path, asm: Assembler) -> str:
     return h.hexdigest()
 
 
+# -- source syntax (Intel or AT&T) ---------------------------------------------------------------
+SYNTAXES = ("intel", "att")
+_syntax: ContextVar[str | None] = ContextVar("retrosim_syntax", default=None)
+_DIRECTIVE = re.compile(rb"^\s*\.(intel|att)_syntax\b", re.MULTILINE)
+_ATT_REG = re.compile(rb"%(?:e?[abcd]x|[abcd][lh]|e?[sd]i|e?[sb]p|st|mm\d|xmm\d|[cdefgs]s)\b")
+_INTEL_HINT = re.compile(rb"\bptr\b|(?<![%\w.$])(?:e[abcd]x|e[sd]i|e[sb]p|[abcd][lh])\b", re.IGNORECASE)
+
+
+@contextmanager
+def source_syntax(syntax: str | None):
+    """Assemble every source without its own syntax directive as `syntax` (the CLI's --syntax)."""
+    token = _syntax.set(syntax)
+    try:
+        yield
+    finally:
+        _syntax.reset(token)
+
+
+def detect_syntax(text: bytes) -> str | None:
+    """'att' or 'intel' when the text says so unambiguously, else None. A `.intel_syntax` or
+    `.att_syntax` directive is the file's own choice: None (the assembler follows it)."""
+    if _DIRECTIVE.search(text):
+        return None
+    att, intel = bool(_ATT_REG.search(text)), bool(_INTEL_HINT.search(text))
+    return "att" if att and not intel else "intel" if intel and not att else None
+
+
+def _syntax_flags(asm: Assembler, syntax: str | None) -> tuple[str, ...]:
+    """Command-line flags that set the starting syntax (a directive in the file still overrides)."""
+    if syntax not in (None, *SYNTAXES):
+        raise AssemblerError(f"unknown syntax '{syntax}': choose one of {', '.join(SYNTAXES)}")
+    if syntax == "intel":
+        return ("-msyntax=intel", "-mnaked-reg") if asm.name == "gnu" else ("-mllvm", "-x86-asm-syntax=intel")
+    if syntax == "att":
+        return ("-msyntax=att",) if asm.name == "gnu" else ()
+    return ()
+
+
 _GNU_MSG = re.compile(r"^(?P<file>[^:\n]+):(?P<line>\d+): (?:Error|Warning|Fatal error): (?P<msg>.*)$")
 _CLANG_MSG = re.compile(r"^(?P<file>[^:\n]+):(?P<line>\d+):\d+: (?:error|fatal error): (?P<msg>.*)$")
 
@@ -130,13 +174,19 @@ def format_diagnostics(stderr: str, source: Path) -> str:
     return lines[0] + extra
 
 
-def assemble(source: str | os.PathLike, assembler: str | None = None) -> Path:
-    """Assemble `source` and return the path of its cached ELF32 object."""
+def assemble(source: str | os.PathLike, assembler: str | None = None, syntax: str | None = None) -> Path:
+    """Assemble `source` and return the path of its cached ELF32 object. `syntax`: 'intel' or
+    'att' for a source without its own directive (default: source_syntax(), else detected)."""
     source = Path(source)
     if not source.is_file():
         raise AssemblerError(f"{source}: no such kernel source file")
     asm = get_assembler(assembler)
-    key = _content_key(source, asm)
+    text = source.read_bytes()
+    if not text.strip():
+        raise AssemblerError(f"{source}: empty source file (no instructions to assemble)")
+    flags = _syntax_flags(asm, syntax or _syntax.get() or detect_syntax(text))
+    key = _content_key(source, asm) + "-".join(("", *flags))
+    key = hashlib.sha256(key.encode()).hexdigest() if flags else key
     out_dir = cache_dir()
     target = out_dir / f"{source.stem}-{asm.name}-{key[:20]}.o"
     if target.is_file():
@@ -145,7 +195,7 @@ def assemble(source: str | os.PathLike, assembler: str | None = None) -> Path:
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".o", dir=out_dir)
     os.close(fd)
     try:
-        proc = subprocess.run(asm.argv(source, Path(tmp)), capture_output=True, text=True, check=False)
+        proc = subprocess.run(asm.argv(source, Path(tmp), flags), capture_output=True, text=True, check=False)
         if proc.returncode != 0:
             raise AssemblerError(format_diagnostics(proc.stderr, source))
         os.replace(tmp, target)  # atomic: a concurrent or interrupted run never sees half an object

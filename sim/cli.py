@@ -33,7 +33,8 @@ class RetrosimGroup(click.Group):
         try:
             return super().invoke(ctx)
         except RetrosimError as e:
-            err_console.print(f"[bold red]retrosim: error:[/] {e}", highlight=False, soft_wrap=True)
+            # escape: '[esi]' in a disassembled operand would otherwise be read as rich markup and vanish
+            err_console.print(f"[bold red]retrosim: error:[/] {escape(str(e))}", highlight=False, soft_wrap=True)
             sys.exit(2)
 
 
@@ -101,12 +102,23 @@ def _buffer_summary(machine, buffers) -> list[dict]:
     return out
 
 
+def _set_syntax(ctx, param, value):
+    """--syntax applies to every source the command assembles (set for each invocation, None too)."""
+    from . import asm
+
+    asm._syntax.set(value)
+    return value
+
+
 kernel_options = [
     click.argument("source"),
     click.option("--entry", "-e", help="entry point symbol (default: the only one the file declares)"),
     click.option("--args", "args_text", help=_ARGS_HELP),
     click.option("--budget", default=200_000_000, show_default=True, help="instruction budget (0 = unlimited)"),
     click.option("--assembler", type=click.Choice(["gnu", "zig"]), help="assembler back end (default: GNU as)"),
+    click.option("--syntax", type=click.Choice(["intel", "att"]), expose_value=False, callback=_set_syntax,
+                 help="syntax of a source without .intel_syntax/.att_syntax (default: detected from % register "
+                      "prefixes or PTR/[reg], else AT&T as GNU as)"),
 ]
 
 
@@ -283,6 +295,91 @@ def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat
     if text:
         console.print(f"[bold]timeline[/]: {iterations} iterations of the hot loop, from the middle of the last call")
         console.print(text, markup=False, highlight=False, soft_wrap=True)
+
+
+def _cpu_list(values) -> list[str]:
+    """--cpu may repeat, take comma-separated presets, or `all` (every preset)."""
+    from .cpus import presets
+
+    names = [n.strip() for v in values for n in v.split(",") if n.strip()] or ["pentium2-233"]
+    if "all" in names:
+        return presets.available()
+    for n in names:
+        if n not in presets.available():
+            raise ArgumentError(f"unknown CPU preset '{n}' (choose one of: {', '.join(presets.available())}, or all)")
+    return list(dict.fromkeys(names))
+
+
+def _loop_explain_table(t) -> Table:
+    """The explain table, narrowed to what a loop body needs (fits 80 columns for short bodies)."""
+    from rich.markup import escape
+
+    from . import views
+
+    table = Table(title=f"{t.cpu}: per instruction, cycles per execution (full table: --json)")
+    for col in ("instruction", "dec", "uops", "ports", "iss>ret", "stalls"):
+        table.add_column(col, justify="right" if col in ("uops", "iss>ret") else "left")
+    names = (("stall_dependency", "dep"), ("stall_port", "port"), ("stall_decode", "decode"),
+             ("stall_partial", "partial"), ("stall_memory", "mem"), ("stall_store_forward", "fwd"),
+             ("stall_window", "window"), ("mispredict_rate", "mispred"))
+    for r in views.explain_rows(t.result):
+        table.add_row(escape(r["instruction"]), r["decoder"], str(r["uops"]), r["ports"], f"{r['issue_to_retire']:g}",
+                      " ".join(f"{short} {r[k]:g}" for k, short in names if r[k]))
+    return table
+
+
+@main.command("loop")
+@click.argument("source")
+@click.option("--cpu", "-c", "cpus", multiple=True,
+              help="CPU preset; repeat or separate with commas for several, `all` for every preset [default: pentium2-233]")
+@click.option("--syntax", type=click.Choice(["intel", "att"]), help="source syntax (default: detected; Intel if unsure)")
+@click.option("--iterations", "-n", default=100, show_default=True,
+              help="iterations per pass; counters are taken between iteration N/2 and N of the second pass")
+@click.option("--reg", "regs", multiple=True, metavar="R=V", help="register start value, e.g. --reg ecx=1000")
+@click.option("--timeline", "timeline", default=3, show_default=True, help="iterations shown in the timeline")
+@click.option("--brief", is_flag=True, help="only the table of cycles per iteration")
+@click.option("--assembler", type=click.Choice(["gnu", "zig"]), help="assembler back end (default: GNU as)")
+@click.option("--json", "as_json", is_flag=True, help="print one JSON object")
+def loop_cmd(source, cpus, syntax, iterations, regs, timeline, brief, assembler, as_json):
+    """Time a bare loop body or basic block (FILE, or - for standard input): steady-state cycles per iteration."""
+    from . import loop, views
+
+    if source == "-":
+        text, name = sys.stdin.read(), "<stdin>"
+    else:
+        path = Path(source)
+        if not path.is_file():
+            raise ArgumentError(f"{source}: no such file")
+        text, name = path.read_text(errors="replace"), source
+    timings = loop.time_body(text, _cpu_list(cpus), name, syntax, iterations, loop.parse_regs(regs), assembler,
+                             timeline)
+    if as_json:
+        click.echo(json.dumps({"source": name, "registers": {k: f"{v:#010x}" for k, v in loop.parse_regs(regs).items()},
+                               "results": [{"cpu": t.cpu, "memory": t.memory,
+                                            "cycles_per_iteration": t.cycles_per_iteration,
+                                            "uops_per_iteration": t.uops_per_iteration,
+                                            "instructions_per_iteration": t.per_iteration["instructions"],
+                                            "measured_iterations": t.iterations, "per_iteration": t.per_iteration,
+                                            "instructions": views.explain_rows(t.result),
+                                            "timeline": views.timeline_rows(t.result)} for t in timings]}, indent=2))
+        return
+    if not brief:
+        for t in timings:
+            console.print(_loop_explain_table(t))
+            text_tl = views.timeline_text(t.result)
+            if text_tl:
+                console.print(f"[bold]timeline[/] on {t.cpu}: {timeline} iterations from the middle of the measured pass")
+                console.print(text_tl, markup=False, highlight=False, soft_wrap=True)
+    table = Table(title=f"{escape(name)}: steady state per iteration (iterations {iterations // 2}..{iterations})")
+    for col in ("cpu", "cycles", "instr", "uops", "IPC", "main stalls (cycles)"):
+        table.add_column(col, justify="left" if col in ("cpu", "main stalls (cycles)") else "right")
+    for t in timings:
+        p = t.per_iteration
+        stalls = sorted(((p[k], k[6:].replace("_", " ")) for k in views.STALLS if p.get(k)), reverse=True)[:3]
+        table.add_row(t.cpu, f"{t.cycles_per_iteration:.2f}", f"{p['instructions']:g}", f"{t.uops_per_iteration:g}",
+                      f"{p['instructions'] / t.cycles_per_iteration:.2f}" if t.cycles_per_iteration else "-",
+                      ", ".join(f"{what} {v:g}" for v, what in stalls) or "none")
+    console.print(table)
 
 
 @main.command("cpus")
@@ -481,6 +578,41 @@ def check_cmd(scenes, update, check_reports):
         raise SystemExit(1)
     console.print(f"{sum(len(baseline.entries(r)) for r in results)} case(s) in {len(results)} scene(s) "
                   "match the baselines" + (" and the committed reports" if check_reports else ""))
+
+
+@main.command("validate")
+@click.option("--family", "fams", multiple=True, help="only these families (default: every validation/*.toml)")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=REPORTS_DIR / "validation.md",
+              show_default=True, help="Markdown report to write")
+@click.option("--check", is_flag=True, help="write nothing; fail if the committed report differs from a fresh one")
+def validate_cmd(fams, out, check):
+    """Time published loop timings (validation/*.toml) and write reports/validation.md."""
+    import time as _time
+
+    from . import validation
+    from .report import atomic_write
+
+    start = _time.perf_counter()
+    results = [validation.run_family(f) for f in validation.families(only=list(fams) or None)]
+    text = validation.markdown(results)
+    if check:
+        committed = out.read_text() if out.is_file() else ""
+        strip = lambda t: "\n".join(x for x in t.splitlines() if not x.startswith("Run time:"))  # noqa: E731
+        if strip(committed) != strip(text):
+            err_console.print(f"stale report: {out} (regenerate with `retrosim validate`)")
+            raise SystemExit(1)
+    else:
+        if not out.parent.is_dir():
+            raise ArgumentError(f"--out {out}: directory {out.parent} does not exist")
+        atomic_write(out, text.encode())
+        err_console.print(f"wrote {out}")
+    t = Table(title=f"validation against published timings ({_time.perf_counter() - start:.1f} s)")
+    for col in ("family", "preset", "cases", "MAPE", "within 1 cycle", "harness errors"):
+        t.add_column(col, justify="left" if col in ("family", "preset") else "right")
+    for fr in results:
+        t.add_row(fr.family.family, fr.family.cpu, str(len(fr.timed)), f"{fr.mape():.1f} %", f"{fr.within_one():.0%}",
+                  str(len(fr.results) - len(fr.timed)))
+    console.print(t)
 
 
 @main.command("bench")

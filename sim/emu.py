@@ -23,7 +23,7 @@ from unicorn import x86_const as X
 from unicorn.unicorn_py3.unicorn import uclib
 
 from . import asm, elf
-from .errors import ArgumentError, GuestFault, RunawayKernel
+from .errors import ArgumentError, GuestFault, LoadError, RunawayKernel
 from .kernels import EntryPoint, entry_points
 from .trace import NativeTracer, Trace
 
@@ -161,7 +161,11 @@ class Machine:
     @classmethod
     def from_source(cls, source: str | Path, assembler: str | None = None, **kwargs) -> Machine:
         obj = asm.assemble(source, assembler)
-        image = elf.load_object(obj)
+        try:
+            image = elf.load_object(obj)
+        except LoadError as e:  # name the source the user wrote, not the cached object
+            msg = str(e).replace(str(obj), str(source))
+            raise LoadError(msg.replace("object has no symbol table", "defines no symbols (an empty source file?)")) from None
         image.path = Path(source)
         return cls(image, entry_points(source), **kwargs)
 

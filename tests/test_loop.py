@@ -1,0 +1,181 @@
+"""`retrosim loop`: bare loop bodies and blocks, their start-up-free cycles per iteration, errors."""
+
+import json
+
+import pytest
+from click.testing import CliRunner
+
+from sim import loop
+from sim.cli import main
+from sim.cpus import presets
+from sim.errors import RetrosimError
+
+# The reordered texture-mapping inner loop as printed in John DiCamillo's "Texture Mapping Optimization
+# for Games" (its 5-cycle Pentium version with EBP as the counter), `//` comments kept.
+TEXTURE_LOOP = """
+ml5:
+
+      mov   al, BYTE PTR [ebx]   // read from texture
+
+      add   edx, esi             // update fractional part of u
+
+
+
+      adc   bl,  dl              // update integral part of u
+
+      add   eax, ecx             // update fractional part of v
+
+
+
+      adc   bh,  dh              // update integral part of v
+
+      mov   BYTE PTR [edi], al   // write to screen
+
+
+
+      inc   edi                  // next pixel in screen
+
+      dec   ebp                  // decrement count
+
+      jnz   ml5                  // and do it again
+"""
+
+# the same loop as a MASM/TASM listing would print it
+TEXTURE_LOOP_MASM = "\n".join(line.replace("//", ";") for line in TEXTURE_LOOP.splitlines())
+
+
+def test_texture_loop_is_a_loop_of_nine_instructions():
+    body = loop.parse_body(TEXTURE_LOOP, "texture")
+    assert body.loop and body.instructions == 9 and body.head_labels == {"ml5"}
+
+
+def test_texture_loop_on_every_preset():
+    # the listing has nine instructions and one taken branch per pass, on any CPU
+    results = loop.time_body(TEXTURE_LOOP, presets.available(), iterations=40)
+    assert [r.cpu for r in results] == presets.available()
+    for r in results:
+        assert r.per_iteration["instructions"] == 9
+        assert r.per_iteration["branches"] == 1
+        assert r.per_iteration["l1d_loads"] == 1 and r.per_iteration["l1d_stores"] == 1
+        assert r.cycles_per_iteration > 0
+
+
+def test_start_up_cancels():
+    # steady state: the same cycles per iteration whether 40 or 120 iterations are run
+    cpus = ["pentium2-233", "k6-2-300"]
+    short = loop.time_body(TEXTURE_LOOP, cpus, iterations=40)
+    long = loop.time_body(TEXTURE_LOOP, cpus, iterations=120)
+    assert [r.cycles_per_iteration for r in short] == [r.cycles_per_iteration for r in long]
+
+
+def test_semicolon_comments_in_intel_syntax():
+    cpus = ["pentium2-233", "k6-233"]
+    a = loop.time_body(TEXTURE_LOOP, cpus, iterations=20)
+    b = loop.time_body(TEXTURE_LOOP_MASM, cpus, iterations=20)
+    assert [r.per_iteration for r in a] == [r.per_iteration for r in b]
+
+
+def test_unconditional_back_edge_is_a_loop():
+    body = loop.parse_body("top:\n  add eax, ebx\n  add ecx, ebx\n  jmp top\n")
+    assert body.loop
+    r, = loop.time_body("top:\n  add eax, ebx\n  add ecx, ebx\n  jmp top\n", ["k6-233"], iterations=20)
+    assert r.per_iteration["instructions"] == 3 and r.per_iteration["branches"] == 1
+
+
+def test_block_without_back_edge_is_repeated_without_a_counter():
+    # four instructions, no branch: nothing is added to what is timed
+    block = "add eax, ebx\nadd ecx, edx\nxor esi, edi\nmov ebp, eax\n"
+    body = loop.parse_body(block)
+    assert not body.loop
+    for r in loop.time_body(block, ["pentium2-233", "k6-233"], iterations=40):
+        assert r.per_iteration["instructions"] == 4
+        assert r.per_iteration["branches"] == 0
+
+
+def test_dependent_chain_costs_its_latency():
+    # IMUL r32,r32 latency: 4 clocks on the P6 (Intel Architecture Optimization Manual, 1997, appendix C;
+    # Agner Fog, Pentium Pro/II instruction list) - a chain of two per block costs 8 per block
+    r, = loop.time_body("imul eax, eax\nimul eax, eax\n", ["pentium2-233"], iterations=40)
+    assert r.cycles_per_iteration == pytest.approx(8, abs=0.05)
+
+
+def test_demand_zero_data_and_reg_override():
+    text = "mov eax, [esi+edx*4]\nadd ebx, eax\nmov [edi+ecx], bl\n"
+    # default registers: every address is mapped on first use and reads zero
+    r, = loop.time_body(text, ["pentium2-233"], iterations=20)
+    assert r.per_iteration["l1d_loads"] == 1 and r.per_iteration["l1d_stores"] == 1
+    regs = loop.parse_regs(["edx=0x10", "esi=0x3000000"])
+    assert regs["edx"] == 0x10 and regs["esi"] == 0x3000000 and regs["edi"] == loop.REG_DEFAULTS["edi"]
+    run = loop.run_body(loop.parse_body(text), 20, regs)
+    assert int(run.trace.mem_addr[0]) == 0x3000000 + 0x40
+
+
+def test_att_gcc_loop_cycles_on_every_preset():
+    att = ".L3:\n\tmovl\t(%esi,%eax,4), %edx\n\taddl\t%edx, %ecx\n\taddl\t$1, %eax\n\tcmpl\t%ebx, %eax\n\tjne\t.L3\n"
+    body = loop.parse_body(att)
+    assert body.syntax == "att" and body.loop
+    for r in loop.time_body(att, presets.available(), iterations=20):
+        assert r.per_iteration["instructions"] == 5 and r.cycles_per_iteration > 0
+
+
+@pytest.mark.parametrize("text, regs, message", [
+    ("top:\n  add eax, 1\n  jmp elsewhere\n  dec ecx\n  jnz top\n", [], "not a label of the body"),
+    ("  mov eax, [esi]\n  ret\n", [], "leaves the body"),
+    ("top:\n  mov eax, [esi]\n  dec ecx\n  jnz top\n", ["esi=4"], "null pointer"),
+    ("top:\n  add eax, 1\n  dec ecx\n  jnz top\n", ["ecx=3"], "left through its back-edge"),
+    ("top:\n  add eax, 1\n2: jmp 2b\n  dec ecx\n  jnz top\n", [], "never reached its back-edge"),
+    ("top:\n  add eax, 1\n  jmp ebx\n  jnz top\n", [], "branches out of itself"),
+])
+def test_bad_bodies_get_one_error_line(tmp_path, text, regs, message):
+    src = tmp_path / "body.s"
+    src.write_text(text)
+    args = ["loop", str(src), "--iterations", "8"] + [x for r in regs for x in ("--reg", r)]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 2, result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0] and "body.s" in lines[0] and "Traceback" not in result.output
+
+
+def test_fault_message_prints_the_whole_memory_operand(tmp_path):
+    src = tmp_path / "null.s"
+    src.write_text("top:\n  mul dword ptr [esi]\n  dec ecx\n  jnz top\n")
+    result = CliRunner().invoke(main, ["loop", str(src), "--reg", "esi=0", "--iterations", "8"])
+    assert result.exit_code == 2 and "mul dword ptr [esi]" in result.output
+
+
+def test_assembler_errors_name_the_users_line(tmp_path):
+    src = tmp_path / "typo.s"
+    src.write_text("top:\n  add eax, 1\n  movv eax, ebx\n  dec ecx\n  jnz top\n")
+    result = CliRunner().invoke(main, ["loop", str(src)])
+    assert result.exit_code == 2 and f"{src}:3:" in result.output
+
+
+def test_stdin_json_and_several_cpus():
+    result = CliRunner().invoke(main, ["loop", "-", "--cpu", "pentium2-233,k6-233", "--iterations", "20", "--json"],
+                                input=TEXTURE_LOOP)
+    assert result.exit_code == 0, result.output
+    data = json.loads(result.output)
+    assert [r["cpu"] for r in data["results"]] == ["pentium2-233", "k6-233"]
+    for r in data["results"]:
+        assert {"cpu", "cycles_per_iteration", "uops_per_iteration", "instructions"} <= set(r)
+        assert len(r["instructions"]) == 9 and r["instructions"][0]["instruction"] == "mov al, byte ptr [ebx]"
+
+
+def test_cli_table_and_timeline(tmp_path):
+    src = tmp_path / "t.s"
+    src.write_text(TEXTURE_LOOP)
+    result = CliRunner().invoke(main, ["loop", str(src), "--cpu", "all", "--iterations", "20"])
+    assert result.exit_code == 0, result.output
+    assert "timeline on k6-3-450" in result.output and "byte ptr [ebx]" in result.output
+    for cpu in presets.available():
+        assert cpu in result.output
+
+
+def test_unknown_cpu_is_one_line():
+    result = CliRunner().invoke(main, ["loop", "-", "--cpu", "pentium9"], input="nop\n")
+    assert result.exit_code == 2 and "unknown CPU preset 'pentium9'" in result.output
+
+
+def test_empty_body():
+    with pytest.raises(RetrosimError, match="no instructions"):
+        loop.parse_body("// nothing\n; nothing\n\n")
