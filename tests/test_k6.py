@@ -74,8 +74,12 @@ def test_bsr_costs_ten_cycles_on_every_k6(entry):
         cycles, r = per_iteration(K6, entry, cpu=cpu)
         assert 80 <= cycles <= 81.5, cpu
         assert r.last["msrom_uops"] >= 8 * N and r.last["vector_cycles"] >= 80 * N
+    # the Pentium II: latency 2 ("a two-cycle instruction", the article; InstLat-PII BSR r32,r32 L 2.0),
+    # reciprocal throughput 1 (InstLat-PII T 1.00)
     p6, _ = per_iteration(K6, entry, cpu="pentium2-233")
-    assert p6 <= 0.15 * cycles  # 2 clocks on the Pentium II (the article)
+    # (the streams' loop branch shares the jump port with BSR's port-1 uop: up to one more cycle)
+    per_bsr = 2 if entry == "bsr_chain" else 1
+    assert 8 * per_bsr <= p6 <= 8 * per_bsr + (0.5 if entry == "bsr_chain" else 1.5)
 
 
 def test_shrd_chain_runs_at_two_cycles():
