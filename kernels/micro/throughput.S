@@ -89,3 +89,18 @@ div_stream:
     jnz     .Ldiv
     pop     ebx
     ret
+
+# @entry movq_store_same(n, buf) -> 8 MOVQ [m64],MM0 to one address per iteration; the line is never read
+.globl movq_store_same
+.p2align 4, 0xCC
+movq_store_same:
+    mov     ecx, [esp+4]
+    mov     edx, [esp+8]
+.Lmovq_store:
+    .rept 8
+    .byte   0x0f, 0x7f, 0x02        # MOVQ [EDX], MM0 (the kernels assemble with -march=i686, which has no MMX)
+    .endr
+    sub     ecx, 1
+    jnz     .Lmovq_store
+    .byte   0x0f, 0x77              # EMMS
+    ret
