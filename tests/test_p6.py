@@ -148,9 +148,48 @@ def test_every_timing_row_names_a_source():
 
     for family in ("p6", "k6"):
         table = load_table(family)
-        assert len(table.rows) > 150
         for row in table.rows.values():
             assert row.source.strip(), f"{family}: {row.key} has no source"
+
+
+ROW = """[[insn]]
+mnemonic = "add"
+signature = "r32,r32"
+uops = 1
+ports = ["p01"]
+latency = 1
+source = "AF29"
+"""
+
+
+@pytest.mark.parametrize("extra,message", [
+    ("latency_by_precision = { single = 18 }\n", "unknown field 'latency_by_precision'"),
+    ("units = [\"int-xy\"]\n", "unknown field 'units'"),  # a K6 field in a P6 table
+])
+def test_table_loader_refuses_fields_no_model_reads(tmp_path, extra, message):
+    from sim.cpus.table import InstructionTable
+    from sim.errors import RetrosimError
+
+    path = tmp_path / "p6.toml"
+    path.write_text(ROW + extra)
+    with pytest.raises(RetrosimError, match=message) as e:
+        InstructionTable(path)
+    assert "p6.toml" in str(e.value) and "row 1 (add r32,r32)" in str(e.value)
+    path.write_text(ROW)
+    assert InstructionTable(path).lookup("add", "r32,r32").row.latency == 1
+
+
+def test_too_many_register_operands_is_an_error_naming_the_instruction(monkeypatch):
+    # the cores track MAX_OPS sources and destinations per instruction; more is refused, not truncated
+    from sim.cpus import lowering
+    from sim.cpus.table import load_table
+    from sim.decode import decode_one
+
+    rec = decode_one(bytes.fromhex("01c8"), 0x400000)  # add eax, ecx: 2 sources + flags
+    assert lowering.lower([rec], load_table("p6")).s_nsrc[0] == 2
+    monkeypatch.setattr(lowering, "MAX_OPS", 1)
+    with pytest.raises(lowering.LoweringError, match=r"pc 0x00400000 \(add eax, ecx\)"):
+        lowering.lower([rec], load_table("p6"))
 
 
 def test_rdtsc_returns_simulated_cycles(tmp_path):
