@@ -134,6 +134,15 @@ def test_write_allocate_mode_decides_the_cost_of_a_store():
     assert fast <= 1.2 and c["bus_writes"] == 0 and c["l1d_store_misses"] == 0
 
 
+def test_measured_throughput_of_a_short_or_long_row_is_honoured():
+    # XCHG r32,r32: long-decoded, 3 ops on X|Y, which alone would allow 1.5 clocks; measured T 2.00 on
+    # every K6 (IL-all XCHG r1_32,r2_32); the Pentium II's 1.50 (InstLat-PII) for contrast
+    emu = emulate(KERNELS / "micro" / "throughput.S", "xchg_stream", lambda m: [N], repeat=2)
+    for cpu, expected in (("k6-233", 2.0), ("k6-2-300", 2.0), ("k6-3-450", 2.0), ("pentium2-233", 1.5)):
+        got = time_emulation(emu, cpu).last["cycles"] / (8 * N)
+        assert expected <= got <= expected + 0.25, (cpu, got)
+
+
 def test_mmx_store_to_an_unread_line_costs_what_was_measured():
     # MOVQ [m64],mm: 36 clocks per store on the measured K6-233 (IL-K6 T 36.00: the line was never
     # read and that system did not allocate on a write miss), 1 on the K6-2 (IL-K62 T 1.00). The

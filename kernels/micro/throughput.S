@@ -104,3 +104,29 @@ movq_store_same:
     jnz     .Lmovq_store
     .byte   0x0f, 0x77              # EMMS
     ret
+
+# @entry xchg_stream(n) -> 8 XCHG r32,r32 per iteration on three register pairs (throughput bound)
+.globl xchg_stream
+.p2align 4, 0xCC
+xchg_stream:
+    push    ebx
+    push    esi
+    push    edi
+    push    ebp
+    mov     ebp, [esp+20]
+.Lxchg:
+    xchg    eax, ecx
+    xchg    edx, ebx
+    xchg    esi, edi
+    xchg    eax, ecx
+    xchg    edx, ebx
+    xchg    esi, edi
+    xchg    eax, ecx
+    xchg    edx, ebx
+    sub     ebp, 1
+    jnz     .Lxchg
+    pop     ebp
+    pop     edi
+    pop     esi
+    pop     ebx
+    ret
