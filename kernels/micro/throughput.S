@@ -106,6 +106,7 @@ movq_store_same:
     ret
 
 # @entry xchg_stream(n) -> 8 XCHG r32,r32 per iteration on three register pairs (throughput bound)
+# (two pairs spelled in bytes: GNU as and clang pick different, equivalent ModRM encodings)
 .globl xchg_stream
 .p2align 4, 0xCC
 xchg_stream:
@@ -116,13 +117,13 @@ xchg_stream:
     mov     ebp, [esp+20]
 .Lxchg:
     xchg    eax, ecx
-    xchg    edx, ebx
-    xchg    esi, edi
+    .byte   0x87, 0xda              # XCHG EDX, EBX
+    .byte   0x87, 0xfe              # XCHG ESI, EDI
     xchg    eax, ecx
-    xchg    edx, ebx
-    xchg    esi, edi
+    .byte   0x87, 0xda              # XCHG EDX, EBX
+    .byte   0x87, 0xfe              # XCHG ESI, EDI
     xchg    eax, ecx
-    xchg    edx, ebx
+    .byte   0x87, 0xda              # XCHG EDX, EBX
     sub     ebp, 1
     jnz     .Lxchg
     pop     ebp

@@ -16,9 +16,12 @@ ports and the instruction's latency):
 - compute uops form a chain that the cores enforce: each waits for the instruction's earlier
   loads and compute uops, and the store data waits for them too. Each takes 1 cycle except the
   last, which takes what is left of the instruction's latency after the load (BSR r,r, 2 uops,
-  latency 2, is 1 + 1; DIV r32, latency 39, is 1 + 1 + 1 + 36; ADD r,m is load 3 + 1). When the
-  latency leaves less than one cycle per compute uop (XCHG r,r: 3 uops, latency 2), the leading
-  surplus uops take 0 cycles: they run beside the chain instead of lengthening it.
+  latency 2, is 1 + 1; DIV r32, latency 39, is 1 + 1 + 1 + 36; ADD r,m is load 3 + 1; a row
+  without a latency, ADD m,r, is 1 cycle per compute uop);
+- compute uops the latency leaves no cycle for run beside the chain (kind SIDE, 1 cycle, waiting
+  only for their own sources; never the branch): XCHG r,r (3 uops, latency 2) is a chain of 2
+  plus one beside it; POP r32 (latency 3 = the load) loads the register while its
+  stack-pointer adder, which writes ESP, runs beside the load.
 
 Throughput (P6, :func:`p6_uops`). A row's reciprocal throughput is a measured fact the model must
 reproduce. What the machine already charges is its "natural" throughput: the busiest port, the
@@ -42,9 +45,9 @@ from .table import InstructionTable, Match
 
 MAX_OPS = 8
 
-# uop kinds
-COMPUTE, LOAD, STA, STD, BRANCH = range(5)
-KIND_NAMES = ("alu", "load", "sta", "std", "branch")
+# uop kinds (SIDE: a compute uop beside the instruction's chain, e.g. POP's stack-pointer adder)
+COMPUTE, LOAD, STA, STD, BRANCH, SIDE = range(6)
+KIND_NAMES = ("alu", "load", "sta", "std", "branch", "alu")
 # branch kinds per static instruction
 BR_NONE, BR_COND, BR_DIRECT, BR_INDIRECT, BR_CALL, BR_RET = range(6)
 # decoder classes
@@ -62,7 +65,7 @@ FLAG_BITS = {"CF": 1, "PF": 2, "AF": 4, "ZF": 8, "SF": 16, "OF": 32, "DF": 64, "
 
 # P6 occupancies are counted in hundredths of a cycle (fractional measured throughputs)
 OCC_SCALE = 100
-_KIND_ORDER = {0: 1, 4: 1, 1: 0, 2: 2, 3: 3}  # load, then compute/branch, then store address, store data
+_KIND_ORDER = {COMPUTE: 1, BRANCH: 1, LOAD: 0, STA: 2, STD: 3}  # load, then compute/branch, then store address, store data
 
 
 @dataclass(frozen=True)
@@ -196,9 +199,18 @@ def p6_uops(rec: InsnRecord, match: Match, load_latency: int, limits: P6Limits |
             kinds[idx[0]] = BRANCH
     has_load = LOAD in kinds
     compute = [i for i, k in enumerate(kinds) if k in (COMPUTE, BRANCH)]
-    total = row.latency if row.latency is not None else 1
-    work = max(1, int(round(total - (load_latency if has_load else 0))))
-    surplus = max(0, len(compute) - work)  # leading compute uops that run beside the chain
+    if row.latency is None:
+        work = len(compute)  # no register result: each compute uop 1 cycle, all on the chain
+    else:
+        work = int(round(row.latency - (load_latency if has_load else 0)))
+        work = max(work, 0 if has_load else 1)
+    chain_n = min(len(compute), max(work, 1 if BRANCH in kinds else 0))
+    # uops the latency has no room for run beside the chain (never the branch): XCHG r,r's third
+    # uop, POP's stack-pointer adder (POP r32 latency 3 = the load alone)
+    side = [i for i in compute if kinds[i] != BRANCH][:len(compute) - chain_n]
+    for i in side:
+        kinds[i] = SIDE
+    chain = [i for i in compute if i not in side]
     holder, occ = -1, 0
     if row.throughput and row.throughput > natural_throughput(rec, row, kinds, ports, limits) + 1e-9:
         holder = compute[0] if compute else 0
@@ -206,8 +218,7 @@ def p6_uops(rec: InsnRecord, match: Match, load_latency: int, limits: P6Limits |
     out = []
     for i, k in enumerate(kinds):
         if k in (COMPUTE, BRANCH):
-            pos = compute.index(i)
-            lat = 0 if pos < surplus else max(1, work - (len(compute) - 1 - surplus)) if i == compute[-1] else 1
+            lat = max(1, work - (len(chain) - 1)) if i == chain[-1] else 1
         elif k == LOAD:
             lat = load_latency
         else:
@@ -266,6 +277,7 @@ def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int 
 
         kinds = [u[0] for u in us]
         compute = [j for j, k in enumerate(kinds) if k in (COMPUTE, BRANCH)]
+        sides = [j for j, k in enumerate(kinds) if k == SIDE]
         loads = [j for j, k in enumerate(kinds) if k == LOAD]
         stas = [j for j, k in enumerate(kinds) if k == STA]
         stds = [j for j, k in enumerate(kinds) if k == STD]
@@ -288,7 +300,8 @@ def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int 
         dsts = []
         for ref in rec.regs_written:
             rid, rel = reg_id(ref.name, ref.full)
-            dsts.append((rid, PART_MASK.get(ref.part, 15), writer, rel))
+            w = sides[0] if (sides and ref.full == "esp") else writer  # the stack-pointer adder
+            dsts.append((rid, PART_MASK.get(ref.part, 15), w, rel))
         if rec.flags_written:
             dsts.append((REG_FLAGS, flag_mask(rec.flags_written), writer, -1))
         if len(srcs) > MAX_OPS or len(dsts) > MAX_OPS:

@@ -33,7 +33,7 @@ from numba import njit
 
 from ..memory.hierarchy import memory_fills, memory_writebacks, served_level, service
 from .lowering import (BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM,
-                       DEC_SIMPLE, LOAD, NREGS, OCC_SCALE, REG_FLAGS, REG_ST0, STA, STD)
+                       DEC_SIMPLE, LOAD, NREGS, OCC_SCALE, REG_FLAGS, REG_ST0, SIDE, STA, STD)
 
 # parameter vector indices
 (P_ROB, P_RS, P_RENAME, P_RETIRE, P_QUEUE, P_FETCH_BLOCK, P_L1_LAT, P_L2_LAT, P_DRAM_LAT, P_DRAM_LINE,
@@ -416,7 +416,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                     ready = reg_ready[rid]
             if kind == LOAD and last_sta_done > ready:
                 ready = last_sta_done  # P6 loads never pass a store whose address is unknown
-            if kind != LOAD and kind != STA and intra > ready:
+            if kind != LOAD and kind != STA and kind != SIDE and intra > ready:
                 ready = intra  # the instruction's own earlier uops: load -> compute -> ... -> store data
             dep_wait = ready - (alloc + 1)
             ready_unit = ready
@@ -476,7 +476,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                     last_sta_done = complete
             if kind == STD:
                 store_std = complete
-            elif kind != STA and complete > intra:
+            elif kind != STA and kind != SIDE and complete > intra:
                 intra = complete
             if kind == BRANCH:
                 branch_done = complete
