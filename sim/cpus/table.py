@@ -121,7 +121,6 @@ class InstructionTable:
         # [unsupported] mnemonics: no row on purpose; executing one is refused with the reason
         unsupported = data.get("unsupported", {})
         self.unsupported = set(unsupported.get("mnemonics", []))
-        self.unsupported_source = unsupported.get("source", "")
         for i, raw in enumerate(data.get("insn", [])):
             where = f"{self.path}: [[insn]] row {i + 1} ({raw.get('mnemonic', '?')} {raw.get('signature', '')})".rstrip()
             for name in raw:
@@ -167,8 +166,8 @@ class InstructionTable:
     def require(self, mnemonic: str, signature: str, where: str) -> Match:
         match = self.lookup(mnemonic, signature)
         if match is None and (family_mnemonic(mnemonic) in self.unsupported or mnemonic in self.unsupported):
-            raise MissingTiming(f"{where}: '{mnemonic}' does not exist on this family ({self.path.name} "
-                                f"[unsupported]: {self.unsupported_source})")
+            raise MissingTiming(f"{where}: '{mnemonic}' does not exist on this family, the CPU raises #UD "
+                                f"({self.path.name} [unsupported] gives the sources)")
         if match is None:
             raise MissingTiming(f"{where}: no timing row for '{mnemonic} {signature}'".rstrip() +
                                 f" in {self.path.name} (add one, with its source)")
