@@ -49,6 +49,22 @@ def test_run_of_two_uop_instructions_decodes_one_per_cycle():
     assert r2.last["decoder1"] >= 4 * N and r2.last["decoder2"] >= 2.5 * N
 
 
+@pytest.mark.parametrize("entry,per_iteration,expected,source", [
+    ("loop_run", 1, 8, "AF29 LOOP short '2 1 8', the 8 read as reciprocal throughput"),
+    ("emms_stream", 8, 5.67, "InstLat-PII EMMS T 5.67"),
+    ("cmp_stream", 8, 1.0, "InstLat-PII CMP r1_32,r2_32 T 1.00"),
+    ("fmul_stream", 8, 2.0, "InstLat-PII FMUL T 2.00; GCC fmul issue latency 2"),
+    ("div_stream", 4, 37, "AF29 DIV r32 throughput 1/37; GCC ppro_idiv issue latency 37"),
+])
+def test_measured_throughput_is_honoured(entry, per_iteration, expected, source):
+    # independent instances run at the row's reciprocal throughput even where the ports would
+    # allow more (kernels/micro/throughput.S; sim/cpus/lowering.py, "Throughput")
+    n = N * 8 if entry == "loop_run" else N
+    r = time_kernel(KERNELS / "micro" / "throughput.S", entry, lambda m: [n], cpu="pentium2-233", repeat=2)
+    got = r.last["cycles"] / (n * per_iteration)
+    assert expected - 0.1 <= got <= expected * 1.03 + 0.1, f"{entry}: {got:.2f}, {source} says {expected}"
+
+
 def test_partial_register_stall_costs_about_five_cycles():
     # MOV AL,[m] then reading EAX waits for the partial write to retire: +5 measured on PPro/PII
     # (p6_machine.toml [partial_register_stall], InstLatX64 dependency chains)
@@ -132,9 +148,48 @@ def test_every_timing_row_names_a_source():
 
     for family in ("p6", "k6"):
         table = load_table(family)
-        assert len(table.rows) > 150
         for row in table.rows.values():
             assert row.source.strip(), f"{family}: {row.key} has no source"
+
+
+ROW = """[[insn]]
+mnemonic = "add"
+signature = "r32,r32"
+uops = 1
+ports = ["p01"]
+latency = 1
+source = "AF29"
+"""
+
+
+@pytest.mark.parametrize("extra,message", [
+    ("latency_by_precision = { single = 18 }\n", "unknown field 'latency_by_precision'"),
+    ("units = [\"int-xy\"]\n", "unknown field 'units'"),  # a K6 field in a P6 table
+])
+def test_table_loader_refuses_fields_no_model_reads(tmp_path, extra, message):
+    from sim.cpus.table import InstructionTable
+    from sim.errors import RetrosimError
+
+    path = tmp_path / "p6.toml"
+    path.write_text(ROW + extra)
+    with pytest.raises(RetrosimError, match=message) as e:
+        InstructionTable(path)
+    assert "p6.toml" in str(e.value) and "row 1 (add r32,r32)" in str(e.value)
+    path.write_text(ROW)
+    assert InstructionTable(path).lookup("add", "r32,r32").row.latency == 1
+
+
+def test_too_many_register_operands_is_an_error_naming_the_instruction(monkeypatch):
+    # the cores track MAX_OPS sources and destinations per instruction; more is refused, not truncated
+    from sim.cpus import lowering
+    from sim.cpus.table import load_table
+    from sim.decode import decode_one
+
+    rec = decode_one(bytes.fromhex("01c8"), 0x400000)  # add eax, ecx: 2 sources + flags
+    assert lowering.lower([rec], load_table("p6")).s_nsrc[0] == 2
+    monkeypatch.setattr(lowering, "MAX_OPS", 1)
+    with pytest.raises(lowering.LoweringError, match=r"pc 0x00400000 \(add eax, ecx\)"):
+        lowering.lower([rec], load_table("p6"))
 
 
 def test_rdtsc_returns_simulated_cycles(tmp_path):

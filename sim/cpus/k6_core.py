@@ -193,7 +193,11 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     reg_pmask = np.full(NREGS, 15, np.int64)  # bytes written by the last writer (15 = whole register)
     fp_top = 0
     book = np.full(WINDOW, -1 << 5, np.int64)
-    unit_free = np.zeros(NUNITS, np.int64)
+    nunits = NUNITS  # ids from NUNITS on: resources held by single rows (k6.K6Rules._hold_unexplained)
+    for u in range(u_unit.shape[0]):
+        if u_unit[u] + 1 > nunits:
+            nunits = u_unit[u] + 1
+    unit_free = np.zeros(nunits, np.int64)
     qring = np.zeros(quads, np.int64)          # retire cycle of the last `quads` opquads
     nq = 0
     q_slot = 0

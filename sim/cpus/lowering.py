@@ -3,16 +3,34 @@
 Per static instruction (index s): length, decoder class, branch kind, x87 stack move, and up to
 MAX_OPS register sources and destinations, each tied to the uop that reads or writes it. Per uop
 (flat index u): kind (compute / load / store-address / store-data / branch), allowed ports as a
-bit mask, latency, and an optional non-pipelined unit with its occupancy.
+bit mask, latency, and an optional non-pipelined resource with its occupancy (the family's own
+unit: P6 occupancies are in hundredths of a cycle, K6 ones in cycles; see each core).
 
 Which uop touches which operand (the same rule for every family; the table gives only counts,
 ports and the instruction's latency):
+- the uops run in the order load(s), compute, store-address, store-data, whatever order the row
+  lists its ports in (a load-op instruction computes on what it loaded);
 - address registers (base, index) feed the load and store-address uops;
 - other sources feed the first compute uop, or the store-data uop when there is none (MOV m,r);
 - destinations and flags are written by the last compute uop, or by the load (MOV r,m);
-- compute uops form a chain: each takes 1 cycle except the last, which takes what is left of the
-  instruction's latency after the load (so BSR r,r, 2 uops, latency 2, is 1 + 1; DIV r32,
-  latency 39, is 1 + 1 + 1 + 36).
+- compute uops form a chain that the cores enforce: each waits for the instruction's earlier
+  loads and compute uops, and the store data waits for them too. Each takes 1 cycle except the
+  last, which takes what is left of the instruction's latency after the load (BSR r,r, 2 uops,
+  latency 2, is 1 + 1; DIV r32, latency 39, is 1 + 1 + 1 + 36; ADD r,m is load 3 + 1; a row
+  without a latency, ADD m,r, is 1 cycle per compute uop);
+- compute uops the latency leaves no cycle for run beside the chain (kind SIDE, 1 cycle, waiting
+  only for their own sources; never the branch): XCHG r,r (3 uops, latency 2) is a chain of 2
+  plus one beside it; POP r32 (latency 3 = the load) loads the register while its
+  stack-pointer adder, which writes ESP, runs beside the load.
+
+Throughput (P6, :func:`p6_uops`). A row's reciprocal throughput is a measured fact the model must
+reproduce. What the machine already charges is its "natural" throughput: the busiest port, the
+rename/retire width, the microcode sequencer's rate, the taken-branch redirect of a branch and the
+length-changing-prefix decode of an LCP instruction. When the row's throughput exceeds that, the
+instruction's first compute uop (else its first uop) holds a non-pipelined resource for the row's
+throughput: the next instruction of the same mnemonic using the same port waits for it (the
+divider: DIV 37; FMUL 2; LOOP 8; EMMS 5.67; CMP 1.0), other instructions are not held. Fractions
+are kept (the core counts the resource in hundredths of a cycle), so EMMS averages 5.67.
 """
 
 from __future__ import annotations
@@ -22,13 +40,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..decode import InsnRecord
+from ..errors import RetrosimError
 from .table import InstructionTable, Match
 
 MAX_OPS = 8
 
-# uop kinds
-COMPUTE, LOAD, STA, STD, BRANCH = range(5)
-KIND_NAMES = ("alu", "load", "sta", "std", "branch")
+# uop kinds (SIDE: a compute uop beside the instruction's chain, e.g. POP's stack-pointer adder)
+COMPUTE, LOAD, STA, STD, BRANCH, SIDE = range(6)
+KIND_NAMES = ("alu", "load", "sta", "std", "branch", "alu")
 # branch kinds per static instruction
 BR_NONE, BR_COND, BR_DIRECT, BR_INDIRECT, BR_CALL, BR_RET = range(6)
 # decoder classes
@@ -44,12 +63,23 @@ NREGS = 36
 PART_MASK = {"low8": 1, "high8": 2, "word": 3, "dword": 15, "full": 15}
 FLAG_BITS = {"CF": 1, "PF": 2, "AF": 4, "ZF": 8, "SF": 16, "OF": 32, "DF": 64, "IF": 128, "TF": 256}
 
-# units that are not pipelined (or issue at a reduced rate); the occupancy comes from the row's
-# reciprocal throughput
-UNIT_NONE, UNIT_DIV, UNIT_FMUL = 0, 1, 2
-NUNITS = 3
-_DIV = {"div", "idiv", "fdiv", "fdivp", "fdivr", "fdivrp", "fidiv", "fidivr", "fsqrt"}
-_FMUL = {"fmul", "fmulp", "fimul"}
+# P6 occupancies are counted in hundredths of a cycle (fractional measured throughputs)
+OCC_SCALE = 100
+_KIND_ORDER = {COMPUTE: 1, BRANCH: 1, LOAD: 0, STA: 2, STD: 3}  # load, then compute/branch, then store address, store data
+
+
+@dataclass(frozen=True)
+class P6Limits:
+    """What the P6 machine charges an instruction's throughput without a held resource."""
+
+    width: int = 3          # rename and retire uops per cycle
+    msrom_rate: int = 3     # microcode sequencer uops per cycle
+    taken_cycles: int = 2   # a taken branch: its decode cycle plus the redirect bubble
+    lcp_cycles: int = 2     # an instruction with a length-changing prefix decodes alone, plus the penalty
+
+
+class LoweringError(RetrosimError):
+    """An instruction does not fit the lowering's layout (e.g. too many register operands)."""
 
 
 def port_mask(spec: str) -> int:
@@ -130,46 +160,91 @@ def _branch_kind(rec: InsnRecord) -> int:
     return BR_DIRECT if rec.is_relative_branch else BR_INDIRECT
 
 
-def _uops_for(rec: InsnRecord, match: Match, load_latency: int) -> list[tuple[int, int, int, int, int]]:
-    """[(kind, port mask, latency, unit, occupancy)] for one instruction."""
+def natural_throughput(rec: InsnRecord, row, kinds: list[int], ports: list[str], limits: P6Limits) -> float:
+    """Reciprocal throughput the P6 machine gives the instruction without a held resource."""
+    per_port: dict[int, int] = {}
+    alu = 0
+    for k, p in zip(kinds, ports):
+        m = port_mask(p)
+        if m and m & (m - 1) == 0:
+            per_port[m] = per_port.get(m, 0) + 1
+        if m & 3:
+            alu += 1
+    bound = max([len(kinds) / limits.width, alu / 2] + list(per_port.values()))
+    if len(kinds) > 4 or row.decoder == "msrom":
+        bound = max(bound, -(-len(kinds) // limits.msrom_rate))
+    if rec.is_branch:
+        bound = max(bound, limits.taken_cycles)
+    if (rec.opsize_prefix and rec.imm_size == 2) or (rec.addrsize_prefix and rec.disp_size == 2):
+        bound = max(bound, limits.lcp_cycles)
+    return bound
+
+
+def p6_uops(rec: InsnRecord, match: Match, load_latency: int, limits: P6Limits | None = None,
+            units: dict | None = None) -> list[tuple[int, int, int, int, int]]:
+    """[(kind, port mask, latency, resource, occupancy in hundredths)] for one P6 instruction.
+    `units` maps (mnemonic, port mask) to a resource id (1, 2, ...) for the whole program."""
     row = match.row
+    limits = limits or P6Limits()
     ports = list(row.ports) + ["p01"] * max(0, row.uops - len(row.ports))  # rows list one port per uop
-    kinds = []
-    for p in ports[:row.uops]:
-        p = p.strip().lower()
-        kinds.append(LOAD if p == "p2" else STA if p == "p3" else STD if p == "p4" else COMPUTE)
+    ports = [p.strip().lower() for p in ports[:row.uops]]
+    kinds = [LOAD if p == "p2" else STA if p == "p3" else STD if p == "p4" else COMPUTE for p in ports]
+    order = sorted(range(len(kinds)), key=lambda i: _KIND_ORDER[kinds[i]])
+    kinds, ports = [kinds[i] for i in order], [ports[i] for i in order]
     if rec.is_branch:
         # the uop on port 1 (the jump unit) resolves the branch; otherwise the last compute uop
-        idx = [i for i, p in enumerate(ports[:row.uops]) if port_mask(p) == 2 and kinds[i] == COMPUTE]
-        idx = idx or [i for i, k in enumerate(kinds) if k == COMPUTE]
+        idx = [i for i, p in enumerate(ports) if port_mask(p) == 2 and kinds[i] == COMPUTE]
+        idx = idx or [i for i, k in enumerate(kinds) if k == COMPUTE][-1:]
         if idx:
             kinds[idx[0]] = BRANCH
     has_load = LOAD in kinds
     compute = [i for i, k in enumerate(kinds) if k in (COMPUTE, BRANCH)]
-    total = row.latency if row.latency is not None else 1
-    work = max(1, int(round(total - (load_latency if has_load else 0))))
-    unit = UNIT_DIV if rec.mnemonic in _DIV else UNIT_FMUL if rec.mnemonic in _FMUL else UNIT_NONE
-    occ = int(round(row.throughput)) if (unit and row.throughput) else 0
+    if row.latency is None:
+        work = len(compute)  # no register result: each compute uop 1 cycle, all on the chain
+    else:
+        work = int(round(row.latency - (load_latency if has_load else 0)))
+        work = max(work, 0 if has_load else 1)
+    chain_n = min(len(compute), max(work, 1 if BRANCH in kinds else 0))
+    # uops the latency has no room for run beside the chain (never the branch): XCHG r,r's third
+    # uop, POP's stack-pointer adder (POP r32 latency 3 = the load alone)
+    side = [i for i in compute if kinds[i] != BRANCH][:len(compute) - chain_n]
+    for i in side:
+        kinds[i] = SIDE
+    chain = [i for i in compute if i not in side]
+    holder, occ = -1, 0
+    if row.throughput and row.throughput > natural_throughput(rec, row, kinds, ports, limits) + 1e-9:
+        holder = compute[0] if compute else 0
+        occ = int(round(row.throughput * OCC_SCALE))
     out = []
     for i, k in enumerate(kinds):
         if k in (COMPUTE, BRANCH):
-            last = i == compute[-1]
-            lat = max(1, work - (len(compute) - 1)) if last else 1
+            lat = max(1, work - (len(chain) - 1)) if i == chain[-1] else 1
         elif k == LOAD:
             lat = load_latency
         else:
             lat = 1
         mask = port_mask(ports[i])
-        first_compute = compute and i == compute[0]
-        out.append((k, mask, lat, unit if first_compute else UNIT_NONE, occ if first_compute else 0))
+        unit = 0
+        if i == holder:
+            key = (row.mnemonic, mask)
+            if units is None:
+                units = {}
+            unit = units.setdefault(key, len(units) + 1)
+        out.append((k, mask, lat, unit, occ if unit else 0))
     return out
 
 
 def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int = 3,
-          simple_max_len: int = 7, uops_for=None, decoder_for=None) -> StaticProgram:
+          simple_max_len: int = 7, uops_for=None, decoder_for=None, limits: P6Limits | None = None) -> StaticProgram:
     """The static program of `records`. A family other than the P6 passes its own rules:
     `uops_for(rec, match, load_latency)` -> [(kind, ports, latency, unit, occupancy)] and
-    `decoder_for(rec, match, uops)` -> DEC_* (the K6 model does; see sim/cpus/k6.py)."""
+    `decoder_for(rec, match, uops)` -> DEC_* (the K6 model does; see sim/cpus/k6.py). The P6
+    rules (:func:`p6_uops`) take the machine's `limits`."""
+    if uops_for is None:
+        units: dict = {}
+
+        def uops_for(rec, match, load_latency):
+            return p6_uops(rec, match, load_latency, limits, units)
     n = len(records)
     s = {k: np.zeros(n, np.int64) for k in ("len", "pc", "dec", "lcp", "branch", "target", "fpdelta", "zero",
                                            "nuops", "uop0", "nsrc", "ndst")}
@@ -180,7 +255,7 @@ def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int 
     for i, rec in enumerate(records):
         match = table.require(rec.mnemonic, rec.signature, f"pc {rec.pc:#010x} ({rec.mnemonic} {rec.op_str})")
         matches.append(match)
-        us = (uops_for or _uops_for)(rec, match, load_latency)
+        us = uops_for(rec, match, load_latency)
         s["uop0"][i], s["nuops"][i] = len(uops), len(us)
         uops.extend(us)
         dec = DECODER_NAMES.get(match.row.decoder, DEC_COMPLEX)
@@ -202,6 +277,7 @@ def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int 
 
         kinds = [u[0] for u in us]
         compute = [j for j, k in enumerate(kinds) if k in (COMPUTE, BRANCH)]
+        sides = [j for j, k in enumerate(kinds) if k == SIDE]
         loads = [j for j, k in enumerate(kinds) if k == LOAD]
         stas = [j for j, k in enumerate(kinds) if k == STA]
         stds = [j for j, k in enumerate(kinds) if k == STD]
@@ -224,11 +300,13 @@ def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int 
         dsts = []
         for ref in rec.regs_written:
             rid, rel = reg_id(ref.name, ref.full)
-            dsts.append((rid, PART_MASK.get(ref.part, 15), writer, rel))
+            w = sides[0] if (sides and ref.full == "esp") else writer  # the stack-pointer adder
+            dsts.append((rid, PART_MASK.get(ref.part, 15), w, rel))
         if rec.flags_written:
             dsts.append((REG_FLAGS, flag_mask(rec.flags_written), writer, -1))
         if len(srcs) > MAX_OPS or len(dsts) > MAX_OPS:
-            srcs, dsts = srcs[:MAX_OPS], dsts[:MAX_OPS]  # only string/system instructions get here
+            raise LoweringError(f"pc {rec.pc:#010x} ({rec.mnemonic} {rec.op_str}): {len(srcs)} register sources "
+                                f"and {len(dsts)} destinations, more than the {MAX_OPS} the timing cores track")
         s["nsrc"][i], s["ndst"][i] = len(srcs), len(dsts)
         for j, v in enumerate(srcs):
             s_src[i, j] = v

@@ -19,7 +19,7 @@ from ..memory.dram import DramTiming, core_clocks, line_costs
 from ..memory.hierarchy import Hierarchy, family_policies
 from ..trace import Trace
 from . import p6_core as core
-from .lowering import StaticProgram, lower
+from .lowering import P6Limits, StaticProgram, lower
 from .presets import CacheSpec, CpuPreset
 from . import vocabulary
 from .table import TABLES, InstructionTable, load_table
@@ -98,6 +98,10 @@ class P6Model:
         # hundred bytes, so code never competes with data for the L2 in practice.
         self.iside = Hierarchy([_geometry("L1I", preset.l1i, {**policies["l1d"], "write_allocate": False})])
         self.params = self._params()
+        P = self.params
+        # what the machine charges without a held resource (lowering.natural_throughput)
+        self.limits = P6Limits(width=int(min(P[core.P_RENAME], P[core.P_RETIRE])), msrom_rate=int(P[core.P_MSROM_RATE]),
+                               taken_cycles=1 + int(P[core.P_TAKEN_BUBBLE]), lcp_cycles=1 + int(P[core.P_LCP]))
 
     def _params(self) -> np.ndarray:
         m, p = self.machine, self.preset
@@ -144,7 +148,8 @@ class P6Model:
         per-instruction sums cover instructions from `stat_first` on.
         The result carries the cycle at which each RDTSC executed."""
         records, index = decoder.decode_trace(trace.pc)
-        program = lower(records, self.table, self.l1_latency, self.machine["decode"]["simple_decoder_max_length"]["value"])
+        program = lower(records, self.table, self.l1_latency, self.machine["decode"]["simple_decoder_max_length"]["value"],
+                        limits=self.limits)
         n = trace.instructions
         seg_end = np.array(segments if segments else [n], dtype=np.int64)
         acc_count = np.bincount(trace.mem_insn, minlength=n).astype(np.int64)  # accesses per instruction

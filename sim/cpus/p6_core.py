@@ -9,8 +9,11 @@ decoders 1 and 2 only 1-uop instructions, in order), microcode sequencer for lon
 (alone, MSROM_RATE uops per cycle), a decode group ends at a taken branch (plus a fetch bubble) and
 at a length-changing prefix (plus a penalty); a decoded-uop queue of QUEUE uops.
 Back end: RENAME uops per cycle into a ROB of ROB entries and an RS of RS entries; ports 0-4
-(bit masks per uop), one uop per port per cycle, oldest uop first; non-pipelined units (divider,
-FP multiplier issue rate); RETIRE uops per cycle in order. Partial-register and partial-flags
+(bit masks per uop), one uop per port per cycle, oldest uop first; the uops of one instruction
+form a chain (each compute uop and the store data wait for the instruction's earlier loads and
+compute uops; see sim/cpus/lowering.py); non-pipelined resources held for a row's measured
+reciprocal throughput (divider, FP multiplier, microcoded instructions; counted in hundredths of a
+cycle so fractional throughputs average out); RETIRE uops per cycle in order. Partial-register and partial-flags
 reads wait at rename until the partial writer has retired. Loads wait for every older store
 address (no memory disambiguation on P6), take forwarded data from a matching older store, and
 wait for a mismatching one to reach the cache. Stores commit to L1 after retirement through a
@@ -30,7 +33,7 @@ from numba import njit
 
 from ..memory.hierarchy import memory_fills, memory_writebacks, served_level, service
 from .lowering import (BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM,
-                       DEC_SIMPLE, LOAD, NREGS, NUNITS, REG_FLAGS, REG_ST0, STA, STD)
+                       DEC_SIMPLE, LOAD, NREGS, OCC_SCALE, REG_FLAGS, REG_ST0, SIDE, STA, STD)
 
 # parameter vector indices
 (P_ROB, P_RS, P_RENAME, P_RETIRE, P_QUEUE, P_FETCH_BLOCK, P_L1_LAT, P_L2_LAT, P_DRAM_LAT, P_DRAM_LINE,
@@ -198,7 +201,11 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     rs_time = 0
     queue_ring = np.zeros(max(queue_n, 1), np.int64)
     book = np.full(WINDOW, -1 << 5, np.int64)
-    unit_free = np.zeros(NUNITS, np.int64)
+    nunits = 1
+    for u in range(u_unit.shape[0]):
+        if u_unit[u] + 1 > nunits:
+            nunits = u_unit[u] + 1
+    unit_free = np.zeros(nunits, np.int64)  # per resource: when it is free, in hundredths of a cycle
     sb_ring = np.zeros(sb_n, np.int64)
     nstores = 0
     last_commit = 0
@@ -348,6 +355,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         branch_done = 0
         is_store = False
         store_std = 0
+        intra = 0  # latest result of this instruction's loads and compute uops (the uop chain)
         for k in range(nu):
             u = u0 + k
             kind = u_kind[u]
@@ -408,18 +416,23 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                     ready = reg_ready[rid]
             if kind == LOAD and last_sta_done > ready:
                 ready = last_sta_done  # P6 loads never pass a store whose address is unknown
+            if kind != LOAD and kind != STA and kind != SIDE and intra > ready:
+                ready = intra  # the instruction's own earlier uops: load -> compute -> ... -> store data
             dep_wait = ready - (alloc + 1)
-            if u_unit[u] != 0 and unit_free[u_unit[u]] > ready:
-                ready_unit = unit_free[u_unit[u]]
-            else:
-                ready_unit = ready
+            ready_unit = ready
+            if u_unit[u] != 0:
+                free = -(-unit_free[u_unit[u]] // OCC_SCALE)  # held through part of a cycle: the next one
+                if free > ready:
+                    ready_unit = free
             if u_ports[u] == 0:
                 disp, port = ready_unit, -1
             else:
                 disp, port = _book_port(book, u_ports[u], ready_unit)
             port_wait = disp - ready  # includes waiting for a busy non-pipelined unit
             if u_unit[u] != 0:
-                unit_free[u_unit[u]] = disp + u_occ[u]
+                # a resource held for a fractional throughput (EMMS 5.67) averages it: the hold
+                # runs from when it was due, not from the whole cycle the uop waited for
+                unit_free[u_unit[u]] = max(unit_free[u_unit[u]], disp * OCC_SCALE - OCC_SCALE + 1) + u_occ[u]
             lat = u_lat[u]
             mem_wait = 0
             fwd_wait = 0
@@ -463,6 +476,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                     last_sta_done = complete
             if kind == STD:
                 store_std = complete
+            elif kind != STA and kind != SIDE and complete > intra:
+                intra = complete
             if kind == BRANCH:
                 branch_done = complete
             # destinations

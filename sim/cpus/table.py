@@ -34,6 +34,17 @@ _WIDER = {"r8": ("r32",), "r16": ("r32",), "m8": ("m32",), "m16": ("m32",), "i8"
           "sti": ("st",), "m": ("m32",), "rel8": ("rel32",), "rel16": ("rel32",)}
 
 
+# Every field a row may have: a field the models do not read is removed from the tables, and the
+# loader refuses one it does not know, so an ignored figure cannot come back unnoticed.
+ROW_FIELDS = {"mnemonic", "signature", "uops", "decoder", "latency", "throughput", "source", "note", "estimated"}
+FAMILY_FIELDS = {
+    "p6": {"ports"},                                   # one port per uop (sim/cpus/lowering.py)
+    "k6": {"units", "models", "model_overrides"},      # RISC86 ops per unit, models, per-model values (k6.py)
+}
+OVERRIDABLE = {"latency", "throughput"}               # what a K6 model_overrides entry may replace
+TOP_LEVEL = {"insn", "unsupported"}
+
+
 class MissingTiming(RetrosimError):
     """An executed instruction has no row in the family's table."""
 
@@ -96,14 +107,31 @@ def _signature_candidates(signature: str):
 class InstructionTable:
     """One family's table (e.g. sim/cpus/tables/p6.toml)."""
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, family: str | None = None):
         self.path = Path(path)
         with open(self.path, "rb") as f:
             data = tomllib.load(f)
+        family = family or self.path.stem
         self.rows: dict[tuple[str, str], TimingRow] = {}
-        known = {"mnemonic", "signature", "uops", "ports", "decoder", "latency", "throughput", "source", "note",
-                 "estimated"}
+        known = ROW_FIELDS | {"ports"}
+        allowed = ROW_FIELDS | FAMILY_FIELDS.get(family, set())
+        for key in data:
+            if key not in TOP_LEVEL:
+                raise RetrosimError(f"{self.path}: unknown table [{key}] (known: {', '.join(sorted(TOP_LEVEL))})")
+        # [unsupported] mnemonics: no row on purpose; executing one is refused with the reason
+        unsupported = data.get("unsupported", {})
+        self.unsupported = set(unsupported.get("mnemonics", []))
         for i, raw in enumerate(data.get("insn", [])):
+            where = f"{self.path}: [[insn]] row {i + 1} ({raw.get('mnemonic', '?')} {raw.get('signature', '')})".rstrip()
+            for name in raw:
+                if name not in allowed:
+                    raise RetrosimError(f"{where}: unknown field '{name}' (a {family} row has: "
+                                        f"{', '.join(sorted(allowed))})")
+            for model, fields in raw.get("model_overrides", {}).items():
+                for name in fields:
+                    if name not in OVERRIDABLE:
+                        raise RetrosimError(f"{where}: model_overrides.{model}: unknown field '{name}' "
+                                            f"(may replace: {', '.join(sorted(OVERRIDABLE))})")
             try:
                 ports = raw.get("ports", [])
                 row = TimingRow(
@@ -113,7 +141,7 @@ class InstructionTable:
                     source=raw["source"], note=raw.get("note", ""), estimated=bool(raw.get("estimated", False)),
                     extra={k: v for k, v in raw.items() if k not in known})
             except KeyError as e:
-                raise RetrosimError(f"{self.path}: [[insn]] row {i + 1}: missing field {e}") from None
+                raise RetrosimError(f"{where}: missing field {e}") from None
             self.rows[(row.mnemonic, row.signature)] = row
 
     @cached_property
@@ -137,6 +165,9 @@ class InstructionTable:
 
     def require(self, mnemonic: str, signature: str, where: str) -> Match:
         match = self.lookup(mnemonic, signature)
+        if match is None and (family_mnemonic(mnemonic) in self.unsupported or mnemonic in self.unsupported):
+            raise MissingTiming(f"{where}: '{mnemonic}' does not exist on this family, the CPU raises #UD "
+                                f"({self.path.name} [unsupported] gives the sources)")
         if match is None:
             raise MissingTiming(f"{where}: no timing row for '{mnemonic} {signature}'".rstrip() +
                                 f" in {self.path.name} (add one, with its source)")
