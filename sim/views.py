@@ -22,6 +22,8 @@ def summary(result: TimingResult) -> dict:
          "repeat": result.repeat, **c}
     d["ipc"] = round(c["instructions"] / c["cycles"], 4) if c["cycles"] else 0.0
     d["uops_per_cycle"] = round(c["uops"] / c["cycles"], 4) if c["cycles"] else 0.0
+    if hasattr(result.model, "summary_rows"):  # a family with its own vocabulary (the P5's pipes)
+        d["pipes"] = list(result.model.pipe_names)
     d["l1d_misses"] = c["l1d_load_misses"] + c["l1d_store_misses"]
     d["l1d_hits"] = c["l1d_loads"] + c["l1d_stores"] - d["l1d_misses"]
     d["l2_hits"] = c["l2_accesses"] - c["l2_misses"]
@@ -36,6 +38,10 @@ def summary_table(result: TimingResult) -> Table:
     t.add_column(style="bold")
     t.add_column(justify="right")
     t.add_column()
+    if hasattr(result.model, "summary_rows"):  # the model names its own pipes and counters
+        for row in result.model.summary_rows(s):
+            t.add_row(*row)
+        return t
     t.add_row("cycles", f"{s['cycles']:,}", f"IPC {s['ipc']:.2f}, {s['uops_per_cycle']:.2f} uops/cycle")
     t.add_row("instructions", f"{s['instructions']:,}", "")
     t.add_row("uops", f"{s['uops']:,}", f"{s['msrom_uops']:,} from the microcode sequencer")
@@ -57,6 +63,8 @@ def summary_table(result: TimingResult) -> Table:
 
 def explain_rows(result: TimingResult) -> list[dict]:
     """One row per static instruction executed in the last call, in address order."""
+    if hasattr(result.model, "explain_rows"):
+        return result.model.explain_rows(result)
     run = result.run
     rows = []
     for sid in np.argsort([r.pc for r in run.program.records]):
@@ -90,6 +98,13 @@ def explain_rows(result: TimingResult) -> list[dict]:
 def explain_table(result: TimingResult) -> Table:
     t = Table(title=f"{result.source.name}:{result.entry} on {result.cpu}: per instruction, last call "
                     "(stall columns are cycles per execution)")
+    model = result.model
+    if hasattr(model, "explain_cells"):  # a family with its own columns (the P5: pipes, pairing)
+        for name, justify in model.explain_columns:
+            t.add_column(name, justify=justify)
+        for r in explain_rows(result):
+            t.add_row(*model.explain_cells(r))
+        return t
     cols = [("pc", "right"), ("instruction", "left"), ("runs", "right"), ("dec", "left"), ("uops", "right"),
             ("ports", "left"), ("iss->ret", "right"), ("dep", "right"), ("port", "right"), ("decode", "right"),
             ("partial", "right"), ("mem", "right"), ("fwd", "right"), ("window", "right"), ("mispred", "right"),
