@@ -253,6 +253,19 @@ def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat
         console.print(text, markup=False, highlight=False, soft_wrap=True)
 
 
+@main.command("texture-loops")
+@click.option("--cpu", "cpus", multiple=True, callback=lambda c, p, v: [_cpu_choice(c, p, x) for x in v],
+              help="CPU preset (repeatable; default: every preset)")
+@click.option("--out", default=None, type=click.Path(path_type=Path), help="Markdown file to write")
+def texture_loops_cmd(cpus, out):
+    """Cycles per pixel of the texture-mapping article's span loops on every preset (reports/texture-loops.md)."""
+    from . import texture
+
+    out = out or REPORTS_DIR / "texture-loops.md"
+    texture.write_report(out, list(cpus) or None)
+    console.print(f"wrote {out}")
+
+
 @main.command("cpus")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
 def cpus_cmd(as_json):
