@@ -175,6 +175,9 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     wb_pos = 0
     bus_free = 0
     seen = np.zeros(nstatic, np.int64)
+    # pairing depends only on the two statics (and whether the first has run before): the static
+    # after a non-branch is always the same one, so each answer is computed once
+    pair_cache = np.full((nstatic, 2), -1, np.int64)   # [a, first_ok] -> reason * 16 + register + 1
     btb_sets, btb_ways, hist_bits = P[P_BTB_SETS], P[P_BTB_WAYS], P[P_HIST_BITS]
     btb_tag = np.full((btb_sets, btb_ways), -1, np.int64)
     btb_stamp = np.zeros((btb_sets, btb_ways), np.int64)
@@ -182,6 +185,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     btb_target = np.zeros((btb_sets, btb_ways), np.int64)
     pht = np.full((btb_sets, btb_ways, 1 << hist_bits), 2, np.int64)
     last_iline = -1
+    iline_seen = np.full(16, -1, np.int64)  # lines fetched since the last L1I miss: still resident
     t = 0
     seg = 0
     seg_start = 0
@@ -197,9 +201,16 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         if i + 1 < n and s_branch[a] == BR_NONE and np.int64(dyn_pc[i + 1]) == np.int64(dyn_pc[i]) + s_len[a] and \
                 not (seg < seg_end.shape[0] and i + 1 == seg_end[seg]):
             b = dyn_sid[i + 1]
-            first_ok = 1 if (P[P_FIRST_PASS] == 1 or seen[a] > 0) else 0
-            reason, rreg = _pair_reason(a, b, s_cls, s_len, s_rmask, s_wmask, s_rflags, s_wflags, s_jcc, s_stack,
-                                        s_immdisp, s_pfxv, s_mmx, s_mmx_u, P[P_IMMDISP_MODE], P[P_PFX_V], first_ok)
+            first_ok = 1 if (P[P_FIRST_PASS] == 1 or seen[a] > 0 or s_len[a] == 1) else 0
+            code = pair_cache[a, first_ok]
+            if code < 0:
+                reason, rreg = _pair_reason(a, b, s_cls, s_len, s_rmask, s_wmask, s_rflags, s_wflags, s_jcc,
+                                            s_stack, s_immdisp, s_pfxv, s_mmx, s_mmx_u, P[P_IMMDISP_MODE],
+                                            P[P_PFX_V], first_ok)
+                code = reason * 16 + rreg + 1
+                pair_cache[a, first_ok] = code
+            reason = code // 16
+            rreg = code % 16 - 1
             if reason == R_PAIRED:
                 group = 2
         elif s_cls[a] == NP:
@@ -213,12 +224,16 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
             pc = np.int64(dyn_pc[i + k])
             for half in range(2):
                 line = (pc >> 5) if half == 0 else ((pc + s_len[dyn_sid[i + k]] - 1) >> 5)
-                if line != last_iline:
+                if line != last_iline and iline_seen[line & 15] != line:
+                    # (a line fetched since the last miss is still resident: its lookup is a hit, and
+                    # only its LRU refresh is lost, which matters only for code larger than the L1I)
                     r = service(itags, istamps, idirty, iconfig, iclock, istats, line << 5, 1, False)
                     if served_level(r) > 0:
                         counters[seg, C_L1I_MISSES] += 1
                         stall_fetch += P[P_L2_LAT]
-                    last_iline = line
+                        iline_seen[:] = -1
+                    iline_seen[line & 15] = line
+                last_iline = line
         start += stall_fetch
         counters[seg, C_FETCH] += stall_fetch
         # ---- decode: prefixes --------------------------------------------------------------
@@ -233,12 +248,15 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         for k in range(group):
             s = dyn_sid[i + k]
             m = s_addr[s]
-            for r in range(8):
-                if (m >> r) & 1:
+            r = 0
+            while m != 0:
+                if m & 1:
                     # ESP moved by PUSH/POP/CALL is predicted (no AGI); esp_agi tracks other writers
                     avail = esp_agi if r == 4 else reg_avail[r]
                     if avail > start - P[P_AGI] and avail - (start - P[P_AGI]) > agi:
                         agi = avail - (start - P[P_AGI])
+                m >>= 1
+                r += 1
         if agi > P[P_AGI]:
             agi = P[P_AGI]
         start += agi
@@ -332,11 +350,17 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         for k in range(group):
             s = dyn_sid[i + k]
             done = start + s_cyc[s] + mem + mis
-            for r in range(8):
-                if (s_wmask[s] >> (4 * r)) & 15:
+            w = s_wmask[s]
+            r = 0
+            while w != 0:
+                if w & 15:
                     reg_avail[r] = done
+                w >>= 4
+                r += 1
             if s_esp_agi[s] == 1:
                 esp_agi = done
+            if s_fp[s] == 0 and s_mmx[s] == 0 and s_cls[s] != FXCH:
+                continue
             top_after = (fp_top - s_fpdelta[s]) & 7
             if s_cls[s] == FXCH and s_nsrc[s] >= 2:  # FXCH swaps the two slots' readiness
                 r0 = REG_ST0 + ((fp_top + s_src[s, 0, 3]) & 7) if s_src[s, 0, 0] == REG_ST0 else -1
