@@ -262,7 +262,7 @@ def texture_loops_cmd(cpus, out):
     from . import texture
 
     out = out or REPORTS_DIR / "texture-loops.md"
-    texture.write_report(out, list(cpus) or None)
+    texture.write_report(out, list(cpus) or None)  # also part of `retrosim report` and `check --reports`
     console.print(f"wrote {out}")
 
 
@@ -378,7 +378,14 @@ def report_cmd(scenes, cpus, out):
     if not scenes and not cpus:  # the default set also regenerates the conversion report
         err_console.print("[dim]conversion report: timing kernels/convert/loops.S ...[/]")
         err_console.print(f"wrote {_write_conversion_report(out)}")
+        err_console.print(f"wrote {_write_texture_report(out)}")
     console.print(_summary_table(results))
+
+
+def _write_texture_report(out: Path) -> Path:
+    from . import texture
+
+    return texture.write_report(Path(out) / "texture-loops.md")
 
 
 def _write_conversion_report(out: Path) -> Path:
@@ -415,6 +422,7 @@ def check_cmd(scenes, update, check_reports):
             fresh = [p for r in results for p in write_reports(r, Path(tmp), formats=("md", "json", "csv"))]
             if not scenes:
                 fresh.append(_write_conversion_report(Path(tmp)))
+                fresh.append(_write_texture_report(Path(tmp)))
             for path in fresh:
                 committed = REPORTS_DIR / path.name
                 if not committed.is_file() or committed.read_bytes() != path.read_bytes():
