@@ -180,3 +180,35 @@ r:
     assert res.run.rdtsc.size == 4
     delta = int(res.run.rdtsc[3] - res.run.rdtsc[2])
     assert 100 <= delta <= 100 + 30  # dec/jnz pairs: 1 clock per iteration, plus RDTSC and the mov
+
+
+def test_cli_explain_shows_pipes_and_why_an_instruction_ran_alone(tmp_path):
+    from click.testing import CliRunner
+
+    from sim.cli import main
+
+    src = tmp_path / "e.S"
+    src.write_text(HEAD + """# @entry e(n)
+.globl e
+e:
+    mov ecx, [esp+4]
+    jmp 1f
+.p2align 4, 0xCC
+1:
+    add eax, 1
+    add edx, eax
+    dec ecx
+    jnz 1b
+    ret
+""")
+    r = CliRunner().invoke(main, ["explain", str(src), "--cpu", "pentium-133", "--args", "50", "--json"])
+    assert r.exit_code == 0, r.output
+    import json
+
+    rows = {row["instruction"]: row for row in json.loads(r.output)["instructions"]}
+    assert "RAW" in rows["add eax, 1"]["alone_because"] and "eax" in rows["add eax, 1"]["alone_because"]
+    jnz = next(row for name, row in rows.items() if name.startswith("jne"))
+    assert jnz["v_pipe"] == 50 and jnz["u_pipe"] == 0  # DEC + JNZ pair (INTEL-PAIR flags exception)
+    r = CliRunner().invoke(main, ["cpus"])
+    assert all(name in r.output for name in ("pentium-90", "pentium-133", "pentium-166", "pentium-mmx-166",
+                                             "pentium-mmx-233", "fpm-430fx", "edo-430hx", "sdram-430tx"))

@@ -43,3 +43,22 @@ def test_report_on_a_pentium(tmp_path):
     # sourced pairing facts: tex5 has 9 instructions in 4 pairs + the lone JNZ; tex4 has 8 in 4 pairs
     assert per["tex5"]["pairs"] == 4 and per["tex5"]["alone"] == 1
     assert per["tex4"]["pairs"] == 4 and per["tex4"]["alone"] == 0
+
+
+def test_subspan_kernels_draw_the_span_and_divide():
+    m = Machine.from_source(kernels_root() / T.FDIV_KERNEL)
+    for entry in ("sub16", "sub16_overlap", "sub16_serial"):
+        m.arena.reset()
+        args = T.fdiv_setup(64)(m)
+        m.call(entry, *args)
+        assert np.array_equal(m.arena.get(args[0], np.uint8, 64), T.span_reference(T.texture(), 64, **T.SPAN))
+        if entry != "sub16":
+            assert m.arena.get(args[-1], np.float32, 2)[1] == np.float32(1 / T.DIVISOR)
+
+
+def test_fdiv_runs_beside_the_integer_loop_on_a_pentium():
+    # AF28.2: FDIV takes 39 clocks of which 38 overlap later integer instructions; only the FSTP
+    # that needs its result waits. A 16-pixel sub-span (80 clocks of integer work) hides it.
+    d = T.divide_costs("pentium-133", 64)
+    assert d["overlap"] < 10  # FLD1 2 + FDIV 1 + FSTP 2 + two pointer reloads, no wait
+    assert d["serial"] >= 39  # FSTP right after FDIV waits for all of it
