@@ -202,7 +202,7 @@ def to_csv(result: SceneResult) -> str:
     w.writerow(["scene", "variant", "cpu", "memory", "pixels", "cycles_per_pixel"] + counters)
     for t in result.timings:
         w.writerow([result.scene.name, t.variant, t.cpu, t.memory, t.pixels, f"{t.per_pixel('cycles'):.4f}"]
-                   + [t.counters[c] for c in counters])
+                   + [t.counters.get(c, "") for c in counters])  # a family may lack another's counter
     return buf.getvalue()
 
 

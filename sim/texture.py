@@ -185,6 +185,20 @@ def report(cpus: list[str] | None = None, n: int = 256) -> str:
                      f"{'reproduced' if abs(c5 - 5) < 0.5 else 'not reproduced'}); 4-clock loop {c4:.2f} without "
                      f"memory stalls ({'4 clocks' if abs(c4 - 4) < 0.5 else 'not 4 clocks'}), {w4:.2f} with the "
                      "destination written through the write buffers.")
+    lines += ["", "## The same loops on the P6 and the K6", ""]
+    for p in loaded:
+        if p.family == "p5":
+            continue
+        r5 = results[(p.name, "tex5")]
+        if p.family == "p6":
+            lines.append(f"- **{p.name}**: tex5 {r5['cycles']:.2f} clocks per pixel, "
+                         f"partial-register waits {r5.get('stall_partial_register', 0):.2f} per pixel, summed over the "
+                         "instructions that wait (they overlap): MOV AL then ADD EAX reads EAX, ADC BL / ADC BH then "
+                         "MOV AL,[EBX] reads EBX, and each such read waits for the partial write to retire.")
+        else:
+            lines.append(f"- **{p.name}**: tex5 {r5['cycles']:.2f} clocks per pixel; dependency stalls "
+                         f"{r5.get('stall_dependency', 0):.2f}, store queue {r5.get('stall_store_buffer', 0):.2f}; "
+                         f"L1 store misses {r5.get('l1d_store_misses', 0):.2f} per pixel.")
     lines += ["", "## The article's other Pentium claims", "",
               "`kernels/texture/fdiv.S`: 16-pixel sub-spans of the reordered loop with the perspective divide "
               "(FLD1 / FDIV before the inner loop, FSTP after it) against the same with FSTP right after FDIV, "

@@ -179,14 +179,31 @@ def _one_op(rec, match, load_latency):
     return [(COMPUTE, 0, 1, 0, 0)]
 
 
+def p6_aliases(c: dict[str, int]) -> dict[str, int]:
+    """The P6 counter names that scene reports and baselines read, in P5 terms: issue groups are
+    the decode groups, the U and V pipes fill the port0/port1 columns (and decoder0/1), AGI and x87
+    operand waits are dependency stalls, prefix and fetch clocks decode stalls, write-buffer waits
+    store-buffer stalls; what the P5 does not have (ports 2-4, microcode, rename stalls) is 0."""
+    zero = ("port2", "port3", "port4", "decoder2", "msrom_uops", "stall_rob", "stall_rs", "stall_partial_register",
+            "stall_partial_flags", "stall_port", "stall_store_forward", "lcp_stalls", "store_forwards")
+    a = {name: 0 for name in zero}
+    a.update(decode_groups=c["pairs"] + c["alone"], port0=c["u_pipe"], port1=c["v_pipe"], decoder0=c["u_pipe"],
+             decoder1=c["v_pipe"], stall_dependency=c["stall_agi"] + c["stall_fpu"],
+             stall_decode=c["stall_prefix"], stall_store_buffer=c["stall_write_buffer"])
+    return a
+
+
 @dataclass
 class P5CoreRun(CoreRun):
-    """A P5 run: the P6 run's fields; counters named by p5_core.C_NAMES."""
+    """A P5 run: the P6 run's fields; counters named by p5_core.C_NAMES, then the P6 names the
+    scene reports read (:func:`p6_aliases`)."""
 
     static: P5Static | None = None
 
     def segment(self, k: int = -1) -> dict[str, int]:
-        return dict(zip(core.C_NAMES, map(int, self.counters[k])))
+        c = dict(zip(core.C_NAMES, map(int, self.counters[k])))
+        c.update(p6_aliases(c))
+        return c
 
 
 class P5Model:
