@@ -215,3 +215,23 @@ e:
     r = CliRunner().invoke(main, ["cpus"])
     assert all(name in r.output for name in ("pentium-90", "pentium-133", "pentium-166", "pentium-mmx-166",
                                              "pentium-mmx-233", "fpm-430fx", "edo-430hx", "sdram-430tx"))
+
+
+def test_bank_conflict_on_the_p54c_only(tmp_path):
+    # VTUNE Bank_Conflict: two paired accesses 32 bytes apart hit the same 4-byte bank: one clock
+    global CPU
+    same = loop_kernel(tmp_path, "    mov eax, [esi]\n    mov ebx, [esi+32]", name="bank")
+    other = loop_kernel(tmp_path, "    mov eax, [esi]\n    mov ebx, [esi+4]", name="nobank")
+    assert other == 2  # pair + dec/jnz
+    assert same == other + 1
+    CPU = "pentium-mmx-233"
+    assert loop_kernel(tmp_path, "    mov eax, [esi]\n    mov ebx, [esi+32]", name="bank55") == 2
+
+
+def test_esp_agi_exceptions(tmp_path):
+    # AF9: PUSH/POP/CALL change ESP without an AGI for the next stack instruction (POP EAX / POP ESI
+    # pair, no stall); ADD ESP then POP is an AGI
+    pops = loop_kernel(tmp_path, "    push eax\n    push ebx\n    pop eax\n    pop ebx", name="pops")
+    agi = loop_kernel(tmp_path, "    push eax\n    push eax\n    add esp, 4\n    nop\n    pop eax\n    nop", name="espagi")
+    assert pops == 3  # push/push pair, pop/pop pair, dec/jnz
+    assert agi == 5   # push/push, add+nop, AGI, pop+nop, dec/jnz
