@@ -122,13 +122,14 @@ def explain_table(result: TimingResult) -> Table:
 
 def timeline_rows(result: TimingResult) -> list[dict]:
     run = result.run
+    causes = getattr(result.model, "timeline_causes", core.CAUSES)  # the model's own words, if it has them
     out = []
     for row in run.timeline:
         sid = int(row[1])
         rec = run.program.records[sid]
         out.append({"insn": int(row[0]), "pc": rec.pc, "instruction": f"{rec.mnemonic} {rec.op_str}".strip(),
                     **{name: int(row[k]) for k, name in enumerate(core.T_NAMES) if k >= 2 and name != "cause"},
-                    "cause": core.CAUSES[int(row[7])]})
+                    "cause": causes[int(row[7])]})
     return out
 
 
@@ -138,7 +139,8 @@ def timeline_text(result: TimingResult, width: int = 72) -> str:
     if not rows:
         return ""
     base = min(r["decode"] for r in rows)
-    lines = [f"cycle 0 = {base}; D decode, R rename, = wait in RS, E execute, - done, C retire"]
+    legend = getattr(result.model, "timeline_legend", "D decode, R rename, = wait in RS, E execute, - done, C retire")
+    lines = [f"cycle 0 = {base}; {legend}"]
     for r in rows:
         cells = [" "] * width
         def put(c, ch):

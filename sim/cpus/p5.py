@@ -211,6 +211,10 @@ class P5Model:
     pipe_names = ("U", "V")
     counter_names = core.C_NAMES
     reasons = core.REASONS
+    # timeline words: a row's cause is why its instruction ran alone ("none" when it paired)
+    timeline_causes = ("none",) + tuple("alone: " + r for r in core.REASONS[1:])
+    timeline_legend = ("D the previous group left the pipe, R issue (after AGI, prefix, x87 waits), E execute, "
+                       "C done; in-order U/V pipes")
 
     def __init__(self, preset: CpuPreset, memory: DramTiming):
         if preset.family != "p5":
