@@ -235,3 +235,17 @@ def test_esp_agi_exceptions(tmp_path):
     agi = loop_kernel(tmp_path, "    push eax\n    push eax\n    add esp, 4\n    nop\n    pop eax\n    nop", name="espagi")
     assert pops == 3  # push/push pair, pop/pop pair, dec/jnz
     assert agi == 5   # push/push, add+nop, AGI, pop+nop, dec/jnz
+
+
+def test_mispredicted_branch_in_v_costs_4_clocks_on_the_p54c(tmp_path):
+    # UW-CSEP548 / p5_machine.toml: a correctly predicted branch costs nothing, a mispredicted one 3
+    # (U) or 4 (V) clocks. JZ pairs with AND in V. Taken: 3 clocks per iteration, not taken: 4; a
+    # branch alternating between the two is mispredicted on every not-taken turn by 2-bit counters.
+    def body(op):
+        return f"    mov eax, ecx\n    nop\n    {op}\n    jz 2f\n    nop\n2:"
+
+    taken = loop_kernel(tmp_path, body("and eax, 0"), name="taken")
+    never = loop_kernel(tmp_path, body("or eax, 1"), name="never")
+    alternating = loop_kernel(tmp_path, body("and eax, 1"), name="alt")
+    assert (taken, never) == (3, 4)
+    assert alternating == (taken + never) / 2 + 4 / 2
