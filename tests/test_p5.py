@@ -249,3 +249,15 @@ def test_mispredicted_branch_in_v_costs_4_clocks_on_the_p54c(tmp_path):
     alternating = loop_kernel(tmp_path, body("and eax, 1"), name="alt")
     assert (taken, never) == (3, 4)
     assert alternating == (taken + never) / 2 + 4 / 2
+
+
+def test_rep_string_is_refused_with_one_clear_error(tmp_path):
+    from sim.errors import RetrosimError
+
+    src = tmp_path / "s.S"
+    src.write_text(HEAD + "# @entry s(p)\n.globl s\ns:\n    push edi\n    mov edi, [esp+8]\n    mov ecx, 4\n"
+                   "    xor eax, eax\n    rep stosd\n    pop edi\n    ret\n")
+    import numpy as np
+
+    with pytest.raises(RetrosimError, match="REP string"):
+        time_kernel(src, "s", lambda m: [m.arena.put(np.zeros(16, np.uint32))], cpu="pentium-133", repeat=1)

@@ -274,6 +274,10 @@ class P5Model:
         self.iside.reset()
 
     def lower(self, records: list[InsnRecord]) -> StaticProgram:
+        for rec in records:
+            if rec.rep:
+                raise RetrosimError(f"pc {rec.pc:#010x} ({rec.rep} {rec.mnemonic} {rec.op_str}): REP string "
+                                    "instructions are not timed by the P5 model (no sourced per-iteration cost)")
         return lower(records, self.table, 1, uops_for=_one_op, decoder_for=lambda rec, match, uops: DEC_SIMPLE)
 
     def run(self, trace: Trace, decoder: Decoder, segments: list[int] | None = None,
