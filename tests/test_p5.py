@@ -261,3 +261,14 @@ def test_rep_string_is_refused_with_one_clear_error(tmp_path):
 
     with pytest.raises(RetrosimError, match="REP string"):
         time_kernel(src, "s", lambda m: [m.arena.put(np.zeros(16, np.uint32))], cpu="pentium-133", repeat=1)
+
+
+def test_fadd_issues_every_clock_fmul_every_other(tmp_path):
+    # AF28.2: FADD 3 clocks of which 2 overlap later x87 instructions (one FADD per clock);
+    # FMUL cannot start in the clock after another FMUL (note n; GCC pentium.md: FMUL's first two
+    # cycles are not pipelined). Three independent operations per iteration, plus DEC/JNZ.
+    pre = "    fld1\n    fld1\n    fld1\n    fld1"
+    fadd = loop_kernel(tmp_path, "    fadd st(1), st\n    fadd st(2), st\n    fadd st(3), st", pre=pre, name="fadd")
+    fmul = loop_kernel(tmp_path, "    fmul st(1), st\n    fmul st(2), st\n    fmul st(3), st", pre=pre, name="fmul")
+    assert fadd == 3 + 1
+    assert fmul == 2 * 3  # the DEC/JNZ pair fits in the gap after the last FMUL
