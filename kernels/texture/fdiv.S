@@ -122,6 +122,43 @@ sub16_serial:
     add esp, 4
     RESTORE
 
+# The same two loops with the x87 in single (24-bit) precision, as the article advises ("this
+# reduces the execution time for the divide from 39 clocks to 19 clocks"): FLDCW of a constant
+# control word before the span, and back to the FNINIT word (64-bit) after it.
+# @entry sub16_overlap_single(dst, tex, count, u, v, du, dv, c) -> EAX = count
+.globl sub16_overlap_single
+sub16_overlap_single:
+    fldcw [cw_single]
+    push dword ptr [esp+32]
+    push dword ptr [esp+32]
+    push dword ptr [esp+32]
+    push dword ptr [esp+32]
+    push dword ptr [esp+32]
+    push dword ptr [esp+32]
+    push dword ptr [esp+32]
+    push dword ptr [esp+32]
+    call sub16_overlap
+    add esp, 32
+    fldcw [cw_default]
+    ret
+
+# @entry sub16_serial_single(dst, tex, count, u, v, du, dv, c) -> EAX = count
+.globl sub16_serial_single
+sub16_serial_single:
+    fldcw [cw_single]
+    push dword ptr [esp+32]
+    push dword ptr [esp+32]
+    push dword ptr [esp+32]
+    push dword ptr [esp+32]
+    push dword ptr [esp+32]
+    push dword ptr [esp+32]
+    push dword ptr [esp+32]
+    push dword ptr [esp+32]
+    call sub16_serial
+    add esp, 32
+    fldcw [cw_default]
+    ret
+
 # @entry timesnap() -> EAX = stop - start of two back-to-back TIMESNAP macros
 .globl timesnap
 timesnap:
@@ -142,3 +179,8 @@ timesnap:
     sub eax, ebx
     pop ebx
     ret
+
+.section .rodata
+.p2align 1
+cw_single:  .short 0x007F    # FNINIT control word with precision control 00 (24-bit)
+cw_default: .short 0x037F    # the FNINIT control word (64-bit)
