@@ -50,6 +50,8 @@ SEG_LOCK_REP = {0x26, 0x2E, 0x36, 0x3E, 0x64, 0x65, 0xF0, 0xF2, 0xF3}
 ESTIMATES = {
     "board_cache_line_bus_clocks": (6, "bus clocks the board cache keeps the bus per 32-byte line: the 3-1-1-1 "
                                     "pipelined-burst read of the 82439TX data sheet"),
+    "btb_new_entry": (3, "2-bit counter state of a branch entering the BTB (entered when first taken): 3, "
+                      "strongly taken; the P54C's entry state was not found in a read source"),
     "dram_lead_off": (None, "DRAM behind the board cache uses the K6 model's Socket 7 bus rule (sim/cpus/k6.py "
                       "dram_cost: bus overhead 5 + board-cache miss 7 + the memory's first transfer, in bus "
                       "clocks), calibrated there on a K6-233 on the same class of 430TX board"),

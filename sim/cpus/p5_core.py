@@ -424,7 +424,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                         way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, i)
                         btb_hist[bset, way] = 1 & ((1 << hist_bits) - 1)
                         for h in range(1 << hist_bits):
-                            pht[bset, way, h] = 3
+                            pht[bset, way, h] = 3  # ESTIMATES["btb_new_entry"] in p5.py
             else:
                 mispredicted = way < 0 or btb_target[bset, way] != nxt
                 if way < 0:
