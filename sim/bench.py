@@ -53,8 +53,11 @@ def run_bench(pixels: int = 1 << 20, progress=None) -> dict:
     if progress is not None:
         progress.print("[dim]measuring end to end with the K6 model (k6-233) ...[/]")
     results["k6_end_to_end_seconds"] = _end_to_end(zinit, z, dz, colour, pixels, "k6-233")
+    if progress is not None:
+        progress.print("[dim]measuring end to end with the P5 model (pentium-mmx-233) ...[/]")
+    results["p5_end_to_end_seconds"] = _end_to_end(zinit, z, dz, colour, pixels, "pentium-mmx-233")
     n = results["instructions"]
-    for mode in ("unicorn_bare", "python_hook", "native_trace", "end_to_end", "k6_end_to_end"):
+    for mode in ("unicorn_bare", "python_hook", "native_trace", "end_to_end", "k6_end_to_end", "p5_end_to_end"):
         results[f"{mode}_ips"] = n / results[f"{mode}_seconds"]
     results["native_vs_python"] = results["native_trace_ips"] / results["python_hook_ips"]
     results["bare_vs_native"] = results["unicorn_bare_ips"] / results["native_trace_ips"]

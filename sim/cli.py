@@ -365,7 +365,11 @@ def loop_cmd(source, cpus, syntax, iterations, regs, timeline, brief, assembler,
         return
     if not brief:
         for t in timings:
-            console.print(_loop_explain_table(t))
+            if hasattr(t.result.model, "explain_cells"):  # a family with columns of its own (P5)
+                for part in views.explain_tables(t.result, console.width):
+                    console.print(part)
+            else:
+                console.print(_loop_explain_table(t))
             text_tl = views.timeline_text(t.result)
             if text_tl:
                 console.print(f"[bold]timeline[/] on {t.cpu}: {timeline} iterations from the middle of the measured pass")
@@ -380,6 +384,19 @@ def loop_cmd(source, cpus, syntax, iterations, regs, timeline, brief, assembler,
                       f"{p['instructions'] / t.cycles_per_iteration:.2f}" if t.cycles_per_iteration else "-",
                       ", ".join(f"{what} {v:g}" for v, what in stalls) or "none")
     console.print(table)
+
+
+@main.command("texture-loops")
+@click.option("--cpu", "cpus", multiple=True, callback=lambda c, p, v: [_cpu_choice(c, p, x) for x in v],
+              help="CPU preset (repeatable; default: every preset)")
+@click.option("--out", default=None, type=click.Path(path_type=Path), help="Markdown file to write")
+def texture_loops_cmd(cpus, out):
+    """Cycles per pixel of the texture-mapping article's span loops on every preset (reports/texture-loops.md)."""
+    from . import texture
+
+    out = out or REPORTS_DIR / "texture-loops.md"
+    texture.write_report(out, list(cpus) or None)  # also part of `retrosim report` and `check --reports`
+    console.print(f"wrote {out}")
 
 
 @main.command("cpus")
@@ -521,8 +538,15 @@ def report_cmd(scenes, cpus, out):
     if not scenes and not cpus:  # the default set also regenerates the conversion report
         err_console.print("[dim]conversion report: timing kernels/convert/loops.S ...[/]")
         err_console.print(f"wrote {_write_conversion_report(out)}", highlight=False)
+        err_console.print(f"wrote {_write_texture_report(out)}", highlight=False)
     for part in summary_tables(results):
         console.print(part, highlight=False)
+
+
+def _write_texture_report(out: Path) -> Path:
+    from . import texture
+
+    return texture.write_report(Path(out) / "texture-loops.md")
 
 
 def _write_conversion_report(out: Path) -> Path:
@@ -559,6 +583,7 @@ def check_cmd(scenes, update, check_reports):
             fresh = [p for r in results for p in write_reports(r, Path(tmp), formats=("md", "json", "csv"))]
             if not scenes:
                 fresh.append(_write_conversion_report(Path(tmp)))
+                fresh.append(_write_texture_report(Path(tmp)))
             for path in fresh:
                 committed = REPORTS_DIR / path.name
                 if not committed.is_file() or committed.read_bytes() != path.read_bytes():
@@ -635,7 +660,8 @@ def bench_cmd(pixels: int, as_json: bool):
     for mode, key in (("Unicorn, no hooks", "unicorn_bare"), ("Python hooks (code + memory)", "python_hook"),
                       ("native trace (numba cfuncs)", "native_trace"),
                       ("end to end: trace + P6 model (pentium2-233)", "end_to_end"),
-                      ("end to end: trace + K6 model (k6-233)", "k6_end_to_end")):
+                      ("end to end: trace + K6 model (k6-233)", "k6_end_to_end"),
+                      ("end to end: trace + P5 model (pentium-mmx-233)", "p5_end_to_end")):
         ips = result[f"{key}_ips"]
         table.add_row(mode, f"{result[f'{key}_seconds']:.3f}", f"{ips / 1e6:,.1f} M",
                       f"{result['unicorn_bare_ips'] / ips:,.1f}x slower" if key != "unicorn_bare" else "1x")

@@ -28,6 +28,8 @@ def summary(result: TimingResult) -> dict:
          "repeat": result.repeat, **c}
     d["ipc"] = round(c["instructions"] / c["cycles"], 4) if c["cycles"] else 0.0
     d["uops_per_cycle"] = round(c["uops"] / c["cycles"], 4) if c["cycles"] else 0.0
+    if hasattr(result.model, "summary_rows"):  # a family with its own vocabulary (the P5's pipes)
+        d["pipes"] = list(result.model.pipe_names)
     d["l1d_misses"] = c["l1d_load_misses"] + c["l1d_store_misses"]
     d["l1d_hits"] = c["l1d_loads"] + c["l1d_stores"] - d["l1d_misses"]
     d["l2_hits"] = c["l2_accesses"] - c["l2_misses"]
@@ -64,6 +66,10 @@ def summary_table(result: TimingResult) -> Table:
     t.add_column(style="bold", no_wrap=True)
     t.add_column(justify="right", no_wrap=True)
     t.add_column(overflow="fold")
+    if hasattr(result.model, "summary_rows"):  # the model names its own pipes and counters (P5)
+        for row in result.model.summary_rows(s):
+            t.add_row(*row)
+        return t
     ops = v.op + "s"
     t.add_row("cycles", f"{s['cycles']:,}", f"{s['ipc']:.2f} instructions and {s['uops_per_cycle']:.2f} {ops} per cycle")
     t.add_row("instructions", f"{s['instructions']:,}", "")
@@ -118,6 +124,8 @@ def mispredict_note(result: TimingResult) -> str:
 def explain_rows(result: TimingResult) -> list[dict]:
     """One row per static instruction executed in the last call, in address order, in the family's
     words (decoder marks, port or unit names)."""
+    if hasattr(result.model, "explain_rows"):  # a family with rows of its own (the P5: pipes, pairing)
+        return result.model.explain_rows(result)
     run, v = result.run, _vocab(result)
     rows = []
     for sid in np.argsort([r.pc for r in run.program.records]):
@@ -159,6 +167,9 @@ def explain_tables(result: TimingResult, width: int) -> list[Table]:
     (decode and execution; stall cycles; the instruction-table rows), each keyed by the instruction."""
     v = _vocab(result)
     rows = explain_rows(result)
+    model = result.model
+    if hasattr(model, "explain_cells"):  # a family with its own columns (the P5: pipes, pairing)
+        return _model_explain_tables(model, rows, width)
     z = lambda x: f"{x:g}" if x else ""  # noqa: E731
     ops = "uops" if v.op == "uop" else "ops"
     units = v.unit + "s"
@@ -204,6 +215,34 @@ def explain_tables(result: TimingResult, width: int) -> list[Table]:
             build(["instruction", "row"], [], "instruction-table rows used")]
 
 
+def _model_explain_tables(model, rows: list[dict], width: int) -> list[Table]:
+    """A family's own columns (model.explain_columns / explain_cells): one table when it fits, else
+    three keyed by the instruction: pipes, stall columns, reasons and table rows."""
+    cols = list(model.explain_columns)
+    cells = [[escape(c) for c in model.explain_cells(r)] for r in rows]  # '[ebx]' is not markup
+
+    def build(idx: list[int], title: str) -> Table:
+        t = _table(title)
+        for i in idx:
+            name, justify = cols[i]
+            t.add_column(name, justify=justify, overflow="fold",
+                         no_wrap=name not in ("instruction", "alone because", "table row"))
+        for c in cells:
+            t.add_row(*(c[i] for i in idx))
+        return t
+
+    head = "per instruction, last call (stall columns: cycles per execution)"
+    wide = build(list(range(len(cols))), head)
+    if _natural_width(wide) <= width:
+        return [wide]
+    instr = [i for i, (name, _) in enumerate(cols) if name == "instruction"]
+    text = [i for i, (name, _) in enumerate(cols) if name in ("alone because", "table row")]
+    rest = [i for i in range(7, len(cols)) if i not in text]
+    return [build(list(range(min(7, len(cols)))), head + ": pipes"),
+            build(instr + rest, "stall cycles per execution"),
+            build(instr + text, "why it ran alone, and the table row used")]
+
+
 def explain_table(result: TimingResult) -> Table:
     """The one-table form (any width); see explain_tables for the form that fits a terminal."""
     return explain_tables(result, 10_000)[0]
@@ -224,7 +263,7 @@ def explain_legend(result: TimingResult) -> list[str]:
     units = v.unit + "s"
     table = getattr(result.model, "family", v.family) or "the family's"
     rows = explain_rows(result)
-    kinds = [k for k, _ in STALL_KINDS if any(r[f"stall_{k}"] for r in rows)]
+    kinds = [k for k, _ in STALL_KINDS if any(r.get(f"stall_{k}") for r in rows)]
     lines = [f"runs: executions in the last call. dec: {v.decode_help}.",
              f"{ops}: {v.op}s per execution. {units}: {v.op}s per execution on each ({'; '.join(v.port_help)}).",
              "iss->ret: average cycles from the instruction's first " + v.op + " issuing to its retirement.",
@@ -238,18 +277,19 @@ def explain_legend(result: TimingResult) -> list[str]:
 
 
 def timeline_key(result: TimingResult) -> str:
-    return _vocab(result).timeline
+    return getattr(result.model, "timeline_legend", None) or _vocab(result).timeline
 
 
 def timeline_rows(result: TimingResult) -> list[dict]:
     run = result.run
+    causes = getattr(result.model, "timeline_causes", core.CAUSES)  # the model's own words, if it has them
     out = []
     for row in run.timeline:
         sid = int(row[1])
         rec = run.program.records[sid]
         out.append({"insn": int(row[0]), "pc": rec.pc, "instruction": f"{rec.mnemonic} {rec.op_str}".strip(),
                     **{name: int(row[k]) for k, name in enumerate(core.T_NAMES) if k >= 2 and name != "cause"},
-                    "cause": core.CAUSES[int(row[7])]})
+                    "cause": causes[int(row[7])]})
     return out
 
 

@@ -33,4 +33,8 @@ def make_model(cpu: str, memory: str | None = None):
         from .k6 import K6Model
 
         return K6Model(preset, mem)
+    if preset.family == "p5":
+        from .p5 import P5Model
+
+        return P5Model(preset, mem)
     raise RetrosimError(f"CPU preset '{cpu}': no timing model for family '{preset.family}' yet")

@@ -40,6 +40,8 @@ ROW_FIELDS = {"mnemonic", "signature", "uops", "decoder", "latency", "throughput
 FAMILY_FIELDS = {
     "p6": {"ports"},                                   # one port per uop (sim/cpus/lowering.py)
     "k6": {"units", "models", "model_overrides"},      # RISC86 ops per unit, models, per-model values (k6.py)
+    # pairing class, clocks, x87 overlap and units, FDIV clocks by precision (p5.py)
+    "p5": {"pairing", "cycles", "acc_only", "i_ov", "fp_ov", "fmul", "waits_fpu", "mmx_unit", "precision_cycles"},
 }
 OVERRIDABLE = {"latency", "throughput"}               # what a K6 model_overrides entry may replace
 TOP_LEVEL = {"insn", "unsupported"}

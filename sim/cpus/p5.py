@@ -1,0 +1,406 @@
+"""The P5 family model (Pentium P54C, Pentium MMX P55C): parameters from
+sim/cpus/tables/p5_machine.toml and the CPU/memory presets, instruction facts (pairing class,
+clocks, x87 overlap) from sim/cpus/tables/p5.toml, the cycle loop in :mod:`sim.cpus.p5_core`.
+
+The interface is the P6 model's (:class:`sim.cpus.p6.P6Model`): ``run(trace, decoder, segments,
+timeline, stat_first)`` returns a run whose ``segment(k)`` gives the counters of one call. The
+counters are the P5's own (``p5_core.C_NAMES``); the P6 names the reports read (cycles,
+instructions, l1d_*, l2_*, dram_*, branches, mispredicts) mean the same here, and ``uops`` counts
+instructions (the P5 has no micro-ops). Views ask the model for its vocabulary:
+``pipe_names``, ``counter_names``, ``summary_rows`` and ``explain_rows``.
+
+Simplifications (each stated where it applies): pairing marks come from executing an instruction
+once (``first_pass_source`` in the machine file), not from the prefetch buffers' byte counts; the
+P55C's instruction FIFO is assumed full (prefix clocks 0 for 0F/66/67, as VTune's static analysis
+assumes); FDIV follows the precision control of the last FLDCW whose control word is a constant
+in the kernel's image (the trace carries addresses, not values: a word computed at run time leaves
+the precision unchanged, and the FNINIT state is 64-bit); the MMX-x87 transition cost is not
+modelled.
+"""
+
+from __future__ import annotations
+
+import functools
+import re
+import tomllib
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..decode import Decoder, InsnRecord
+from ..errors import RetrosimError
+from ..memory.cache import CacheGeometry
+from ..memory.dram import DramTiming, bus_ratio, core_clocks
+from ..memory.hierarchy import Hierarchy, family_policies
+from ..trace import Trace
+from . import p5_core as core
+from .k6 import dram_cost as socket7_dram_cost
+from .lowering import COMPUTE, DEC_SIMPLE, GPRS, PART_MASK, StaticProgram, lower
+from .p6 import CoreRun
+from .presets import CpuPreset
+from .table import TABLES, InstructionTable, Match, load_table
+
+CLASSES = {"NP": core.NP, "UV": core.UV, "PU": core.PU, "PV": core.PV, "FX": core.FX, "FXCH": core.FXCH,
+           "MMX": core.MMX}
+MMX_UNITS = {"alu": core.MX_ALU, "shift": core.MX_SHIFT, "mul": core.MX_MUL}
+STACK_OPS = {"push", "pop", "call", "ret", "pushal", "popal", "pushfd", "popfd", "leave"}
+SEG_LOCK_REP = {0x26, 0x2E, 0x36, 0x3E, 0x64, 0x65, 0xF0, 0xF2, 0xF3}
+
+# Model choices with no figure in the sources (each says why it is what it is).
+ESTIMATES = {
+    "board_cache_line_bus_clocks": (6, "bus clocks the board cache keeps the bus per 32-byte line: the 3-1-1-1 "
+                                    "pipelined-burst read of the 82439TX data sheet"),
+    "btb_new_entry": (3, "2-bit counter state of a branch entering the BTB (entered when first taken): 3, "
+                      "strongly taken; the P54C's entry state was not found in a read source"),
+    "dram_lead_off": (None, "DRAM behind the board cache uses the K6 model's Socket 7 bus rule (sim/cpus/k6.py "
+                      "dram_cost: bus overhead 5 + board-cache miss 7 + the memory's first transfer, in bus "
+                      "clocks), calibrated there on a K6-233 on the same class of 430TX board"),
+}
+
+
+@functools.cache
+def _machine_table() -> dict:
+    with open(TABLES / "p5_machine.toml", "rb") as f:
+        return tomllib.load(f)
+
+
+def model_key(preset: CpuPreset) -> str:
+    """'p54c' or 'p55c' from the preset's CPUID model (p5_machine.toml [models])."""
+    m = re.search(r"model\s+(\d+)", str(preset.raw.get("cpuid_signature", "")))
+    if m:
+        for key, info in _machine_table()["models"].items():
+            if int(m.group(1)) in info.get("models", ()):
+                return key
+    raise RetrosimError(f"CPU preset {preset.name}: cpuid_signature {preset.raw.get('cpuid_signature')!r} "
+                        "names no P5 model of p5_machine.toml [models]")
+
+
+def _gpr_mask(refs) -> int:
+    """Byte masks of the GPRs in `refs`, 4 bits per register (eax bits 0-3, ecx 4-7, ...)."""
+    m = 0
+    for ref in refs:
+        if ref.full in GPRS:
+            m |= PART_MASK.get(ref.part, 15) << (4 * GPRS.index(ref.full))
+    return m
+
+
+@dataclass
+class P5Static:
+    """Per static instruction arrays for p5_core.simulate (see its argument list)."""
+
+    arrays: tuple
+    classes: list[str]
+
+
+class P5Rules:
+    """How a P5 model reads its table rows and the decoded encoding."""
+
+    def __init__(self, key: str, machine: dict):
+        self.key = key
+        self.m = machine["models"][key]
+        self.mmx = key == "p55c"
+
+    def klass(self, rec: InsnRecord, row) -> int:
+        c = CLASSES[row.extra["pairing"]]
+        if row.extra.get("acc_only") and not any(r.full == "eax" for r in rec.regs_read):
+            c = core.NP
+        return c
+
+    def prefix_bytes(self, rec: InsnRecord) -> tuple[int, int]:
+        """(decode clocks before the instruction, V-pipe restriction 0 none / 1 model-dependent / 2 always)."""
+        seg = sum(1 for p in rec.prefixes if p in SEG_LOCK_REP)
+        other = len(rec.prefixes) - seg
+        escape = int(rec.opcode[:1] == b"\x0f" and not (rec.is_conditional_branch and rec.is_relative_branch))
+        if self.m["prefix_0f_is_prefix"]:
+            other += escape
+        if self.mmx:  # the FIFO holds 0F/66/67 instructions decoded; segment/lock/rep cost a clock
+            clocks = seg * self.m.get("segment_prefix_clocks", 0)
+        else:
+            clocks = (seg + other) * self.m["prefix_decode_clocks"]
+        v = 2 if seg else (1 if other else 0)
+        return clocks, v
+
+    def static(self, program: StaticProgram) -> P5Static:
+        n = len(program.records)
+        divcyc = np.zeros((n, 3), np.int64)
+        z = {k: np.zeros(n, np.int64) for k in (
+            "cls", "cyc", "pfx", "pfxv", "immdisp", "addr", "stack", "esp_agi", "rmask", "wmask", "rflags", "wflags",
+            "jcc", "fp", "fplat", "fpnext", "fmul", "waitfpu", "mmx", "mmx_u", "mmxlat")}
+        classes = []
+        for s, (rec, match) in enumerate(zip(program.records, program.matches)):
+            row = match.row
+            if rec.is_mmx and not self.mmx:
+                raise RetrosimError(f"pc {rec.pc:#010x} ({rec.mnemonic} {rec.op_str}): MMX instruction on a "
+                                    f"{self.m['name']} (no MMX): the CPU raises #UD")
+            c = self.klass(rec, row)
+            classes.append(next(k for k, v in CLASSES.items() if v == c))
+            cycles = int(row.extra["cycles"])
+            if row.extra.get("precision_cycles"):
+                divcyc[s] = row.extra["precision_cycles"]  # 24 / 53 / 64-bit, chosen by FLDCW
+                cycles = int(divcyc[s, 2])  # the FNINIT precision (64-bit) until an FLDCW
+            z["cls"][s] = c
+            if rec.is_x87 and rec.mnemonic != "fxch":
+                iov = int(row.extra.get("i_ov", 0))
+                fpov = int(row.extra.get("fp_ov", 0))
+                z["fp"][s] = 1
+                z["cyc"][s] = max(1, cycles - iov)
+                z["fplat"][s] = cycles
+                z["fpnext"][s] = max(1, cycles - fpov)
+                z["fmul"][s] = int(bool(row.extra.get("fmul")))
+                z["waitfpu"][s] = int(bool(row.extra.get("waits_fpu")))
+            else:
+                z["cyc"][s] = cycles
+            if c == core.MMX:
+                z["mmx"][s] = MMX_UNITS[row.extra.get("mmx_unit", "alu")]
+                z["mmxlat"][s] = int(row.latency or 1)
+                touches_gpr = any(r.full in GPRS for r in rec.regs_read + rec.regs_written)
+                z["mmx_u"][s] = int(bool(rec.mem_operands) or touches_gpr)
+            z["pfx"][s], z["pfxv"][s] = self.prefix_bytes(rec)
+            z["immdisp"][s] = int(rec.imm_size > 0 and rec.disp_size > 0)
+            addr = 0
+            for op in rec.mem_operands:
+                for r in (op.mem.base, op.mem.index):
+                    if r and r in GPRS:
+                        addr |= 1 << GPRS.index(r)
+            stack = rec.mnemonic in STACK_OPS
+            if stack:
+                addr |= 1 << 4
+            z["addr"][s] = addr
+            z["stack"][s] = int(stack)
+            writes_esp = any(r.full == "esp" for r in rec.regs_written)
+            z["esp_agi"][s] = int(writes_esp and (not stack or (rec.mnemonic == "ret" and rec.imm_size > 0)))
+            z["rmask"][s] = _gpr_mask(rec.regs_read)
+            z["wmask"][s] = _gpr_mask(rec.regs_written)
+            z["rflags"][s] = int(bool(rec.flags_read))
+            z["wflags"][s] = int(bool(rec.flags_written))
+            z["jcc"][s] = int(rec.is_conditional_branch)
+        arrays = (program.s_len, z["cls"], z["cyc"], z["pfx"], z["pfxv"], z["immdisp"], z["addr"], z["stack"],
+                  z["esp_agi"], z["rmask"], z["wmask"], z["rflags"], z["wflags"], z["jcc"], program.s_branch,
+                  z["fp"], z["fplat"], z["fpnext"], z["fmul"], z["waitfpu"], z["mmx"], z["mmx_u"], z["mmxlat"],
+                  program.s_nsrc, program.s_src, program.s_ndst, program.s_dst, program.s_fpdelta, divcyc)
+        return P5Static(arrays, classes)
+
+
+PRECISION = {0: 0, 2: 1, 3: 2}  # control-word bits 8-9 -> 24 / 53 / 64-bit (1 is reserved: 64-bit)
+
+
+def precision_events(records, index, acc_start, acc_count, trace: Trace, decoder: Decoder):
+    """(dynamic indices of FLDCW, precision after each) for the FLDCWs whose control word the
+    model can read: a word in the kernel's code or data sections (the decoder's view of the image,
+    a constant). A word computed at run time (on the stack, in the workload arena) is not in the
+    trace, so the precision stays as it was: see the module docstring."""
+    fetch = getattr(decoder, "_fetch", None)
+    sids = [s for s, r in enumerate(records) if r.mnemonic == "fldcw"]
+    if not sids or fetch is None:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    dyn = np.flatnonzero(np.isin(index, sids))
+    idx, prec = [], []
+    for i in dyn:
+        if acc_count[i] == 0:
+            continue
+        word = fetch(int(trace.mem_addr[acc_start[i]]), 2)
+        if len(word) == 2:
+            idx.append(int(i))
+            prec.append(PRECISION.get((int.from_bytes(word, "little") >> 8) & 3, 2))
+    return np.asarray(idx, np.int64), np.asarray(prec, np.int64)
+
+
+def _one_op(rec, match, load_latency):
+    return [(COMPUTE, 0, 1, 0, 0)]
+
+
+def p6_aliases(c: dict[str, int]) -> dict[str, int]:
+    """The P6 counter names that scene reports and baselines read, in P5 terms: issue groups are
+    the decode groups, the U and V pipes fill the port0/port1 columns (and decoder0/1), AGI and x87
+    operand waits are dependency stalls, prefix and fetch clocks decode stalls, write-buffer waits
+    store-buffer stalls; what the P5 does not have (ports 2-4, microcode, rename stalls) is 0."""
+    zero = ("port2", "port3", "port4", "decoder2", "msrom_uops", "stall_rob", "stall_rs", "stall_partial_register",
+            "stall_partial_flags", "stall_port", "stall_store_forward", "lcp_stalls", "store_forwards")
+    a = {name: 0 for name in zero}
+    a.update(decode_groups=c["pairs"] + c["alone"], port0=c["u_pipe"], port1=c["v_pipe"], decoder0=c["u_pipe"],
+             decoder1=c["v_pipe"], stall_dependency=c["stall_agi"] + c["stall_fpu"],
+             stall_decode=c["stall_prefix"], stall_store_buffer=c["stall_write_buffer"])
+    return a
+
+
+@dataclass
+class P5CoreRun(CoreRun):
+    """A P5 run: the P6 run's fields; counters named by p5_core.C_NAMES, then the P6 names the
+    scene reports read (:func:`p6_aliases`)."""
+
+    static: P5Static | None = None
+
+    def segment(self, k: int = -1) -> dict[str, int]:
+        c = dict(zip(core.C_NAMES, map(int, self.counters[k])))
+        c.update(p6_aliases(c))
+        return c
+
+
+class P5Model:
+    family = "p5"
+    pipe_names = ("U", "V")
+    counter_names = core.C_NAMES
+    reasons = core.REASONS
+    # timeline words: a row's cause is why its instruction ran alone ("none" when it paired)
+    timeline_causes = ("none",) + tuple("alone: " + r for r in core.REASONS[1:])
+    timeline_legend = ("D the previous group left the pipe, R issue (after AGI, prefix, x87 waits), E execute, "
+                       "C done; in-order U/V pipes")
+
+    def __init__(self, preset: CpuPreset, memory: DramTiming):
+        if preset.family != "p5":
+            raise ValueError(f"{preset.name} is a {preset.family} part, not P5")
+        self.preset = preset
+        self.memory = memory
+        self.key = model_key(preset)
+        self.machine = _machine_table()
+        self.table: InstructionTable = load_table("p5")
+        self.rules = P5Rules(self.key, self.machine)
+        self.dram = socket7_dram_cost(memory, preset)
+        self.ratio = bus_ratio(preset.core_mhz, preset.fsb_mhz)
+        pol = family_policies()["p5"]["l1d"]
+        d = preset.l1d
+        levels = [CacheGeometry("L1D", d.size_bytes, d.ways, d.line_bytes, replacement=pol["replacement"],
+                                write_back=pol["write_back"], write_allocate=pol["write_allocate"])]
+        if preset.l2 is not None:
+            raw = preset.raw["l2"]
+            levels.append(CacheGeometry("L2", preset.l2.size_bytes, preset.l2.ways, preset.l2.line_bytes,
+                                        replacement=raw.get("replacement", "lru"),
+                                        write_back=bool(raw.get("write_back", True)),
+                                        write_allocate=bool(raw.get("write_allocate", False))))
+        self.dside = Hierarchy(levels)
+        i = preset.l1i
+        self.iside = Hierarchy([CacheGeometry("L1I", i.size_bytes, i.ways, i.line_bytes, replacement="lru",
+                                              write_allocate=False)])
+        self.params = self._params()
+
+    def _params(self) -> np.ndarray:
+        m, mm, bus = self.rules.m, self.machine, self.machine["bus"]
+        P = np.zeros(core.NPARAMS, np.int64)
+        P[core.P_AGI] = mm["pipeline"]["agi_penalty"]
+        P[core.P_MISALIGNED] = mm["pipeline"]["misaligned_penalty"]
+        P[core.P_FIRST_PASS] = int(bool(mm["pipeline"]["first_pass_pairs"]))
+        P[core.P_BANK] = int(bool(m["bank_conflicts"]))
+        P[core.P_NWB] = m["write_buffers"]
+        P[core.P_WRITE_BUS] = core_clocks(bus["write_bus_clocks"], self.ratio)
+        P[core.P_MISP_U] = m["mispredict_u"]
+        P[core.P_MISP_V] = m["mispredict_v"]
+        P[core.P_BTB_WAYS] = m["btb_ways"]
+        P[core.P_BTB_SETS] = m["btb_entries"] // m["btb_ways"]
+        P[core.P_HIST_BITS] = m["history_bits"]
+        board = self.preset.raw.get("l2", {}).get("latency_bus_clocks", bus["board_cache_latency_bus_clocks"])
+        l1 = int(self.preset.l1d.latency_cycles or 1)
+        P[core.P_L2_LAT] = core_clocks(board, self.ratio) - l1
+        P[core.P_L2_BUSY] = core_clocks(ESTIMATES["board_cache_line_bus_clocks"][0], self.ratio)
+        P[core.P_DRAM_LAT] = self.dram.lead_off - l1
+        P[core.P_DRAM_LINE] = self.dram.line_busy
+        P[core.P_DRAM_WB] = self.dram.writeback_busy
+        P[core.P_FMUL_SPACING] = mm["x87"]["fmul_spacing"]
+        P[core.P_IMMDISP_MODE] = {"never": 0, "u-only": 1}[m["imm_disp_pairs"]]
+        P[core.P_PFX_V] = int(bool(m["prefixed_pairs_in_v"]))
+        return P
+
+    def reset(self) -> None:
+        self.dside.reset()
+        self.iside.reset()
+
+    def lower(self, records: list[InsnRecord]) -> StaticProgram:
+        for rec in records:
+            if rec.rep:
+                raise RetrosimError(f"pc {rec.pc:#010x} ({rec.rep} {rec.mnemonic} {rec.op_str}): REP string "
+                                    "instructions are not timed by the P5 model (no sourced per-iteration cost)")
+        return lower(records, self.table, 1, uops_for=_one_op, decoder_for=lambda rec, match, uops: DEC_SIMPLE)
+
+    def run(self, trace: Trace, decoder: Decoder, segments: list[int] | None = None,
+            timeline: tuple[int, int] = (0, 0), stat_first: int = 0) -> P5CoreRun:
+        """Time `trace` from a cold machine (the arguments and result are those of P6Model.run)."""
+        records, index = decoder.decode_trace(trace.pc)
+        program = self.lower(records)
+        static = self.rules.static(program)
+        n = trace.instructions
+        acc_count = np.bincount(trace.mem_insn, minlength=n).astype(np.int64)
+        acc_start = np.cumsum(acc_count) - acc_count
+        cuts = np.asarray(segments or [n], dtype=np.int64)
+        is_rdtsc = np.array([int(r.mnemonic == "rdtsc") for r in records], np.int64)
+        executed = np.flatnonzero(is_rdtsc)
+        rdtsc = np.zeros(int(np.isin(index, executed).sum()) if executed.size else 0, np.int64)
+        counters = np.zeros((cuts.size, core.NC), np.int64)
+        per_static = np.zeros((len(records) + 1, core.NS), np.int64)
+        rows = np.zeros((timeline[1], core.NT), np.int64)
+        self.reset()
+        dcounts, icounts = self.dside.new_counts(), self.iside.new_counts()
+        ev_idx, ev_pc = precision_events(records, index, acc_start, acc_count, trace, decoder)
+        end = core.simulate(index, trace.pc, acc_start, acc_count, trace.mem_addr, trace.mem_size, trace.mem_write,
+                            cuts, *static.arrays, ev_idx, ev_pc, self.params, *self.dside.arrays(), dcounts, *self.iside.arrays(),
+                            icounts, counters, per_static, stat_first, rows, timeline[0], is_rdtsc, rdtsc)
+        return P5CoreRun(program, counters, per_static[:-1], rows, rdtsc, int(end), static)
+
+    # ---- vocabulary for the views ---------------------------------------------------------------
+    def summary_rows(self, s: dict) -> list[tuple[str, str, str]]:
+        """(label, value, detail) rows of `retrosim time` for a P5 run."""
+        stalls = [(k, s[k]) for k in ("stall_agi", "stall_prefix", "stall_fpu", "stall_memory", "stall_misaligned",
+                                      "stall_bank", "stall_write_buffer", "stall_fetch", "stall_mispredict") if s[k]]
+        alone = sorted(((s[f"alone_{j}"], name) for j, name in enumerate(core.REASONS) if j and s[f"alone_{j}"]),
+                       reverse=True)
+        return [
+            ("cycles", f"{s['cycles']:,}", f"IPC {s['ipc']:.2f}"),
+            ("instructions", f"{s['instructions']:,}", f"{s['pairs']:,} U/V pairs, {s['alone']:,} alone"),
+            ("pipes", "", f"U {s['u_pipe']:,}  V {s['v_pipe']:,}"),
+            ("ran alone because", "", "; ".join(f"{name} {v:,}" for v, name in alone) or "-"),
+            ("branches", f"{s['branches']:,}", f"{s['mispredicts']:,} mispredicted"),
+            ("L1D", f"{s['l1d_loads'] + s['l1d_stores']:,}",
+             f"loads {s['l1d_loads']:,} ({s['l1d_load_misses']:,} miss), stores {s['l1d_stores']:,} "
+             f"({s['l1d_store_misses']:,} miss, no allocation: {s['bus_writes']:,} bus writes)"),
+            ("L2 (board)", f"{s['l2_accesses']:,}", f"{s['l2_misses']:,} miss"),
+            ("DRAM", f"{s['dram_fills']:,}", f"line fills, {s['dram_writebacks']:,} writebacks, "
+                                             f"{s['dram_bus_cycles']:,} bus-busy core cycles"),
+            ("L1I misses", f"{s['l1i_misses']:,}", ""),
+            ("stall cycles", "", "  ".join(f"{k[6:].replace('_', ' ')} {v:,}" for k, v in stalls) or "none"),
+        ]
+
+    explain_columns = (("pc", "right"), ("instruction", "left"), ("runs", "right"), ("class", "left"),
+                       ("U", "right"), ("V", "right"), ("clk", "right"), ("agi", "right"), ("pfx", "right"),
+                       ("fpu", "right"), ("mem", "right"), ("mis", "right"), ("bank", "right"), ("wbuf", "right"),
+                       ("mispred", "right"), ("alone because", "left"), ("table row", "left"))
+
+    def explain_rows(self, result) -> list[dict]:
+        """One row per static instruction of the last call, in address order: the pipe it ran in,
+        clocks per execution of the groups it started, stalls, and why it ran alone."""
+        run = result.run
+        rows = []
+        for sid in np.argsort([r.pc for r in run.program.records]):
+            v = run.per_static[sid]
+            n = int(v[core.S_EXEC])
+            if n == 0:
+                continue
+            rec = run.program.records[sid]
+            match: Match = run.program.matches[sid]
+            per = lambda key: round(float(v[key]) / n, 2)  # noqa: E731
+            why = []
+            for j in range(1, core.NR):
+                c = int(v[core.S_REASON0 + j])
+                if c:
+                    text = core.REASONS[j]
+                    if j in (core.R_RAW, core.R_WAW):
+                        reg = int(v[core.S_REASON_REG])
+                        text += f": {GPRS[reg]}" if 0 <= reg < 8 else ""
+                    why.append(f"{text} ({c:,})")
+            alone = int(sum(v[core.S_REASON0 + j] for j in range(1, core.NR)))
+            rows.append({
+                "pc": rec.pc, "instruction": f"{rec.mnemonic} {rec.op_str}".strip(), "executions": n,
+                "class": run.static.classes[sid] if run.static else "", "u_pipe": int(v[core.S_U]),
+                "v_pipe": int(v[core.S_V]), "paired_as_u": int(v[core.S_PAIRED_U]), "alone": alone,
+                "group_cycles": per(core.S_CYCLES), "stall_agi": per(core.S_AGI), "stall_prefix": per(core.S_PREFIX),
+                "stall_fpu": per(core.S_FPU), "stall_memory": per(core.S_MEMORY),
+                "stall_misaligned": per(core.S_MISALIGNED), "stall_bank": per(core.S_BANK),
+                "stall_write_buffer": per(core.S_WB), "mispredict_rate": per(core.S_MISPREDICTS),
+                "l1d_miss_rate": per(core.S_L1D_MISSES), "alone_because": "; ".join(why),
+                "row": match.describe(), "source": match.row.source, "estimated": match.row.estimated,
+            })
+        return rows
+
+    def explain_cells(self, r: dict) -> list[str]:
+        z = lambda x: f"{x:g}" if x else ""  # noqa: E731
+        return [f"{r['pc']:#x}", r["instruction"], f"{r['executions']:,}", r["class"], f"{r['u_pipe']:,}",
+                f"{r['v_pipe']:,}", z(r["group_cycles"]), z(r["stall_agi"]), z(r["stall_prefix"]), z(r["stall_fpu"]),
+                z(r["stall_memory"]), z(r["stall_misaligned"]), z(r["stall_bank"]), z(r["stall_write_buffer"]),
+                z(r["mispredict_rate"]), r["alone_because"], r["row"] + (" (est.)" if r["estimated"] else "")]

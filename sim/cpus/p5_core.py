@@ -1,0 +1,491 @@
+"""The compiled P5 cycle model (Pentium P54C, Pentium MMX P55C): one pass over the dynamic
+instruction stream, in program order, one issue group (one instruction, or a U/V pair) at a time.
+
+The P5 is in order: a group enters the execute stage when the group before it has left it, and
+the whole pipe waits for anything that delays one of its instructions (a cache miss, an AGI, a
+busy x87 unit). So a group's start is the previous group's end plus the stalls that apply to it,
+and those stalls are the counters. Per group:
+- pairing: the instruction at i takes i + 1 into the V pipe when both classes allow it (U: UV or
+  PU; V: UV or PV; FXCH after an FX-class x87 instruction; MMX pairs on the P55C with one
+  multiplier and one shifter), i + 1 neither reads (RAW) nor writes (WAW) a register byte i
+  writes (flags excepted for a Jcc in V, ESP between two stack instructions), neither breaks the
+  prefix or displacement-plus-immediate limits of the model, and i has executed before or is one
+  byte long (pairing marks come from the code cache). The first failed rule is the reason the
+  instruction ran alone, with the register when it is a dependency;
+- decode: prefix clocks of the model before the group;
+- AGI: an address register written by the group in the preceding clock delays the group one clock
+  (ESP changed by PUSH/POP/CALL is predicted: no AGI);
+- x87: an x87 instruction starts when the x87 unit accepts a new instruction (after the previous
+  one's non-overlapped clocks, FMUL spacing) and its stack operands are ready; it holds the integer
+  pipe only for its non-overlapped clocks (FDIV runs beside integer code); FNSTSW/FLDCW wait for
+  the x87 to finish;
+- group duration: the longer instruction's clocks (ALU reg,mem 2, ALU mem,reg 3, MUL 10, ...);
+- memory (data side of sim.memory): a load miss stalls the pipe for the board cache or DRAM
+  latency, with the bus busy for the line; a misaligned access costs MISALIGNED; a U/V pair whose
+  accesses hit the same 4-byte bank of different dwords costs one clock (P54C); a write that misses
+  L1 (no allocation) takes a write buffer, which drains to the bus in WRITE_BUS clocks; the pipe
+  stalls only when every buffer is busy;
+- branches: a BTB of BTB_SETS x BTB_WAYS entries with 2-bit counters indexed by HIST_BITS of local
+  history (0 on the P54C); a mispredicted or BTB-missing taken branch costs MISP_U or MISP_V
+  clocks by the pipe it ran in.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ..memory.hierarchy import memory_fills, memory_writebacks, served_level, service
+from .lowering import BR_COND, BR_NONE, BR_RET, REG_ST0
+from .p6_core import _btb_alloc  # shared BTB victim choice (LRU by last use)
+
+# parameter vector indices
+(P_PFX_0F, P_AGI, P_MISALIGNED, P_BANK, P_NWB, P_WRITE_BUS, P_MISP_U, P_MISP_V, P_BTB_SETS, P_BTB_WAYS,
+ P_HIST_BITS, P_L2_LAT, P_L2_BUSY, P_DRAM_LAT, P_DRAM_LINE, P_DRAM_WB, P_FMUL_SPACING, P_FIRST_PASS,
+ P_IMMDISP_MODE, P_PFX_V) = range(20)
+NPARAMS = 24
+
+# pairing classes
+NP, UV, PU, PV, FX, FXCH, MMX = range(7)
+CLASS_NAMES = ("NP", "UV", "PU", "PV", "FX", "FXCH", "MMX")
+# MMX units
+MX_NONE, MX_ALU, MX_SHIFT, MX_MUL = range(4)
+
+# why an instruction ran alone (it could not take the next one into the V pipe)
+REASONS = ("paired", "not pairable (NP)", "V-pipe-only class in U", "next not pairable in V (class)",
+           "next reads a register this writes (RAW)", "both write a register (WAW)",
+           "next reads flags this writes", "displacement + immediate", "prefix", "first execution (not yet in code cache)",
+           "x87 without FXCH", "MMX unit conflict", "MMX memory/integer access only in U", "branch / end of stream")
+R_PAIRED, R_NP, R_PV_IN_U, R_NEXT_CLASS, R_RAW, R_WAW, R_FLAGS, R_IMMDISP, R_PREFIX, R_FIRST, R_FP, R_MMX_UNIT, \
+    R_MMX_U, R_BRANCH = range(14)
+NR = len(REASONS)
+
+C_NAMES = ("cycles", "instructions", "uops", "pairs", "u_pipe", "v_pipe", "alone", "stall_agi", "stall_prefix",
+           "stall_fpu", "stall_memory", "stall_misaligned", "stall_bank", "stall_write_buffer", "stall_fetch",
+           "stall_mispredict", "branches", "mispredicts", "l1d_loads", "l1d_load_misses",
+           "l1d_stores", "l1d_store_misses", "l2_accesses", "l2_misses", "dram_fills", "dram_writebacks",
+           "dram_bus_cycles", "l1i_misses", "bus_writes") + tuple("alone_" + str(k) for k in range(NR))
+NC = len(C_NAMES)
+(C_CYCLES, C_INSTRUCTIONS, C_UOPS, C_PAIRS, C_U, C_V, C_ALONE, C_AGI, C_PREFIX, C_FPU, C_MEMORY, C_MISALIGNED,
+ C_BANK, C_WB, C_FETCH, C_MISPREDICT, C_BRANCHES, C_MISPREDICTS, C_L1D_LOADS, C_L1D_LOAD_MISSES,
+ C_L1D_STORES, C_L1D_STORE_MISSES, C_L2_ACCESSES, C_L2_MISSES, C_DRAM_FILLS, C_DRAM_WRITEBACKS, C_DRAM_BUS,
+ C_L1I_MISSES, C_BUS_WRITES) = range(29)
+C_REASON0 = 29
+
+S_NAMES = ("executions", "u_pipe", "v_pipe", "paired_u", "group_cycles", "stall_agi", "stall_prefix", "stall_fpu",
+           "stall_memory", "stall_misaligned", "stall_bank", "stall_write_buffer", "stall_mispredict", "mispredicts",
+           "l1d_misses", "reason_reg") + tuple("alone_" + str(k) for k in range(NR))
+NS = len(S_NAMES)
+(S_EXEC, S_U, S_V, S_PAIRED_U, S_CYCLES, S_AGI, S_PREFIX, S_FPU, S_MEMORY, S_MISALIGNED, S_BANK, S_WB,
+ S_MISPREDICT, S_MISPREDICTS, S_L1D_MISSES, S_REASON_REG) = range(16)
+S_REASON0 = 16
+
+# timeline columns: the P6 layout (views read it), with issue as decode/alloc/dispatch
+T_NAMES = ("insn", "static", "decode", "alloc", "dispatch", "complete", "retire", "cause")
+NT = len(T_NAMES)
+
+
+@njit(cache=True, nogil=True)
+def _pair_reason(a, b, s_cls, s_len, s_rmask, s_wmask, s_rflags, s_wflags, s_jcc, s_stack, s_immdisp, s_pfxv,
+                 s_mmx, s_mmx_u, immdisp_mode, pfx_v, first_pass_ok):
+    """(reason code, register) why static a cannot take static b into the V pipe; R_PAIRED if it can."""
+    ca = s_cls[a]
+    cb = s_cls[b]
+    if ca == NP:
+        return R_NP, -1
+    if ca == PV:
+        return R_PV_IN_U, -1
+    if ca == FXCH:
+        return R_NEXT_CLASS, -1
+    if ca == FX:
+        return (R_PAIRED, -1) if cb == FXCH else (R_FP, -1)
+    if cb == FXCH or cb == FX or cb == NP or cb == PU:
+        return R_NEXT_CLASS, -1
+    if ca == MMX and cb == MMX:
+        if s_mmx[a] == s_mmx[b] and s_mmx[a] != 1:
+            return R_MMX_UNIT, -1
+    if s_mmx_u[b] == 1:
+        return R_MMX_U, -1
+    if (ca == MMX) != (cb == MMX) and (s_mmx_u[a] == 1):
+        return R_MMX_U, -1
+    if first_pass_ok == 0 and s_len[a] > 1:
+        return R_FIRST, -1
+    if immdisp_mode == 0 and (s_immdisp[a] == 1 or s_immdisp[b] == 1):
+        return R_IMMDISP, -1
+    if immdisp_mode == 1 and s_immdisp[b] == 1:
+        return R_IMMDISP, -1
+    if s_pfxv[b] == 1 and pfx_v == 0:
+        return R_PREFIX, -1
+    if s_pfxv[b] == 2:  # segment / lock / repeat prefixes: U pipe only on both models
+        return R_PREFIX, -1
+    stack_pair = s_stack[a] == 1 and s_stack[b] == 1
+    for r in range(8):
+        if r == 4 and stack_pair:
+            continue
+        wa = (s_wmask[a] >> (4 * r)) & 15
+        if wa == 0:
+            continue
+        if (s_rmask[b] >> (4 * r)) & wa:
+            return R_RAW, r
+        if (s_wmask[b] >> (4 * r)) & wa:
+            return R_WAW, r
+    if s_wflags[a] != 0 and s_rflags[b] != 0 and s_jcc[b] == 0:
+        return R_FLAGS, 8
+    return R_PAIRED, -1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _load_miss(r, lvl, now, P, bus_free, ctr):
+    """Extra clocks for a load that missed L1 (served at level lvl), and the new bus_free."""
+    b = max(now, bus_free)
+    ctr[C_L2_ACCESSES] += 1
+    if lvl == 1:
+        done = b + P[P_L2_LAT]
+        bus_free = b + P[P_L2_BUSY]
+    else:
+        ctr[C_L2_MISSES] += 1
+        fills = memory_fills(r)
+        wbs = memory_writebacks(r)
+        busy = fills * P[P_DRAM_LINE] + wbs * P[P_DRAM_WB]
+        ctr[C_DRAM_FILLS] += fills
+        ctr[C_DRAM_WRITEBACKS] += wbs
+        ctr[C_DRAM_BUS] += busy
+        done = b + P[P_DRAM_LAT]
+        bus_free = b + busy
+    return done - now, bus_free
+
+
+@njit(cache=True, nogil=True)
+def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_write, seg_end,
+             s_len, s_cls, s_cyc, s_pfx, s_pfxv, s_immdisp, s_addr, s_stack, s_esp_agi, s_rmask, s_wmask, s_rflags,
+             s_wflags, s_jcc, s_branch, s_fp, s_fplat, s_fpnext, s_fmul, s_waitfpu, s_mmx, s_mmx_u, s_mmxlat,
+             s_nsrc, s_src, s_ndst, s_dst, s_fpdelta, s_divcyc, ev_idx, ev_pc, P,
+             dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
+             counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out):
+    n = dyn_sid.shape[0]
+    nstatic = s_len.shape[0]
+    reg_avail = np.zeros(8, np.int64)     # cycle a GPR's value reaches the execute stage
+    esp_agi = 0                            # same for ESP written by a non-stack instruction
+    ext_ready = np.zeros(40, np.int64)     # x87 slots (physical) and MMX registers, by lowering's ids
+    fp_top = 0
+    fp_free = 0
+    fmul_free = 0
+    fp_done = 0
+    wb_free = np.zeros(max(1, P[P_NWB]), np.int64)
+    wb_pos = 0
+    bus_free = 0
+    seen = np.zeros(nstatic, np.int64)
+    # pairing depends only on the two statics (and whether the first has run before): the static
+    # after a non-branch is always the same one, so each answer is computed once
+    pair_cache = np.full((nstatic, 2), -1, np.int64)   # [a, first_ok] -> reason * 16 + register + 1
+    btb_sets, btb_ways, hist_bits = P[P_BTB_SETS], P[P_BTB_WAYS], P[P_HIST_BITS]
+    btb_tag = np.full((btb_sets, btb_ways), -1, np.int64)
+    btb_stamp = np.zeros((btb_sets, btb_ways), np.int64)
+    btb_hist = np.zeros((btb_sets, btb_ways), np.int64)
+    btb_target = np.zeros((btb_sets, btb_ways), np.int64)
+    pht = np.full((btb_sets, btb_ways, 1 << hist_bits), 2, np.int64)
+    # x87 precision control (FLDCW): 0 = 24-bit, 1 = 53-bit, 2 = 64-bit (the FNINIT state); a
+    # divide's clocks follow it (s_divcyc), changed after each FLDCW whose value is known (ev_*)
+    prec = 2
+    ev_pos = 0
+    last_iline = -1
+    iline_seen = np.full(16, -1, np.int64)  # lines fetched since the last L1I miss: still resident
+    t = 0
+    seg = 0
+    seg_start = 0
+    nrdtsc = 0
+    i = 0
+    while i < n:
+        a = dyn_sid[i]
+        pa = a if i >= stat_first else nstatic
+        # ---- pairing ----------------------------------------------------------------------
+        reason = R_BRANCH
+        rreg = -1
+        group = 1
+        if i + 1 < n and s_branch[a] == BR_NONE and np.int64(dyn_pc[i + 1]) == np.int64(dyn_pc[i]) + s_len[a] and \
+                not (seg < seg_end.shape[0] and i + 1 == seg_end[seg]):
+            b = dyn_sid[i + 1]
+            first_ok = 1 if (P[P_FIRST_PASS] == 1 or seen[a] > 0 or s_len[a] == 1) else 0
+            code = pair_cache[a, first_ok]
+            if code < 0:
+                reason, rreg = _pair_reason(a, b, s_cls, s_len, s_rmask, s_wmask, s_rflags, s_wflags, s_jcc,
+                                            s_stack, s_immdisp, s_pfxv, s_mmx, s_mmx_u, P[P_IMMDISP_MODE],
+                                            P[P_PFX_V], first_ok)
+                code = reason * 16 + rreg + 1
+                pair_cache[a, first_ok] = code
+            reason = code // 16
+            rreg = code % 16 - 1
+            if reason == R_PAIRED:
+                group = 2
+        elif s_cls[a] == NP:
+            reason = R_NP
+        elif s_cls[a] == PV:
+            reason = R_PV_IN_U
+        start = t
+        # ---- code fetch (L1I) ------------------------------------------------------------
+        stall_fetch = 0
+        for k in range(group):
+            pc = np.int64(dyn_pc[i + k])
+            for half in range(2):
+                line = (pc >> 5) if half == 0 else ((pc + s_len[dyn_sid[i + k]] - 1) >> 5)
+                if line != last_iline and iline_seen[line & 15] != line:
+                    # (a line fetched since the last miss is still resident: its lookup is a hit, and
+                    # only its LRU refresh is lost, which matters only for code larger than the L1I)
+                    r = service(itags, istamps, idirty, iconfig, iclock, istats, line << 5, 1, False)
+                    if served_level(r) > 0:
+                        counters[seg, C_L1I_MISSES] += 1
+                        stall_fetch += P[P_L2_LAT]
+                        iline_seen[:] = -1
+                    iline_seen[line & 15] = line
+                last_iline = line
+        start += stall_fetch
+        counters[seg, C_FETCH] += stall_fetch
+        # ---- decode: prefixes --------------------------------------------------------------
+        pfx = s_pfx[a]
+        if group == 2:
+            pfx += s_pfx[dyn_sid[i + 1]]
+        start += pfx
+        counters[seg, C_PREFIX] += pfx
+        per_static[pa, S_PREFIX] += pfx
+        # ---- AGI: an address register written in the preceding clock ------------------------
+        agi = 0
+        for k in range(group):
+            s = dyn_sid[i + k]
+            m = s_addr[s]
+            r = 0
+            while m != 0:
+                if m & 1:
+                    # ESP moved by PUSH/POP/CALL is predicted (no AGI); esp_agi tracks other writers
+                    avail = esp_agi if r == 4 else reg_avail[r]
+                    if avail > start - P[P_AGI] and avail - (start - P[P_AGI]) > agi:
+                        agi = avail - (start - P[P_AGI])
+                m >>= 1
+                r += 1
+        if agi > P[P_AGI]:
+            agi = P[P_AGI]
+        start += agi
+        counters[seg, C_AGI] += agi
+        per_static[pa, S_AGI] += agi
+        # ---- x87 and MMX readiness -----------------------------------------------------------
+        fp_wait = 0
+        for k in range(group):
+            s = dyn_sid[i + k]
+            if s_fp[s] == 0 and s_mmx[s] == 0:
+                continue
+            ready = start
+            if s_fp[s] == 1:
+                ready = max(ready, fp_free)
+                if s_fmul[s] == 1:
+                    ready = max(ready, fmul_free)
+                if s_waitfpu[s] == 1:
+                    ready = max(ready, fp_done)
+            for j in range(s_nsrc[s]):
+                rid = s_src[s, j, 0]
+                if rid == REG_ST0:
+                    rid = REG_ST0 + ((fp_top + s_src[s, j, 3]) & 7)
+                if rid >= REG_ST0 and rid < 40:
+                    ready = max(ready, ext_ready[rid])
+            if ready - start > fp_wait:
+                fp_wait = ready - start
+        start += fp_wait
+        counters[seg, C_FPU] += fp_wait
+        per_static[pa, S_FPU] += fp_wait
+        # ---- execute: duration, memory --------------------------------------------------------
+        dur = s_cyc[a]
+        if group == 2 and s_cyc[dyn_sid[i + 1]] > dur:
+            dur = s_cyc[dyn_sid[i + 1]]
+        mem = 0
+        mis = 0
+        bank = 0
+        wbw = 0
+        first_bank = -1
+        first_dword = -1
+        for k in range(group):
+            s = dyn_sid[i + k]
+            ps = s if i + k >= stat_first else nstatic
+            for q in range(acc_start[i + k], acc_start[i + k] + acc_count[i + k]):
+                addr = np.int64(mem_addr[q])
+                sz = np.int64(mem_size[q])
+                span = 8 if sz > 4 else 4
+                if (addr % span) + sz > span:
+                    mis += P[P_MISALIGNED]
+                    per_static[ps, S_MISALIGNED] += P[P_MISALIGNED]
+                if P[P_BANK] == 1:
+                    bk = (addr >> 2) & 7
+                    if k == 0 and first_bank < 0:
+                        first_bank = bk
+                        first_dword = addr >> 2
+                    elif k == 1 and first_bank >= 0 and bk == first_bank and (addr >> 2) != first_dword:
+                        bank = 1
+                now = start + mem + mis
+                if mem_write[q]:
+                    r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, addr, sz, True)
+                    counters[seg, C_L1D_STORES] += 1
+                    if served_level(r) > 0:
+                        counters[seg, C_L1D_STORE_MISSES] += 1
+                        counters[seg, C_BUS_WRITES] += 1
+                        per_static[ps, S_L1D_MISSES] += 1
+                        # a write buffer: wait for the oldest when all are busy, then drain to the bus
+                        w = wb_free[wb_pos]
+                        if w > now + wbw:
+                            wbw = w - now
+                        d0 = max(now + wbw, bus_free)
+                        bus_free = d0 + P[P_WRITE_BUS]
+                        wb_free[wb_pos] = bus_free
+                        wb_pos = (wb_pos + 1) % wb_free.shape[0]
+                else:
+                    r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, addr, sz, False)
+                    counters[seg, C_L1D_LOADS] += 1
+                    lvl = served_level(r)
+                    if lvl > 0:
+                        counters[seg, C_L1D_LOAD_MISSES] += 1
+                        per_static[ps, S_L1D_MISSES] += 1
+                        extra, bus_free = _load_miss(r, lvl, now, P, bus_free, counters[seg])
+                        mem += extra
+                        per_static[ps, S_MEMORY] += extra
+        counters[seg, C_MEMORY] += mem
+        counters[seg, C_MISALIGNED] += mis
+        counters[seg, C_BANK] += bank
+        counters[seg, C_WB] += wbw
+        per_static[pa, S_BANK] += bank
+        per_static[pa, S_WB] += wbw
+        end = start + dur + mem + mis + bank + wbw
+        # ---- results --------------------------------------------------------------------------
+        for k in range(group):
+            s = dyn_sid[i + k]
+            done = start + s_cyc[s] + mem + mis
+            w = s_wmask[s]
+            r = 0
+            while w != 0:
+                if w & 15:
+                    reg_avail[r] = done
+                w >>= 4
+                r += 1
+            if s_esp_agi[s] == 1:
+                esp_agi = done
+            if s_fp[s] == 0 and s_mmx[s] == 0 and s_cls[s] != FXCH:
+                continue
+            top_after = (fp_top - s_fpdelta[s]) & 7
+            if s_cls[s] == FXCH and s_nsrc[s] >= 2:  # FXCH swaps the two slots' readiness
+                r0 = REG_ST0 + ((fp_top + s_src[s, 0, 3]) & 7) if s_src[s, 0, 0] == REG_ST0 else -1
+                r1 = REG_ST0 + ((fp_top + s_src[s, 1, 3]) & 7) if s_src[s, 1, 0] == REG_ST0 else -1
+                if r0 >= 0 and r1 >= 0:
+                    tmp = ext_ready[r0]
+                    ext_ready[r0] = ext_ready[r1]
+                    ext_ready[r1] = tmp
+                fp_top = top_after
+                continue
+            fplat = s_fplat[s]
+            fpnext = s_fpnext[s]
+            if s_divcyc[s, 0] > 0:
+                fplat = s_divcyc[s, prec]
+                fpnext = fplat + s_fpnext[s] - s_fplat[s]  # the same fp-ov at every precision
+            if s_fp[s] == 1:
+                fp_free = start + fpnext
+                if s_fmul[s] == 1:
+                    fmul_free = start + P[P_FMUL_SPACING]
+                if start + fplat > fp_done:
+                    fp_done = start + fplat
+            for j in range(s_ndst[s]):
+                rid = s_dst[s, j, 0]
+                if rid == REG_ST0:
+                    rid = REG_ST0 + ((top_after + s_dst[s, j, 3]) & 7)
+                if rid >= REG_ST0 and rid < 40:
+                    ext_ready[rid] = start + (fplat if s_fp[s] == 1 else s_mmxlat[s])
+            fp_top = top_after
+        # ---- branches -----------------------------------------------------------------------
+        last = i + group - 1
+        sb = dyn_sid[last]
+        psb = sb if last >= stat_first else nstatic
+        if s_branch[sb] != BR_NONE:
+            counters[seg, C_BRANCHES] += 1
+            pc = np.int64(dyn_pc[last])
+            nxt = np.int64(dyn_pc[last + 1]) if last + 1 < n else pc + s_len[sb]
+            taken = nxt != pc + s_len[sb]
+            bset = pc % btb_sets
+            way = -1
+            for w in range(btb_ways):
+                if btb_tag[bset, w] == pc:
+                    way = w
+            mispredicted = False
+            if s_branch[sb] == BR_COND:
+                if way >= 0:
+                    h = btb_hist[bset, way]
+                    cnt = pht[bset, way, h]
+                    predict = cnt >= 2
+                    pred_target = btb_target[bset, way]
+                    mispredicted = predict != taken or (taken and pred_target != nxt)
+                    pht[bset, way, h] = min(3, cnt + 1) if taken else max(0, cnt - 1)
+                    btb_hist[bset, way] = ((h << 1) | (1 if taken else 0)) & ((1 << hist_bits) - 1)
+                    btb_stamp[bset, way] = i
+                else:
+                    mispredicted = taken  # not in the BTB: predicted not taken
+                    if taken:
+                        way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, i)
+                        btb_hist[bset, way] = 1 & ((1 << hist_bits) - 1)
+                        for h in range(1 << hist_bits):
+                            pht[bset, way, h] = 3  # ESTIMATES["btb_new_entry"] in p5.py
+            else:
+                mispredicted = way < 0 or btb_target[bset, way] != nxt
+                if way < 0:
+                    way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, i)
+                if s_branch[sb] == BR_RET and last + 1 >= n:
+                    mispredicted = False  # the return to the harness ends the stream
+            if way >= 0 and taken:
+                btb_target[bset, way] = nxt
+            if mispredicted:
+                pen = P[P_MISP_V] if group == 2 else P[P_MISP_U]
+                end += pen
+                counters[seg, C_MISPREDICTS] += 1
+                counters[seg, C_MISPREDICT] += pen
+                per_static[psb, S_MISPREDICTS] += 1
+                per_static[psb, S_MISPREDICT] += pen
+        # ---- bookkeeping ----------------------------------------------------------------------
+        if group == 2:
+            counters[seg, C_PAIRS] += 1
+            counters[seg, C_U] += 1
+            counters[seg, C_V] += 1
+            pb = dyn_sid[i + 1] if i + 1 >= stat_first else nstatic
+            per_static[pa, S_U] += 1
+            per_static[pa, S_PAIRED_U] += 1
+            per_static[pb, S_V] += 1
+        else:
+            counters[seg, C_ALONE] += 1
+            counters[seg, C_U] += 1
+            counters[seg, C_REASON0 + reason] += 1
+            per_static[pa, S_U] += 1
+            per_static[pa, S_REASON0 + reason] += 1
+            if rreg >= 0:
+                per_static[pa, S_REASON_REG] = rreg
+        per_static[pa, S_CYCLES] += end - t
+        for k in range(group):
+            s = dyn_sid[i + k]
+            seen[s] += 1
+            ps = s if i + k >= stat_first else nstatic
+            per_static[ps, S_EXEC] += 1
+            if nrdtsc < rdtsc_out.shape[0] and rdtsc_sid[s] == 1:
+                rdtsc_out[nrdtsc] = start
+                nrdtsc += 1
+            if tl_first <= i + k < tl_first + timeline.shape[0]:
+                row = timeline[i + k - tl_first]
+                row[0] = i + k
+                row[1] = s
+                row[2] = t
+                row[3] = start
+                row[4] = start
+                row[5] = end
+                row[6] = end
+                row[7] = 0 if group == 2 else reason
+            counters[seg, C_INSTRUCTIONS] += 1
+            counters[seg, C_UOPS] += 1
+        while ev_pos < ev_idx.shape[0] and ev_idx[ev_pos] < i + group:
+            prec = ev_pc[ev_pos]
+            ev_pos += 1
+        t = end
+        i += group
+        while seg < seg_end.shape[0] and i >= seg_end[seg]:
+            counters[seg, C_CYCLES] = t - seg_start
+            seg_start = t
+            seg += 1
+    return t
+

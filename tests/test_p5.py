@@ -1,0 +1,274 @@
+"""P5 (Pentium / Pentium MMX) micro-benchmarks from sourced facts (docs/sources/p5.md):
+expectations are the sources' clock counts and pairing rules, not the model's parameters."""
+
+from __future__ import annotations
+
+import pytest
+
+from sim.timing import time_kernel
+
+HEAD = ".intel_syntax noprefix\n.text\n"
+
+
+def loop_kernel(tmp_path, body: str, n: int = 200, pre: str = "", name: str = "k") -> float:
+    """Cycles per iteration of `body` in a counted loop (ECX counter, dec/jnz pair), measured as
+    the difference between 2n and n iterations (the loop overhead of the dec/jnz pair is 1 clock
+    when it pairs, which the caller's expectation includes)."""
+    src = tmp_path / f"{name}.S"
+    src.write_text(HEAD + f"""# @entry {name}(n, buf)
+.globl {name}
+{name}:
+    push ebx
+    push esi
+    push edi
+    push ebp
+    mov ecx, [esp+20]
+    mov esi, [esp+24]
+    mov edi, esi
+    xor eax, eax
+    xor ebx, ebx
+    xor edx, edx
+    xor ebp, ebp
+{pre}
+    jmp 1f
+.p2align 4, 0xCC
+1:
+{body}
+    dec ecx
+    jnz 1b
+    pop ebp
+    pop edi
+    pop esi
+    pop ebx
+    ret
+""")
+    import numpy as np
+
+    def setup(count):
+        return lambda m: [count, m.arena.put(np.zeros(4096, np.uint8), align=4096)]
+
+    c = [time_kernel(src, name, setup(k), cpu=CPU, repeat=2).last["cycles"] for k in (n, 2 * n)]
+    return (c[1] - c[0]) / n
+
+
+CPU = "pentium-133"
+
+
+@pytest.fixture(autouse=True)
+def _cpu():
+    global CPU
+    CPU = "pentium-133"
+    yield
+
+
+def test_simple_pairs_pair(tmp_path):
+    # INTEL-PAIR: two simple independent instructions issue together; dec/jnz pair (flags exception)
+    assert loop_kernel(tmp_path, "    add eax, 1\n    add ebx, 1\n    add edx, 1\n    add ebp, 1") == 3
+
+
+def test_raw_breaks_a_pair(tmp_path):
+    # INTEL-PAIR: a read-after-write between the two prevents pairing: 4 instructions, 4 clocks + dec/jnz
+    assert loop_kernel(tmp_path, "    add eax, 1\n    add ebx, eax\n    add edx, ebx\n    add ebp, edx") == 5
+
+
+def test_waw_breaks_a_pair(tmp_path):
+    assert loop_kernel(tmp_path, "    mov eax, 1\n    mov eax, 2") == 3
+
+
+def test_adc_pairs_only_in_u(tmp_path):
+    # SCHMIT rule 3 / the article: ADC pairs in U only. ADC first: pairs with the next (1 clock);
+    # after an ALU op it would need the V pipe (and reads its flags): it runs alone.
+    u = loop_kernel(tmp_path, "    adc eax, 1\n    add ebx, 1", name="u")
+    v = loop_kernel(tmp_path, "    add ebx, 1\n    adc eax, 1\n    add edx, 1", name="v")
+    assert u == 2
+    assert v == 3  # add alone, adc+add pair, dec/jnz
+
+
+def test_agi(tmp_path):
+    # AF9: an address register written in the preceding clock costs one clock
+    agi = loop_kernel(tmp_path, "    add esi, 0\n    nop\n    mov eax, [esi]\n    nop", name="agi")
+    far = loop_kernel(tmp_path, "    add esi, 0\n    nop\n    nop\n    nop\n    mov eax, [esi]\n    nop", name="far")
+    assert agi == 4  # 2 pairs + AGI + dec/jnz
+    assert far == 4  # 3 pairs + dec/jnz, no stall
+
+
+def test_fxch_pairs_with_fp(tmp_path):
+    # AF28.2 / AF-FXCH: FXCH after an FX-class instruction pairs and takes no clock
+    pre = "    fldz\n    fldz"
+    with_fxch = loop_kernel(tmp_path, "    fadd st(0), st(0)\n    fxch st(1)", pre=pre, name="fx")
+    # FADD + FXCH: one clock as a pair; dec/jnz: one clock. Each FADD chain alternates between two
+    # registers, so a FADD's input is 2 iterations = 4 clocks old, beyond the latency of 3
+    assert with_fxch == 2
+    alone = loop_kernel(tmp_path, "    fadd st(0), st(0)\n    nop\n    fxch st(1)\n    nop", pre=pre, name="fx2")
+    # FADD alone (x87 pairs only with FXCH), NOP alone (FXCH pairs only after an FX instruction),
+    # FXCH alone, NOP + DEC, JNZ alone
+    assert alone == 5
+
+
+def test_fdiv_overlaps_integer_code(tmp_path):
+    # AF28.2: FDIV 39 clocks, 38 of them overlap later integer instructions: a loop with one FDIV
+    # and 20 pairs of integer work costs max(39 x87 clocks, integer clocks), not their sum
+    pre = "    fld1\n    fld1"
+    ints = "\n".join("    add eax, 1\n    add ebx, 1" for _ in range(20))
+    c = loop_kernel(tmp_path, "    fdiv st(0), st(1)\n" + ints, pre=pre, name="fdiv", n=50)
+    assert 39 <= c < 39 + 21
+
+
+def test_prefix_costs_a_clock_on_p54c(tmp_path):
+    # VTUNE Prefix_Pen: a prefixed instruction takes one additional clock on the Pentium; the P55C
+    # with its instruction FIFO full pays nothing and pairs 66h-prefixed instructions in V
+    global CPU
+    body = "    add ax, 1\n    add bx, 1"
+    p54 = loop_kernel(tmp_path, body, name="p54")
+    CPU = "pentium-mmx-166"
+    p55 = loop_kernel(tmp_path, body, name="p55")
+    # P54C: 1 prefix clock + ADD AX alone (ADD BX is prefixed: not in V); 1 prefix clock + ADD BX with
+    # DEC in V; JNZ alone
+    assert p54 == 5
+    assert p55 == 2  # P55C: ADD AX + ADD BX pair, DEC + JNZ pair
+
+
+def test_misaligned_access(tmp_path):
+    # AF-ALIGN: a misaligned dword access costs 3 clocks
+    aligned = loop_kernel(tmp_path, "    mov eax, [esi+4]\n    nop", name="al")
+    mis = loop_kernel(tmp_path, "    mov eax, [esi+2]\n    nop", name="mis")
+    assert mis - aligned == 3
+
+
+def test_write_miss_burst_fills_the_write_buffers(tmp_path):
+    # policies.toml [p5.l1d]: no allocation on a write miss, so stores to lines never read go to the
+    # write buffers (2 on the P54C); a burst of 4 such stores per iteration is bus bound: each costs
+    # the bus write (82439TX single write 3 bus clocks = 6 core clocks at 2x)
+    body = "\n".join(f"    mov [edi+{64 * k}], eax\n    nop" for k in range(4)) + "\n    add edi, 4"
+    c = loop_kernel(tmp_path, body, n=100, name="wb")
+    assert c >= 4 * 6
+    hits = loop_kernel(tmp_path, "\n".join(f"    mov eax, [edi+{64 * k}]\n    mov [edi+{64 * k}], eax"
+                                           for k in range(4)) + "\n    add edi, 4", n=100, name="hit")
+    assert hits < c / 2  # the same stores to lines that were read (cached) do not touch the bus
+
+
+def test_p54c_refuses_mmx(tmp_path):
+    from sim.errors import RetrosimError
+
+    src = tmp_path / "m.S"
+    src.write_text(HEAD + "# @entry m()\n.globl m\nm:\n    .byte 0x0f, 0xef, 0xc0\n    .byte 0x0f, 0x77\n    ret\n")
+    with pytest.raises(RetrosimError, match="MMX"):
+        time_kernel(src, "m", cpu="pentium-133", repeat=1)
+    assert time_kernel(src, "m", cpu="pentium-mmx-233", repeat=1).last["instructions"] == 3
+
+
+def test_rdtsc_is_answered_by_the_model(tmp_path):
+    src = tmp_path / "r.S"
+    src.write_text(HEAD + """# @entry r()
+.globl r
+r:
+    push ebx
+    rdtsc
+    mov ebx, eax
+    mov ecx, 100
+    jmp 1f
+.p2align 4, 0xCC
+1:
+    dec ecx
+    jnz 1b
+    rdtsc
+    sub eax, ebx
+    pop ebx
+    ret
+""")
+    res = time_kernel(src, "r", cpu="pentium-133", repeat=2)
+    assert res.run.rdtsc.size == 4
+    delta = int(res.run.rdtsc[3] - res.run.rdtsc[2])
+    assert 100 <= delta <= 100 + 30  # dec/jnz pairs: 1 clock per iteration, plus RDTSC and the mov
+
+
+def test_cli_explain_shows_pipes_and_why_an_instruction_ran_alone(tmp_path):
+    from click.testing import CliRunner
+
+    from sim.cli import main
+
+    src = tmp_path / "e.S"
+    src.write_text(HEAD + """# @entry e(n)
+.globl e
+e:
+    mov ecx, [esp+4]
+    jmp 1f
+.p2align 4, 0xCC
+1:
+    add eax, 1
+    add edx, eax
+    dec ecx
+    jnz 1b
+    ret
+""")
+    r = CliRunner().invoke(main, ["explain", str(src), "--cpu", "pentium-133", "--args", "50", "--json"])
+    assert r.exit_code == 0, r.output
+    import json
+
+    rows = {row["instruction"]: row for row in json.loads(r.output)["instructions"]}
+    assert "RAW" in rows["add eax, 1"]["alone_because"] and "eax" in rows["add eax, 1"]["alone_because"]
+    jnz = next(row for name, row in rows.items() if name.startswith("jne"))
+    # ADD EAX alone (RAW), ADD EDX + DEC pair, so JNZ reaches the U pipe, where a branch cannot take a
+    # partner (INTEL-PAIR: branches pair only as the second instruction): it runs alone
+    assert rows["dec ecx"]["v_pipe"] == 50
+    assert jnz["u_pipe"] == 50 and "V-pipe-only" in jnz["alone_because"]
+    r = CliRunner().invoke(main, ["cpus"])
+    assert all(name in r.output for name in ("pentium-90", "pentium-133", "pentium-166", "pentium-mmx-166",
+                                             "pentium-mmx-233", "fpm-430fx", "edo-430hx", "sdram-430tx"))
+
+
+def test_bank_conflict_on_the_p54c_only(tmp_path):
+    # VTUNE Bank_Conflict: two paired accesses 32 bytes apart hit the same 4-byte bank: one clock
+    global CPU
+    same = loop_kernel(tmp_path, "    mov eax, [esi]\n    mov ebx, [esi+32]", name="bank")
+    other = loop_kernel(tmp_path, "    mov eax, [esi]\n    mov ebx, [esi+4]", name="nobank")
+    assert other == 2  # pair + dec/jnz
+    assert same == other + 1
+    CPU = "pentium-mmx-233"
+    assert loop_kernel(tmp_path, "    mov eax, [esi]\n    mov ebx, [esi+32]", name="bank55") == 2
+
+
+def test_esp_agi_exceptions(tmp_path):
+    # AF9: PUSH/POP/CALL change ESP without an AGI for the next stack instruction (POP EAX / POP ESI
+    # pair, no stall); ADD ESP then POP is an AGI
+    pops = loop_kernel(tmp_path, "    push eax\n    push ebx\n    pop eax\n    pop ebx", name="pops")
+    agi = loop_kernel(tmp_path, "    push eax\n    push eax\n    add esp, 4\n    nop\n    pop eax\n    nop", name="espagi")
+    assert pops == 3  # push/push pair, pop/pop pair, dec/jnz
+    assert agi == 5   # push/push, add+nop, AGI, pop+nop, dec/jnz
+
+
+def test_mispredicted_branch_in_v_costs_4_clocks_on_the_p54c(tmp_path):
+    # UW-CSEP548 / p5_machine.toml: a correctly predicted branch costs nothing, a mispredicted one 3
+    # (U) or 4 (V) clocks. JZ pairs with AND in V. Taken: 3 clocks per iteration, not taken: 4; a
+    # branch alternating between the two is mispredicted on every not-taken turn by 2-bit counters.
+    def body(op):
+        return f"    mov eax, ecx\n    nop\n    {op}\n    jz 2f\n    nop\n2:"
+
+    taken = loop_kernel(tmp_path, body("and eax, 0"), name="taken")
+    never = loop_kernel(tmp_path, body("or eax, 1"), name="never")
+    alternating = loop_kernel(tmp_path, body("and eax, 1"), name="alt")
+    assert (taken, never) == (3, 4)
+    assert alternating == (taken + never) / 2 + 4 / 2
+
+
+def test_rep_string_is_refused_with_one_clear_error(tmp_path):
+    from sim.errors import RetrosimError
+
+    src = tmp_path / "s.S"
+    src.write_text(HEAD + "# @entry s(p)\n.globl s\ns:\n    push edi\n    mov edi, [esp+8]\n    mov ecx, 4\n"
+                   "    xor eax, eax\n    rep stosd\n    pop edi\n    ret\n")
+    import numpy as np
+
+    with pytest.raises(RetrosimError, match="REP string"):
+        time_kernel(src, "s", lambda m: [m.arena.put(np.zeros(16, np.uint32))], cpu="pentium-133", repeat=1)
+
+
+def test_fadd_issues_every_clock_fmul_every_other(tmp_path):
+    # AF28.2: FADD 3 clocks of which 2 overlap later x87 instructions (one FADD per clock);
+    # FMUL cannot start in the clock after another FMUL (note n; GCC pentium.md: FMUL's first two
+    # cycles are not pipelined). Three independent operations per iteration, plus DEC/JNZ.
+    pre = "    fld1\n    fld1\n    fld1\n    fld1"
+    fadd = loop_kernel(tmp_path, "    fadd st(1), st\n    fadd st(2), st\n    fadd st(3), st", pre=pre, name="fadd")
+    fmul = loop_kernel(tmp_path, "    fmul st(1), st\n    fmul st(2), st\n    fmul st(3), st", pre=pre, name="fmul")
+    assert fadd == 3 + 1
+    assert fmul == 2 * 3  # the DEC/JNZ pair fits in the gap after the last FMUL
