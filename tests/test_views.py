@@ -130,3 +130,15 @@ def test_explain_help_is_the_legend_one_step_away():
     for column in ("runs", "dec", "iss->ret", "dep", "port", "decode", "partial", "mem", "fwd", "window", "branch",
                    "mispred", "table row", "(est.)"):
         assert column in r.output, column
+
+
+@pytest.mark.parametrize("width", [80, 200])
+def test_p5_explain_fits_and_names_pipes(shown, width):
+    """The P5 brings its own columns (pipes, pairing class, why an instruction ran alone): split to
+    fit 80 columns like the other families, whole memory operands kept."""
+    text = shown(width, "explain", *LOOP, "--cpu", "pentium-133")
+    assert_fits(text, width)
+    assert "mov word ptr [edi], dx" in text
+    assert "class" in text and "alone because" in text and "table row" in text
+    header = next(line for line in text.splitlines() if "class" in line and "instruction" in line)
+    assert " U " in header + " " and " V " in header + " "

@@ -242,9 +242,13 @@ class P5Model:
     counter_names = core.C_NAMES
     reasons = core.REASONS
     # timeline words: a row's cause is why its instruction ran alone ("none" when it paired)
-    timeline_causes = ("none",) + tuple("alone: " + r for r in core.REASONS[1:])
+    # short forms of core.REASONS, so a timeline line fits 80 columns (the long forms are in the
+    # "alone because" column)
+    timeline_causes = ("none",) + tuple("alone: " + r for r in (
+        "NP", "PV class in U", "next's class", "RAW", "WAW", "flags", "disp+imm", "prefix", "first run",
+        "x87, no FXCH", "MMX unit", "MMX mem in U", "branch"))
     timeline_legend = ("D the previous group left the pipe, R issue (after AGI, prefix, x87 waits), E execute, "
-                       "C done; in-order U/V pipes")
+                       "C done; in-order U/V pipes; [alone: ...] why it did not pair (in full under 'alone because')")
 
     def __init__(self, preset: CpuPreset, memory: DramTiming):
         if preset.family != "p5":
