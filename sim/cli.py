@@ -73,10 +73,10 @@ def parse_args(text: str | None, machine) -> tuple[list, list[tuple[str, int, np
     return values, buffers
 
 
-def _machine(source: str, assembler: str | None):
+def _machine(source: str, assembler: str | None, cpu: str | None = None):
     from .emu import Machine
 
-    return Machine.from_source(catalogue_mod.resolve(source), assembler=assembler)
+    return Machine.from_source(catalogue_mod.resolve(source), assembler=assembler, cpu=cpu)
 
 
 def _entry(machine, entry: str | None) -> str:
@@ -136,12 +136,21 @@ def kernels_cmd(as_json: bool):
     console.print(table)
 
 
+def _isa_cpu_choice(ctx, param, value):
+    return None if value is None else _cpu_choice(ctx, param, value)
+
+
+_isa_cpu_option = click.option("--cpu", "-c", "isa_cpu", callback=_isa_cpu_choice,
+                               help="assemble for this CPU preset's instruction set (default: plain i686)")
+
+
 @main.command("run-kernel")
 @with_kernel_options
+@_isa_cpu_option
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
-def run_kernel_cmd(source, entry, args_text, budget, assembler, as_json):
+def run_kernel_cmd(source, entry, args_text, budget, assembler, isa_cpu, as_json):
     """Call a kernel once and print its results and instruction / memory-access counts."""
-    m = _machine(source, assembler)
+    m = _machine(source, assembler, isa_cpu)
     entry = _entry(m, entry)
     values, buffers = parse_args(args_text, m)
     r = m.call(entry, *values, budget=budget, trace=True)
@@ -166,11 +175,12 @@ def run_kernel_cmd(source, entry, args_text, budget, assembler, as_json):
 
 @main.command("trace")
 @with_kernel_options
+@_isa_cpu_option
 @click.option("--out", "-o", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="output .npz (arrays pc, mem_addr, mem_size, mem_write, mem_insn)")
-def trace_cmd(source, entry, args_text, budget, assembler, out):
+def trace_cmd(source, entry, args_text, budget, assembler, isa_cpu, out):
     """Record a kernel's PC stream and data accesses to an .npz file for other simulators."""
-    m = _machine(source, assembler)
+    m = _machine(source, assembler, isa_cpu)
     entry = _entry(m, entry)
     values, _ = parse_args(args_text, m)
     t = m.call(entry, *values, budget=budget, trace=True).trace
@@ -209,7 +219,7 @@ def _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iter
     from .timing import time_kernel
 
     path = catalogue_mod.resolve(source)
-    probe = Machine.from_source(path, assembler=assembler)  # resolve the entry and check --args once
+    probe = Machine.from_source(path, assembler=assembler, cpu=cpu)  # resolve the entry and check --args once
     entry = _entry(probe, entry)
     parse_args(args_text, probe)
     return time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=cpu, memory=memory,

@@ -159,8 +159,10 @@ class Machine:
                           None, ctypes.c_uint64(1), ctypes.c_uint64(0), X.UC_X86_INS_RDTSC)
 
     @classmethod
-    def from_source(cls, source: str | Path, assembler: str | None = None, **kwargs) -> Machine:
-        obj = asm.assemble(source, assembler)
+    def from_source(cls, source: str | Path, assembler: str | None = None, cpu: str | None = None,
+                    **kwargs) -> Machine:
+        """`cpu`: assemble for that CPU preset's instruction set (default plain i686)."""
+        obj = asm.assemble(source, assembler, cpu)
         image = elf.load_object(obj)
         image.path = Path(source)
         return cls(image, entry_points(source), **kwargs)
