@@ -464,5 +464,22 @@ def bench_cmd(pixels: int, as_json: bool):
                   f"{result['bare_vs_end_to_end']:.1f}x slower than bare Unicorn")
 
 
+@main.command("conformance")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=Path("reports/conformance.md"),
+              show_default=True, help="where to write the report")
+@click.option("--family", "families", multiple=True, type=click.Choice(["p6", "k6"]), help="only these families")
+def conformance_cmd(out, families):
+    """Run every table row's generated latency/throughput benchmark through the model on each preset
+    of its family and write the comparison with the row's sourced figures (about 3 minutes)."""
+    from .conformance import write_report
+
+    results = write_report(out, tuple(families) or ("p6", "k6"))
+    for fam, (rows, _) in results.items():
+        src = [r for r in rows if r.checked and not r.row.estimated]
+        console.print(f"{fam}: {len(rows)} rows, {sum(r.checked for r in rows)} benchmarked, "
+                      f"{sum(r.ok for r in src)}/{len(src)} sourced rows reproduced")
+    console.print(f"wrote {out}")
+
+
 if __name__ == "__main__":
     main()

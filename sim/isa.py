@@ -115,8 +115,12 @@ def why_missing(preset, ext: str) -> str:
     return f"{preset.name} {_WHY[ext]}"
 
 
-def check_record(rec: InsnRecord, preset, where: str) -> None:
-    """Raise IsaError if `rec` may not run on `preset` (a system instruction or a missing extension)."""
+def check_record(rec: InsnRecord, preset, where) -> None:
+    """Raise IsaError if `rec` may not run on `preset` (a system instruction or a missing extension).
+    `where`: the location for the message, or a callable making it (only called on an error)."""
+    if not is_system(rec) and (ext := required_extension(rec.mnemonic, rec.groups)) in (None, *extensions_of(preset)):
+        return
+    where = where() if callable(where) else where
     text = f"{rec.mnemonic} {rec.op_str}".strip()
     if is_system(rec):
         raise IsaError(f"{where}: {text} is a privileged or system instruction; a user-mode kernel cannot "

@@ -134,7 +134,7 @@ def check_isa(emu: Emulation, decoder: Decoder, preset) -> None:
     records, _ = decoder.decode_trace(emu.trace.pc)
     for rec in records:
         try:
-            check_record(rec, preset, f"{emu.source}: pc {emu.machine.where(rec.pc)}")
+            check_record(rec, preset, lambda: f"{emu.source}: pc {emu.machine.where(rec.pc)}")
         except IsaError:
             if emu.isa_cpu != preset.name:  # the assembler, told the CPU, names the source line
                 from .asm import assemble

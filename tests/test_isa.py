@@ -102,3 +102,69 @@ def test_mmx_assembles_for_a_cpu_that_has_it(tmp_path):
     src = kernel(tmp_path, "    movd mm0, eax\n    paddd mm0, mm0\n    movd eax, mm0\n    emms\n")
     r = time_kernel(src, "k", cpu="pentium2-233", repeat=1)
     assert r.last["instructions"] == 5
+
+
+# -- every form of each extension the CPU has (register forms; GNU as names them for the CPU) -------
+MMX = ("packssdw packsswb packuswb paddb paddw paddd paddsb paddsw paddusb paddusw pand pandn pcmpeqb pcmpeqw "
+       "pcmpeqd pcmpgtb pcmpgtw pcmpgtd pmaddwd pmulhw pmullw por psllw pslld psllq psraw psrad psrlw psrld psrlq "
+       "psubb psubw psubd psubsb psubsw psubusb psubusw punpckhbw punpckhwd punpckhdq punpcklbw punpcklwd "
+       "punpckldq pxor movq").split()
+MMX_EXTRA = ["movd mm0, eax", "movd eax, mm1", "psllq mm0, 3", "psrlq mm1, 2", "psraw mm2, 1", "emms"]
+SSE = ("addps addss subps subss mulps mulss divps divss maxps maxss minps minss sqrtps sqrtss rcpps rcpss rsqrtps "
+       "rsqrtss andps andnps orps xorps unpcklps unpckhps movaps movups movss movhlps comiss ucomiss").split()
+SSE_EXTRA = ["pavgb mm0, mm1", "pavgw mm0, mm1", "pmaxsw mm0, mm1", "pmaxub mm0, mm1", "pminsw mm0, mm1",
+             "pminub mm0, mm1", "pmulhuw mm0, mm1", "psadbw mm0, mm1", "pshufw mm0, mm1, 3", "pmovmskb eax, mm1",
+             "shufps xmm0, xmm1, 3", "cmpps xmm0, xmm1, 1", "cmpss xmm0, xmm1, 1", "cvtpi2ps xmm0, mm1",
+             "cvtps2pi mm0, xmm1", "cvttps2pi mm0, xmm1", "movmskps eax, xmm1", "sfence", "emms"]
+NOW3 = ("pfadd pfsub pfsubr pfmul pfacc pfcmpeq pfcmpge pfcmpgt pfmax pfmin pfrcp pfrcpit1 pfrcpit2 pfrsqrt "
+        "pfrsqit1 pf2id pi2fd pavgusb pmulhrw").split()
+
+
+def extension_kernel(exts) -> str:
+    lines = []
+    if "mmx" in exts:
+        lines += [f"{m} mm0, mm1" for m in MMX] + MMX_EXTRA
+    if "sse" in exts:
+        lines += [f"{m} xmm0, xmm1" for m in SSE] + SSE_EXTRA
+    if "3dnow" in exts:
+        lines += [f"{m} mm0, mm1" for m in NOW3] + ["femms"]
+    return "".join(f"    {l}\n" for l in lines)
+
+
+@pytest.mark.parametrize("cpu", PRESETS)
+def test_every_extension_form_times_on_the_cpu_that_has_it(tmp_path, cpu):
+    exts = set(presets.load(cpu).raw["isa_extensions"])
+    body = extension_kernel(exts)
+    if not body:
+        pytest.skip(f"{cpu} has no SIMD extension")
+    r = time_kernel(kernel(tmp_path, body), "k", cpu=cpu, repeat=1)
+    assert r.last["instructions"] == body.count("\n") + 1
+
+
+# -- costs that follow the values ---------------------------------------------------------------------
+REP = HEAD.replace("k:\n", "k:\n    push edi\n    mov edi, [esp+8]\n    mov ecx, [esp+12]\n    xor eax, eax\n") + \
+    "    rep stosd\n    pop edi\n    ret\n"
+
+
+@pytest.mark.parametrize("cpu", ["pentium2-233", "k6-2-300"])
+def test_rep_cost_follows_ecx(tmp_path, cpu):
+    # InstLatX64 measures REP STOSD as a bandwidth: a fixed cost per element (the table's rep stosd row)
+    import numpy as np
+
+    src = tmp_path / "rep.S"
+    src.write_text(REP)
+    cyc = [time_kernel(src, "k", lambda m, n=n: [m.arena.put(np.zeros(n, np.uint32)), n], cpu=cpu,
+                       repeat=2).last["cycles"] for n in (1000, 2000, 3000)]
+    per_element = (cyc[1] - cyc[0]) / 1000
+    assert per_element >= 0.5  # at most two stores per clock on either family
+    assert abs((cyc[2] - cyc[1]) - (cyc[1] - cyc[0])) <= 10  # linear in ECX
+
+
+def test_div_cost_follows_the_operand_size(tmp_path):
+    # InstLatX64 Deschutes: DIV r8 ~19, r16 23, r32 39 clocks (p6.toml div rows)
+    cyc = {}
+    for reg, clear in (("cl", "mov ah, 0"), ("cx", "xor edx, edx"), ("ecx", "xor edx, edx")):
+        body = "    mov ecx, 3\n    xor edx, edx\n    mov eax, 100\n" + f"    div {reg}\n    {clear}\n" * 20
+        cyc[reg] = time_kernel(kernel(tmp_path, body, f"div_{reg}.S"), "k", cpu="pentium2-233", repeat=2).last["cycles"]
+    assert cyc["cl"] < cyc["cx"] < cyc["ecx"]
+    assert (cyc["ecx"] - cyc["cx"]) / 20 == pytest.approx(39 - 23, abs=2)
