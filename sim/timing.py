@@ -136,10 +136,15 @@ def check_isa(emu: Emulation, decoder: Decoder, preset) -> None:
         try:
             check_record(rec, preset, lambda: f"{emu.source}: pc {emu.machine.where(rec.pc)}")
         except IsaError:
-            if emu.isa_cpu != preset.name:  # the assembler, told the CPU, names the source line
-                from .asm import assemble
+            # GNU as, told the CPU, refuses the instruction with its source line (clang does not)
+            from .asm import assemble
+            from .errors import AssemblerMissing
 
-                assemble(emu.source, emu.assembler, preset.name)
+            for name in dict.fromkeys(n for n in (emu.assembler, "gnu") if emu.isa_cpu != preset.name or n == "gnu"):
+                try:
+                    assemble(emu.source, name, preset.name)
+                except AssemblerMissing:
+                    pass
             raise
 
 

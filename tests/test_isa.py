@@ -168,3 +168,14 @@ def test_div_cost_follows_the_operand_size(tmp_path):
         cyc[reg] = time_kernel(kernel(tmp_path, body, f"div_{reg}.S"), "k", cpu="pentium2-233", repeat=2).last["cycles"]
     assert cyc["cl"] < cyc["cx"] < cyc["ecx"]
     assert (cyc["ecx"] - cyc["cx"]) / 20 == pytest.approx(39 - 23, abs=2)
+
+
+def test_refusal_names_the_line_with_the_zig_assembler_too(tmp_path):
+    # clang assembles CMOV for -mcpu=k6_2 without complaint; the refusal still names the line
+    from sim.asm import available_assemblers
+
+    if "zig" not in available_assemblers():
+        pytest.skip("zig assembler not installed")
+    src = kernel(tmp_path, "    cmove eax, ecx\n")
+    with pytest.raises(RetrosimError, match=r"k\.S:5: cmove is not available on k6-2-300"):
+        time_kernel(src, "k", cpu="k6-2-300", repeat=1, assembler="zig")
