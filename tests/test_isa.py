@@ -122,12 +122,12 @@ NOW3 = ("pfadd pfsub pfsubr pfmul pfacc pfcmpeq pfcmpge pfcmpgt pfmax pfmin pfrc
 
 def extension_kernel(exts) -> str:
     lines = []
-    if "mmx" in exts:
-        lines += [f"{m} mm0, mm1" for m in MMX] + MMX_EXTRA
+    if "mmx" in exts:  # register and memory-source forms ([esp]: the stack is mapped and 8-aligned enough)
+        lines += [f"{m} mm0, mm1" for m in MMX] + [f"{m} mm0, [esp]" for m in MMX] + MMX_EXTRA
     if "sse" in exts:
         lines += [f"{m} xmm0, xmm1" for m in SSE] + SSE_EXTRA
     if "3dnow" in exts:
-        lines += [f"{m} mm0, mm1" for m in NOW3] + ["femms"]
+        lines += [f"{m} mm0, mm1" for m in NOW3] + [f"{m} mm0, [esp]" for m in NOW3] + ["femms"]
     return "".join(f"    {l}\n" for l in lines)
 
 
