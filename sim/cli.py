@@ -473,12 +473,12 @@ def conformance_cmd(out, families):
     of its family and write the comparison with the row's sourced figures (about 3 minutes)."""
     from .conformance import write_report
 
-    results = write_report(out, tuple(families) or ("p6", "k6"))
+    results, seconds = write_report(out, tuple(families) or ("p6", "k6"))
     for fam, (rows, _) in results.items():
         src = [r for r in rows if r.checked and not r.row.estimated]
         console.print(f"{fam}: {len(rows)} rows, {sum(r.checked for r in rows)} benchmarked, "
                       f"{sum(r.ok for r in src)}/{len(src)} sourced rows reproduced")
-    console.print(f"wrote {out}")
+    console.print(f"wrote {out} in {seconds:.0f} s")
 
 
 if __name__ == "__main__":

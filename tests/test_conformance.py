@@ -40,6 +40,6 @@ def test_chains_avoid_zero_idioms_and_copies_are_independent():
 
 def test_report_counts_estimated_rows_apart():
     results, presets = run_family("k6", only={"add r32,r32", "clc"})
-    text = render({"k6": (results, presets)}, 1.0)
+    text = render({"k6": (results, presets)})
     est = sum(r.row.estimated for r in results)
     assert f"| k6 | 2 | 2 | {sum(r.ok for r in results if not r.row.estimated)} / {2 - est} " in text
