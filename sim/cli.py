@@ -465,12 +465,12 @@ def bench_cmd(pixels: int, as_json: bool):
 
 
 @main.command("conformance")
-@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=Path("reports/conformance.md"),
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=REPORTS_DIR / "conformance.md",
               show_default=True, help="where to write the report")
 @click.option("--family", "families", multiple=True, type=click.Choice(["p6", "k6"]), help="only these families")
 def conformance_cmd(out, families):
     """Run every table row's generated latency/throughput benchmark through the model on each preset
-    of its family and write the comparison with the row's sourced figures (about 3 minutes)."""
+    of its family and write the comparison with the row's sourced figures (about 90 s of CPU time)."""
     from .conformance import write_report
 
     results, seconds = write_report(out, tuple(families) or ("p6", "k6"))
