@@ -40,9 +40,16 @@ class Assembler:
     command: tuple[str, ...]  # argv prefix; the source and output paths are appended
     version: str
 
-    def argv(self, source: Path, output: Path, extra: tuple[str, ...] = ()) -> list[str]:
+    def argv(self, source: Path, output: Path, extra: tuple[str, ...] = (), march: str | None = None) -> list[str]:
         # -I: `.include "x"` resolves next to the source, wherever the assembler is started
-        return [*self.command, *extra, "-I", str(source.parent), "-o", str(output), str(source)]
+        return [*_with_march(self.command, march), *extra, "-I", str(source.parent), "-o", str(output), str(source)]
+
+
+def _with_march(command: tuple[str, ...], march: str | None) -> tuple[str, ...]:
+    """The command with its CPU flag (-march= / -mcpu=, i686 by default) set to `march`."""
+    if march is None:
+        return command
+    return tuple(c.split("=", 1)[0] + "=" + march if c.startswith(("-march=", "-mcpu=")) else c for c in command)
 
 
 def _first_line(argv: list[str]) -> str:
@@ -98,10 +105,11 @@ def cache_dir() -> Path:
     return base / "asm"
 
 
-def _content_key(source: Path, asm: Assembler) -> str:
-    """Hash of everything the object depends on: the source, its .include files, the assembler."""
+def _content_key(source: Path, asm: Assembler, march: str | None = None) -> str:
+    """Hash of everything the object depends on: the source, its .include files, the assembler
+    and its flags (the CPU it assembles for included)."""
     h = hashlib.sha256()
-    h.update(repr((asm.name, asm.version, asm.command[1:])).encode())
+    h.update(repr((asm.name, asm.version, _with_march(asm.command, march)[1:])).encode())
     seen: set[Path] = set()
     pending = [source.resolve()]
     while pending:
@@ -174,9 +182,28 @@ def format_diagnostics(stderr: str, source: Path) -> str:
     return lines[0] + extra
 
 
-def assemble(source: str | os.PathLike, assembler: str | None = None, syntax: str | None = None) -> Path:
-    """Assemble `source` and return the path of its cached ELF32 object. `syntax`: 'intel' or
-    'att' for a source without its own directive (default: source_syntax(), else detected)."""
+_UNSUPPORTED = re.compile(r"^(?P<where>.*?:\d+): `(?P<mnemonic>[^']+)' is not supported on `[^']+'(?P<rest>.*)$")
+
+
+def _for_cpu(message: str, cpu) -> str:
+    """GNU as's "`cmove' is not supported on `k6'" in the preset's terms (see sim/isa.py)."""
+    m = _UNSUPPORTED.match(message)
+    if cpu is None or m is None:
+        return message
+    from .isa import mnemonic_extension, why_missing
+
+    name = m["mnemonic"]
+    ext = mnemonic_extension(name)
+    why = f" ({why_missing(cpu, ext)})" if ext else ""
+    return f"{m['where']}: {name} is not available on {cpu.name}{why}{m['rest']}"
+
+
+def assemble(source: str | os.PathLike, assembler: str | None = None, cpu: str | None = None,
+             syntax: str | None = None) -> Path:
+    """Assemble `source` and return the path of its cached ELF32 object. `cpu`: a CPU preset
+    name; the kernel is then assembled for that CPU's instruction set (default: plain i686).
+    `syntax`: 'intel' or 'att' for a source without its own directive (default: source_syntax(),
+    else detected)."""
     source = Path(source)
     if not source.is_file():
         raise AssemblerError(f"{source}: no such kernel source file")
@@ -185,19 +212,26 @@ def assemble(source: str | os.PathLike, assembler: str | None = None, syntax: st
     if not text.strip():
         raise AssemblerError(f"{source}: empty source file (no instructions to assemble)")
     flags = _syntax_flags(asm, syntax or _syntax.get() or detect_syntax(text))
-    key = _content_key(source, asm) + "-".join(("", *flags))
+    preset = march = None
+    if cpu is not None:
+        from .cpus import presets
+        from .isa import march as isa_march
+
+        preset = presets.load(cpu)
+        march = isa_march(preset, asm.name)
+    key = _content_key(source, asm, march) + "-".join(("", *flags))
     key = hashlib.sha256(key.encode()).hexdigest() if flags else key
     out_dir = cache_dir()
-    target = out_dir / f"{source.stem}-{asm.name}-{key[:20]}.o"
+    target = out_dir / f"{source.stem}-{asm.name}-{march or 'i686'}-{key[:20]}.o"
     if target.is_file():
         return target
     out_dir.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".o", dir=out_dir)
     os.close(fd)
     try:
-        proc = subprocess.run(asm.argv(source, Path(tmp), flags), capture_output=True, text=True, check=False)
+        proc = subprocess.run(asm.argv(source, Path(tmp), flags, march), capture_output=True, text=True, check=False)
         if proc.returncode != 0:
-            raise AssemblerError(format_diagnostics(proc.stderr, source))
+            raise AssemblerError(_for_cpu(format_diagnostics(proc.stderr, source), preset))
         os.replace(tmp, target)  # atomic: a concurrent or interrupted run never sees half an object
     finally:
         if os.path.exists(tmp):

@@ -76,10 +76,10 @@ def parse_args(text: str | None, machine) -> tuple[list, list[tuple[str, int, np
     return values, buffers
 
 
-def _machine(source: str, assembler: str | None):
+def _machine(source: str, assembler: str | None, cpu: str | None = None):
     from .emu import Machine
 
-    return Machine.from_source(catalogue_mod.resolve(source), assembler=assembler)
+    return Machine.from_source(catalogue_mod.resolve(source), assembler=assembler, cpu=cpu)
 
 
 def _entry(machine, entry: str | None) -> str:
@@ -151,12 +151,21 @@ def kernels_cmd(as_json: bool):
     console.print(table)
 
 
+def _isa_cpu_choice(ctx, param, value):
+    return None if value is None else _cpu_choice(ctx, param, value)
+
+
+_isa_cpu_option = click.option("--cpu", "-c", "isa_cpu", callback=_isa_cpu_choice,
+                               help="assemble for this CPU preset's instruction set (default: plain i686)")
+
+
 @main.command("run-kernel")
 @with_kernel_options
+@_isa_cpu_option
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
-def run_kernel_cmd(source, entry, args_text, budget, assembler, as_json):
+def run_kernel_cmd(source, entry, args_text, budget, assembler, isa_cpu, as_json):
     """Call a kernel once and print its results and instruction / memory-access counts."""
-    m = _machine(source, assembler)
+    m = _machine(source, assembler, isa_cpu)
     entry = _entry(m, entry)
     values, buffers = parse_args(args_text, m)
     r = m.call(entry, *values, budget=budget, trace=True)
@@ -181,11 +190,12 @@ def run_kernel_cmd(source, entry, args_text, budget, assembler, as_json):
 
 @main.command("trace")
 @with_kernel_options
+@_isa_cpu_option
 @click.option("--out", "-o", type=click.Path(dir_okay=False, path_type=Path), required=True,
               help="output .npz (arrays pc, mem_addr, mem_size, mem_write, mem_insn)")
-def trace_cmd(source, entry, args_text, budget, assembler, out):
+def trace_cmd(source, entry, args_text, budget, assembler, isa_cpu, out):
     """Record a kernel's PC stream and data accesses to an .npz file for other simulators."""
-    m = _machine(source, assembler)
+    m = _machine(source, assembler, isa_cpu)
     entry = _entry(m, entry)
     values, _ = parse_args(args_text, m)
     t = m.call(entry, *values, budget=budget, trace=True).trace
@@ -224,7 +234,7 @@ def _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iter
     from .timing import time_kernel
 
     path = catalogue_mod.resolve(source)
-    probe = Machine.from_source(path, assembler=assembler)  # resolve the entry and check --args once
+    probe = Machine.from_source(path, assembler=assembler, cpu=cpu)  # resolve the entry and check --args once
     entry = _entry(probe, entry)
     parse_args(args_text, probe)
     return time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=cpu, memory=memory,
@@ -670,6 +680,23 @@ def bench_cmd(pixels: int, as_json: bool):
                   f"native trace vs bare Unicorn: [bold]{result['bare_vs_native']:.1f}x[/] slower (target <= 10x); "
                   f"end to end: [bold]{result['end_to_end_ips'] / 1e6:.1f} M[/] instructions/s (target >= 10 M), "
                   f"{result['bare_vs_end_to_end']:.1f}x slower than bare Unicorn")
+
+
+@main.command("conformance")
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=REPORTS_DIR / "conformance.md",
+              show_default=True, help="where to write the report")
+@click.option("--family", "families", multiple=True, type=click.Choice(["p6", "k6"]), help="only these families")
+def conformance_cmd(out, families):
+    """Run every table row's generated latency/throughput benchmark through the model on each preset
+    of its family and write the comparison with the row's sourced figures (about 90 s of CPU time)."""
+    from .conformance import write_report
+
+    results, seconds = write_report(out, tuple(families) or ("p6", "k6"))
+    for fam, (rows, _) in results.items():
+        src = [r for r in rows if r.checked and not r.row.estimated]
+        console.print(f"{fam}: {len(rows)} rows, {sum(r.checked for r in rows)} benchmarked, "
+                      f"{sum(r.ok for r in src)}/{len(src)} sourced rows reproduced")
+    console.print(f"wrote {out} in {seconds:.0f} s")
 
 
 if __name__ == "__main__":

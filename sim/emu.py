@@ -131,11 +131,14 @@ class Machine:
     """One guest: a loaded kernel object, a stack, an arena, and the Unicorn engine that runs them."""
 
     def __init__(self, image: elf.GuestImage, entries: dict[str, EntryPoint] | None = None,
-                 arena_size: int = DEFAULT_ARENA, rdtsc: RdtscSource | None = None):
+                 arena_size: int = DEFAULT_ARENA, rdtsc: RdtscSource | None = None,
+                 emulator_cpu: str | None = None):
         self.image = image
         self.entries = entries or {}
         self.rdtsc = rdtsc
         self.uc = uc = Uc(UC_ARCH_X86, UC_MODE_32)
+        if emulator_cpu:  # a Unicorn CPU model (e.g. ATHLON: the default one has no 3DNow!)
+            uc.ctl_set_cpu_model(getattr(X, f"UC_CPU_X86_{emulator_cpu}"))
         uc.mem_map(elf.EXIT_ADDR, elf.PAGE, UC_PROT_READ | UC_PROT_EXEC)
         uc.mem_write(elf.EXIT_ADDR, b"\xf4")  # HLT: never executed, the run stops on reaching it
         for base, blob, prot in ((image.code[0], image.code[1], UC_PROT_READ | UC_PROT_EXEC),
@@ -159,8 +162,15 @@ class Machine:
                           None, ctypes.c_uint64(1), ctypes.c_uint64(0), X.UC_X86_INS_RDTSC)
 
     @classmethod
-    def from_source(cls, source: str | Path, assembler: str | None = None, **kwargs) -> Machine:
-        obj = asm.assemble(source, assembler)
+    def from_source(cls, source: str | Path, assembler: str | None = None, cpu: str | None = None,
+                    **kwargs) -> Machine:
+        """`cpu`: assemble for that CPU preset's instruction set (default plain i686), and emulate
+        with the Unicorn CPU model the preset names (`emulator_cpu`), if any."""
+        obj = asm.assemble(source, assembler, cpu)
+        if cpu is not None and "emulator_cpu" not in kwargs:
+            from .cpus import presets
+
+            kwargs["emulator_cpu"] = presets.load(cpu).raw.get("emulator_cpu")
         try:
             image = elf.load_object(obj)
         except LoadError as e:  # name the source the user wrote, not the cached object

@@ -74,6 +74,7 @@ class Emulation:
     machine: Machine = field(repr=False)
     trace: Trace = field(repr=False)
     bounds: list[int]
+    isa_cpu: str | None = None  # the CPU preset the kernel was assembled for (None: plain i686)
 
     @property
     def last_call(self) -> int:
@@ -83,21 +84,25 @@ class Emulation:
         return Decoder(self.machine.image.fetch)
 
     def replay(self, rdtsc_values: list[int]) -> Emulation:
-        return emulate(self.source, self.entry, self.setup, self.repeat, self.budget, self.assembler, rdtsc_values)
+        return emulate(self.source, self.entry, self.setup, self.repeat, self.budget, self.assembler, rdtsc_values,
+                       self.isa_cpu)
 
 
 def emulate(source: str | Path, entry: str, setup: Setup | None = None, repeat: int = 2,
             budget: int = 200_000_000, assembler: str | None = None,
-            rdtsc_values: list[int] | None = None) -> Emulation:
+            rdtsc_values: list[int] | None = None, isa_cpu: str | None = None) -> Emulation:
+    """`isa_cpu`: assemble for that preset's instruction set (shipped kernels stay plain i686, so
+    one emulation serves every preset)."""
     if repeat < 1:
         raise RetrosimError(f"--repeat must be at least 1, got {repeat}")
     answers = iter(rdtsc_values or [])
     clock = (lambda ev: next(answers, 0)) if rdtsc_values is not None else None
-    machine = Machine.from_source(source, assembler=assembler, rdtsc=clock)
+    machine = Machine.from_source(source, assembler=assembler, cpu=isa_cpu, rdtsc=clock)
     args = setup(machine) if setup else []
     parts = [machine.call(entry, *args, budget=budget, trace=True).trace for _ in range(repeat)]
     bounds = np.cumsum([p.instructions for p in parts]).tolist()
-    return Emulation(Path(source), entry, setup, repeat, budget, assembler, machine, Trace.concatenate(parts), bounds)
+    return Emulation(Path(source), entry, setup, repeat, budget, assembler, machine, Trace.concatenate(parts), bounds,
+                     isa_cpu)
 
 
 def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None,
@@ -108,7 +113,9 @@ def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None
     model = make_model(cpu, memory) if isinstance(cpu, str) else cpu
     cpu = model.preset.name
     timeline = hot_loop_window(emu.trace.pc, emu.last_call, timeline_iterations)
-    run = model.run(emu.trace, emu.decoder(), emu.bounds, timeline, emu.last_call)
+    decoder = emu.decoder()
+    check_isa(emu, decoder, model.preset)
+    run = model.run(emu.trace, decoder, emu.bounds, timeline, emu.last_call)
     if run.rdtsc.size:
         replay = emu.replay([int(c) for c in run.rdtsc])
         if not np.array_equal(replay.trace.pc, emu.trace.pc):
@@ -119,10 +126,33 @@ def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None
     return TimingResult(cpu, model.dram.name, emu.entry, emu.source, emu.repeat, calls, model, run, emu.trace)
 
 
+def check_isa(emu: Emulation, decoder: Decoder, preset) -> None:
+    """Refuse (one IsaError) an executed instruction the preset lacks, or a system instruction.
+    Where the kernel assembles for that CPU, the error is the assembler's, with the source line."""
+    from .isa import IsaError, check_record
+
+    records, _ = decoder.decode_trace(emu.trace.pc)
+    for rec in records:
+        try:
+            check_record(rec, preset, lambda: f"{emu.source}: pc {emu.machine.where(rec.pc)}")
+        except IsaError:
+            # GNU as, told the CPU, refuses the instruction with its source line (clang does not)
+            from .asm import assemble
+            from .errors import AssemblerMissing
+
+            for name in dict.fromkeys(n for n in (emu.assembler, "gnu") if emu.isa_cpu != preset.name or n == "gnu"):
+                try:
+                    assemble(emu.source, name, preset.name)
+                except AssemblerMissing:
+                    pass
+            raise
+
+
 def time_kernel(source: str | Path, entry: str, setup: Setup | None = None, cpu: str = "pentium2-233",
                 memory: str | None = None, repeat: int = 2, budget: int = 200_000_000,
                 timeline_iterations: int = 0, assembler: str | None = None) -> TimingResult:
-    """Emulate and time in one step (see :func:`emulate` and :func:`time_emulation`)."""
+    """Emulate and time in one step (see :func:`emulate` and :func:`time_emulation`); the kernel is
+    assembled for the preset's instruction set."""
     model = make_model(cpu, memory)  # before emulating: an unknown preset fails fast
-    emu = emulate(source, entry, setup, repeat, budget, assembler)
+    emu = emulate(source, entry, setup, repeat, budget, assembler, isa_cpu=model.preset.name)
     return time_emulation(emu, model, timeline_iterations=timeline_iterations)

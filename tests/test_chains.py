@@ -1,6 +1,6 @@
 """Dependent chains of multi-uop instructions take their measured latency on each family.
 
-Each kernel of kernels/micro/chains.S runs 8 instances of one instruction per iteration, each
+Each kernel of kernels/micro/chains.S (and cmov.S) runs 8 instances of one instruction per iteration, each
 reading the previous one's result; cycles / (8 n) is the instruction's latency (the loop counter
 is off the chain). The expected figures are measurements (InstLatX64 dumps, quoted in the rows of
 sim/cpus/tables/p6.toml and k6.toml) or, where a row has only a published delay, Agner Fog's table
@@ -18,6 +18,7 @@ from sim.timing import emulate, time_emulation
 from conftest import KERNELS
 
 CHAINS = KERNELS / "micro" / "chains.S"
+CMOV = KERNELS / "micro" / "cmov.S"  # apart: CMOV does not assemble for the CPUs that lack it
 N = 200
 SLACK = 0.25  # per instance: the loop's counter and branch, amortised over 8 instances
 
@@ -61,7 +62,7 @@ def per_instance(entry, cpus, per_iteration=8):
     def setup(m):
         return [N, m.arena.put(np.zeros(16, np.uint32))]
 
-    emu = emulate(CHAINS, entry, setup, repeat=2)
+    emu = emulate(CMOV if entry == "cmov_chain" else CHAINS, entry, setup, repeat=2)
     return {cpu: time_emulation(emu, cpu).last["cycles"] / (N * per_iteration) for cpu in cpus}
 
 

@@ -7,7 +7,7 @@ import pytest
 
 from sim import views
 from sim.cpus import k6_core, make_model, p6_core, presets
-from sim.cpus.table import MissingTiming
+from sim.errors import RetrosimError
 from sim.timing import emulate, time_emulation, time_kernel
 
 from conftest import KERNELS, rdtsc_kernel
@@ -222,5 +222,5 @@ pick:
     cmovz eax, ecx
     ret
 """)
-    with pytest.raises(MissingTiming, match=r"'cmov\w*' does not exist on this family, the CPU raises #UD"):
+    with pytest.raises(RetrosimError, match=r"cmov.S:9: cmovz is not available on k6-233 \(the K6 family has no CMOV\)"):
         time_kernel(src, "pick", lambda m: [0, 5], cpu="k6-233", repeat=1)

@@ -143,26 +143,6 @@ imul_mem_chain:
     jnz     .Limul_mem_chain
     EPILOGUE
 
-# @entry cmov_chain(n, buf) -> 8 dependent instances per iteration: CMOVNZ r32,r32 (flags from the loop counter, never zero inside the body)
-.globl cmov_chain
-.p2align 4, 0xCC
-cmov_chain:
-    PROLOGUE
-    mov eax, 1
-    mov edx, 2
-.Lcmov_chain:
-    cmovnz eax, edx
-    cmovnz eax, edx
-    cmovnz eax, edx
-    cmovnz eax, edx
-    cmovnz eax, edx
-    cmovnz eax, edx
-    cmovnz eax, edx
-    cmovnz eax, edx
-    sub     ebp, 1
-    jnz     .Lcmov_chain
-    EPILOGUE
-
 # @entry add_mem_chain(n, buf) -> 8 dependent instances per iteration: ADD r32,m32 through the address ([buf] = 0, EAX = buf: load 3 + add 1)
 .globl add_mem_chain
 .p2align 4, 0xCC

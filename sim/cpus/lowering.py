@@ -253,7 +253,10 @@ def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int 
     uops: list[tuple[int, int, int, int, int]] = []
     matches = []
     for i, rec in enumerate(records):
-        match = table.require(rec.mnemonic, rec.signature, f"pc {rec.pc:#010x} ({rec.mnemonic} {rec.op_str})")
+        # issue 8: a REP-prefixed string instruction has its own row ("rep movsd"), its per-element
+        # cost; the trace holds one execution per element, so the total follows ECX.
+        mnemonic = f"{rec.rep} {rec.mnemonic}" if rec.rep else rec.mnemonic
+        match = table.require(mnemonic, rec.signature, f"pc {rec.pc:#010x} ({rec.mnemonic} {rec.op_str})")
         matches.append(match)
         us = uops_for(rec, match, load_latency)
         s["uop0"][i], s["nuops"][i] = len(uops), len(us)

@@ -1,0 +1,130 @@
+"""Per-CPU instruction sets: which extension an instruction needs, what each preset has, and how a
+kernel is assembled for a preset.
+
+A preset (sim/cpus/presets/*.toml) declares ``isa_extensions`` (from the vocabulary below) and the
+assembler's CPU names: ``gnu_march`` (GNU as ``-march=``) and ``zig_mcpu`` (clang ``-mcpu=``).
+The base set of every modelled family is i586 (CPUID, CMPXCHG8B, RDTSC; Intel SDM vol. 2,
+"CPUID: Feature Information"); the extensions on top of it are:
+
+- ``cmov``   CMOVcc (CPUID.01H:EDX.CMOV; Pentium Pro and later; no K6 has it)
+- ``fcmov``  FCMOVcc and FCOMI/FCOMIP/FUCOMI/FUCOMIP (present when CMOV and FPU are; Intel SDM
+             vol. 2, FCMOVcc and FCOMI "IA-32 Architecture Compatibility")
+- ``mmx``    MMX (Pentium MMX, Pentium II and later, every K6)
+- ``sse``    SSE with its MMX-register additions, PREFETCHh, SFENCE, MOVNTQ, MASKMOVQ (Pentium III)
+- ``3dnow``  3DNow!, FEMMS, PREFETCH/PREFETCHW (AMD "3DNow! Technology Manual" 21928; K6-2, K6-III)
+
+Privileged and system instructions (HLT, CLI/STI, IN/OUT, LGDT, ...) are never part of a user
+kernel: they fault at CPL 3, so no user-mode timing exists for them.
+"""
+
+from __future__ import annotations
+
+from .decode import InsnRecord
+from .errors import RetrosimError
+
+EXTENSIONS = ("cmov", "fcmov", "mmx", "sse", "3dnow")
+
+# MMX-register instructions that came with SSE (Intel SDM vol. 1, "SSE 64-bit SIMD integer
+# instructions") and the SSE cacheability instructions; capstone files the former under 'mmx'.
+_SSE_MMX = frozenset("pavgb pavgw pextrw pinsrw pmaxsw pmaxub pminsw pminub pmovmskb pmulhuw psadbw "
+                     "pshufw maskmovq movntq sfence prefetchnta prefetcht0 prefetcht1 prefetcht2".split())
+_3DNOW = frozenset({"femms", "prefetch", "prefetchw"})
+_FCMOV = frozenset({"fcomi", "fcompi", "fucomi", "fucompi"})
+
+# System instructions that capstone does not put in its 'privilege' group but that a user-mode
+# kernel may not run: port I/O (IOPL 0 under every OS of the period), software interrupts and
+# fast system calls (they leave the kernel's code), segment/descriptor loads.
+_SYSTEM = frozenset("in out insb insw insd outsb outsw outsd int int1 int3 into iret iretd sysenter sysexit "
+                    "syscall sysret lldt sldt ltr str lmsw smsw lar lsl verr verw arpl clts ud2 ud0 ud1 "
+                    "lcall ljmp retf".split())
+
+# What a family lacks, in words, for the refusal message.
+_WHY = {
+    "cmov": "has no CMOV",
+    "fcmov": "has no FCMOV/FCOMI",
+    "mmx": "has no MMX",
+    "sse": "has no SSE",
+    "3dnow": "has no 3DNow!",
+}
+_FAMILY_NAME = {"p6": "the P6 family", "k6": "the K6 family", "p5": "the P5 family"}
+
+
+class IsaError(RetrosimError):
+    """A kernel uses an instruction its CPU preset does not have, or a system instruction."""
+
+
+def required_extension(mnemonic: str, groups: frozenset[str] | set[str]) -> str | None:
+    """The extension an instruction needs beyond i586, or None."""
+    if mnemonic in _SSE_MMX or any(g.startswith("sse") for g in groups):
+        return "sse"
+    if mnemonic in _3DNOW or "3dnow" in groups:
+        return "3dnow"
+    if mnemonic in _FCMOV or mnemonic.startswith("fcmov"):
+        return "fcmov"
+    if "cmov" in groups:
+        return "cmov"
+    if "mmx" in groups:
+        return "mmx"
+    return None
+
+
+_3DNOW_NAMES = frozenset({"pavgusb", "pmulhrw", "pswapd"})
+
+
+def mnemonic_extension(name: str) -> str | None:
+    """The extension a mnemonic belongs to, from its name alone (for assembler messages, where
+    there is no decoded instruction): the families' naming conventions."""
+    name = name.lower()
+    if name.startswith("fcmov") or name in _FCMOV:
+        return "fcmov"
+    if name.startswith("cmov"):
+        return "cmov"
+    if name in _3DNOW or name in _3DNOW_NAMES or name.startswith(("pf", "pi2f")):
+        return "3dnow"
+    if name in _SSE_MMX or name.endswith(("ps", "ss")) or name in ("ldmxcsr", "stmxcsr", "fxsave", "fxrstor"):
+        return "sse"
+    if name in ("emms", "movd", "movq") or name.startswith("p"):
+        return "mmx"
+    return None
+
+
+def is_system(rec: InsnRecord) -> bool:
+    return "privilege" in rec.groups or rec.mnemonic in _SYSTEM
+
+
+def extensions_of(preset) -> frozenset[str]:
+    return frozenset(preset.raw.get("isa_extensions", ()))
+
+
+def march(preset, assembler: str) -> str:
+    """The assembler's CPU name for a preset (GNU as -march= / clang -mcpu=)."""
+    key = "zig_mcpu" if assembler == "zig" else "gnu_march"
+    value = preset.raw.get(key)
+    if not value:
+        raise RetrosimError(f"CPU preset '{preset.name}': missing field '{key}' (the assembler's name for the CPU)")
+    return value
+
+
+# Extensions no CPU of a family has (the refusal then names the family, not the preset).
+_FAMILY_LACKS = {"k6": {"cmov", "fcmov", "sse"}, "p6": {"3dnow"}, "p5": {"cmov", "fcmov", "sse", "3dnow"}}
+
+
+def why_missing(preset, ext: str) -> str:
+    if ext in _FAMILY_LACKS.get(preset.family, ()):
+        return f"{_FAMILY_NAME.get(preset.family, preset.family)} {_WHY[ext]}"
+    return f"{preset.name} {_WHY[ext]}"
+
+
+def check_record(rec: InsnRecord, preset, where) -> None:
+    """Raise IsaError if `rec` may not run on `preset` (a system instruction or a missing extension).
+    `where`: the location for the message, or a callable making it (only called on an error)."""
+    if not is_system(rec) and (ext := required_extension(rec.mnemonic, rec.groups)) in (None, *extensions_of(preset)):
+        return
+    where = where() if callable(where) else where
+    text = f"{rec.mnemonic} {rec.op_str}".strip()
+    if is_system(rec):
+        raise IsaError(f"{where}: {text} is a privileged or system instruction; a user-mode kernel cannot "
+                       f"execute it on {preset.name} (it faults at CPL 3), so it has no timing")
+    ext = required_extension(rec.mnemonic, rec.groups)
+    if ext is not None and ext not in extensions_of(preset):
+        raise IsaError(f"{where}: {rec.mnemonic} is not available on {preset.name} ({why_missing(preset, ext)})")

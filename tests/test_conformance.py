@@ -1,0 +1,45 @@
+"""The conformance benchmarks: generated chains and independent copies, judged against table rows."""
+
+import pytest
+
+from sim.conformance import RowResult, _judge, _operands, render, run_family
+from sim.cpus.table import load_table
+
+
+def test_benchmarks_reproduce_rows_the_models_implement():
+    # InstLatX64 Deschutes: IMUL r32,r32 L 4 T 1; ADD r32,r32 L 1 T 0.5; PADDW mm,mm L 1
+    results, presets = run_family("p6", only={"imul r32,r32", "add r32,r32", "paddw mm,mm"})
+    assert {r.row.key for r in results if r.ok} == {"imul r32,r32", "add r32,r32", "paddw mm,mm"}
+    by_key = {r.row.key: r for r in results}
+    assert set(by_key["paddw mm,mm"].measured) == {p for p in presets if p != "pentium-pro-200"}  # no MMX
+    assert by_key["imul r32,r32"].measured["pentium2-233"] == pytest.approx((4, 1), abs=0.05)
+
+
+def test_3dnow_rows_run_only_on_the_models_that_have_them():
+    results, _ = run_family("k6", only={"pfadd mm,mm"})
+    assert set(results[0].measured) == {"k6-2-300", "k6-3-450"}
+
+
+def test_a_row_off_by_more_than_the_tolerance_is_listed_with_its_figures():
+    row = load_table("p6").rows[("add", "r32,r32")]
+    res = RowResult(row, checked=True, measured={"pentium2-233": (1.0, 0.6)}, expected={"pentium2-233": (1.0, 0.5)})
+    _judge(res)
+    assert not res.ok and "pentium2-233: throughput 0.60 vs 0.5" in res.reason
+    res = RowResult(row, checked=True, measured={"pentium2-233": (1.04, 0.46)}, expected={"pentium2-233": (1.0, 0.5)})
+    _judge(res)
+    assert res.ok
+
+
+def test_chains_avoid_zero_idioms_and_copies_are_independent():
+    rows = load_table("p6").rows
+    assert _operands(rows[("xor", "r32,r32")], 0, True) == "eax, ebx"  # XOR EAX,EAX would break the chain
+    assert _operands(rows[("imul", "r32,r32,i8")], 0, True) == "eax, eax, 3"
+    dests = {_operands(rows[("add", "r32,r32")], k, False).split(",")[0] for k in range(10)}
+    assert "ecx" not in dests and len(dests) == 5  # the source register is never written
+
+
+def test_report_counts_estimated_rows_apart():
+    results, presets = run_family("k6", only={"add r32,r32", "clc"})
+    text = render({"k6": (results, presets)})
+    est = sum(r.row.estimated for r in results)
+    assert f"| k6 | 2 | 2 | {sum(r.ok for r in results if not r.row.estimated)} / {2 - est} " in text
