@@ -15,13 +15,17 @@ import hashlib
 import os
 import re
 import shutil
+import signal
+import stat
 import subprocess
 import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from .elf import CODE_BASE, CODE_LIMIT
 from .errors import AssemblerError, AssemblerMissing
+from .output import file_mode
 
 CACHE_ENV = "RETROSIM_CACHE"
 ASSEMBLER_ENV = "RETROSIM_ASSEMBLER"
@@ -36,7 +40,13 @@ class Assembler:
 
     def argv(self, source: Path, output: Path) -> list[str]:
         # -I: `.include "x"` resolves next to the source, wherever the assembler is started
-        return [*self.command, "-I", str(source.parent), "-o", str(output), str(source)]
+        return [*self.command, "-I", str(source.parent), "-o", str(output), source_arg(source)]
+
+
+def source_arg(source: Path) -> str:
+    """The source as an argument: a name starting with '-' (`-k.S`) would be read as an option."""
+    text = str(source)
+    return os.path.join(".", text) if text.startswith("-") else text
 
 
 def _first_line(argv: list[str]) -> str:
@@ -92,64 +102,176 @@ def cache_dir() -> Path:
     return base / "asm"
 
 
+# Sources and includes are hashed before the assembler runs, so they are read here first: in chunks,
+# only regular files (a FIFO would block, /dev/zero never ends), and at most this many bytes each.
+MAX_SOURCE_BYTES = 16 << 20
+_CHUNK = 1 << 16
+
+
+def read_source(path: Path, what: str) -> bytes:
+    """A kernel source or include file, refused with one line unless it is a regular file of at most
+    MAX_SOURCE_BYTES. `what` names it in the message (`file` or `file:line: .include "x"`)."""
+    try:
+        # O_NONBLOCK: opening a FIFO for reading must not wait for a writer
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except OSError as e:
+        raise AssemblerError(f"{what}: cannot read {path}: {e.strerror or e}") from None
+    with os.fdopen(fd, "rb") as f:
+        st = os.fstat(f.fileno())
+        if not stat.S_ISREG(st.st_mode):
+            raise AssemblerError(f"{what}: {path} is not a regular file (a device, pipe or folder)")
+        if st.st_size > MAX_SOURCE_BYTES:
+            raise AssemblerError(f"{what}: {path} has {st.st_size:,} bytes, more than the "
+                                 f"{MAX_SOURCE_BYTES >> 20} MB a kernel source may have")
+        chunks, total = [], 0
+        while chunk := f.read(_CHUNK):
+            total += len(chunk)
+            if total > MAX_SOURCE_BYTES:  # it grew while being read
+                raise AssemblerError(f"{what}: {path} has more than {MAX_SOURCE_BYTES >> 20} MB")
+            chunks.append(chunk)
+    return b"".join(chunks)
+
+
 def _content_key(source: Path, asm: Assembler) -> str:
     """Hash of everything the object depends on: the source, its .include files, the assembler."""
     h = hashlib.sha256()
     h.update(repr((asm.name, asm.version, asm.command[1:])).encode())
     seen: set[Path] = set()
-    pending = [source.resolve()]
+    pending: list[tuple[Path, str]] = [(source.resolve(), str(source))]
     while pending:
-        path = pending.pop()
+        path, what = pending.pop()
         if path in seen:
             continue
         seen.add(path)
-        try:
-            data = path.read_bytes()
-        except OSError:
+        if not path.exists() and path != source.resolve():
             continue  # a missing include is reported by the assembler itself, with its line
+        data = read_source(path, what)
         h.update(str(path.name).encode() + b"\0" + data)
-        pending.extend(path.parent / m.decode() for m in _INCLUDE.findall(data))
+        for m in _INCLUDE.finditer(data):
+            line = data.count(b"\n", 0, m.start(1)) + 1
+            name = m.group(1).decode(errors="replace")
+            pending.append((path.parent / name, f'{_shown(path, source)}:{line}: .include "{name}"'))
     return h.hexdigest()
+
+
+def _shown(path: Path, source: Path) -> str:
+    return str(source) if path == source.resolve() else str(path)
 
 
 _GNU_MSG = re.compile(r"^(?P<file>[^:\n]+):(?P<line>\d+): (?:Error|Warning|Fatal error): (?P<msg>.*)$")
 _CLANG_MSG = re.compile(r"^(?P<file>[^:\n]+):(?P<line>\d+):\d+: (?:error|fatal error): (?P<msg>.*)$")
 
 
-def format_diagnostics(stderr: str, source: Path) -> str:
-    """Reduce assembler output to `file:line: message` lines (the first error first)."""
+def format_diagnostics(stderr: str, source: Path, output: Path | None = None) -> str:
+    """Reduce assembler output to `file:line: message` lines (the first error first). A message from
+    an included file keeps that file's name and line; the temporary object is never named (a user
+    knows the source, not the cache)."""
+    if output is not None:
+        stderr = stderr.replace(str(output), str(source))
+    own = {str(source), source_arg(source)}
     lines = []
     for raw in stderr.splitlines():
         m = _GNU_MSG.match(raw) or _CLANG_MSG.match(raw)
         if m and "Warning" not in raw:
-            lines.append(f"{source}:{m['line']}: {m['msg'].strip()}")
+            name = str(source) if m["file"] in own else m["file"]
+            lines.append(f"{name}:{m['line']}: {m['msg'].strip()}")
     if not lines:
-        text = stderr.strip().splitlines()
-        return f"{source}: {text[-1] if text else 'assembler failed without a message'}"
+        text = [t for t in stderr.strip().splitlines() if t.strip()]
+        last = text[-1] if text else "assembler failed without a message"
+        # `as: file: message` or `/usr/bin/as: message`: the program's own name adds nothing
+        last = re.sub(r"^\S*\bas: ", "", last)
+        return f"{source}: {last}" if not last.startswith(str(source)) else last
     extra = f" (+{len(lines) - 1} more)" if len(lines) > 1 else ""
     return lines[0] + extra
 
 
+# The guest map reserves 12 MB for code and data (sim.elf.CODE_LIMIT): an object much larger than
+# that can never load, so the assembler is stopped (RLIMIT_FSIZE) before a `.space 1<<30` fills the disk.
+MAX_OBJECT_BYTES = 64 << 20
+DIGEST_SUFFIX = ".sha256"
+
+
+def _limit_output_size() -> None:  # runs in the assembler's child process, before exec
+    import resource
+
+    resource.setrlimit(resource.RLIMIT_FSIZE, (MAX_OBJECT_BYTES, MAX_OBJECT_BYTES))
+
+
+def _digest(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def _verified(target: Path) -> bool:
+    """True when the cached object matches the digest stored beside it. A damaged, truncated or
+    unreadable entry (or one without a digest) is removed, so it is rebuilt."""
+    digest = target.with_name(target.name + DIGEST_SUFFIX)
+    try:
+        ok = digest.read_text(encoding="ascii").strip() == _digest(target.read_bytes())
+    except (OSError, UnicodeDecodeError):
+        ok = False
+    if not ok:
+        evict(target)
+    return ok
+
+
+def evict(target: str | os.PathLike) -> None:
+    """Remove a cached object and its digest (a damaged entry, or an object that cannot load)."""
+    target = Path(target)
+    for p in (target, target.with_name(target.name + DIGEST_SUFFIX)):
+        try:
+            p.unlink()
+        except FileNotFoundError:
+            pass
+        except OSError:
+            pass  # a read-only cache: the digest check will keep refusing the entry
+
+
+def _prepare_cache(out_dir: Path) -> None:
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".probe-", dir=out_dir)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise AssemblerError(f"assembler cache {out_dir}: not writable ({e.strerror or e}); set {CACHE_ENV} "
+                             "to a writable folder") from None
+
+
 def assemble(source: str | os.PathLike, assembler: str | None = None) -> Path:
-    """Assemble `source` and return the path of its cached ELF32 object."""
+    """Assemble `source` and return the path of its cached ELF32 object (verified against its digest)."""
     source = Path(source)
-    if not source.is_file():
+    if not source.exists():
         raise AssemblerError(f"{source}: no such kernel source file")
     asm = get_assembler(assembler)
-    key = _content_key(source, asm)
+    key = _content_key(source, asm)  # also refuses non-regular and oversized sources and includes
     out_dir = cache_dir()
     target = out_dir / f"{source.stem}-{asm.name}-{key[:20]}.o"
-    if target.is_file():
+    if target.is_file() and _verified(target):
         return target
-    out_dir.mkdir(parents=True, exist_ok=True)
+    _prepare_cache(out_dir)
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".o", dir=out_dir)
     os.close(fd)
+    tmp = Path(tmp)
     try:
-        proc = subprocess.run(asm.argv(source, Path(tmp)), capture_output=True, text=True, check=False)
+        proc = subprocess.run(asm.argv(source, tmp), capture_output=True, check=False,
+                              preexec_fn=_limit_output_size)
         if proc.returncode != 0:
-            raise AssemblerError(format_diagnostics(proc.stderr, source))
+            if proc.returncode == -signal.SIGXFSZ or (tmp.exists() and tmp.stat().st_size >= MAX_OBJECT_BYTES):
+                raise AssemblerError(f"{source}: the object passed {MAX_OBJECT_BYTES >> 20} MB and was stopped "
+                                     f"(the guest map holds {(CODE_LIMIT - CODE_BASE) >> 20} MB of code and data; "
+                                     "a huge .space or .fill?)")
+            # a binary or non-UTF-8 source is echoed back in the messages: never fail on decoding them
+            raise AssemblerError(format_diagnostics(proc.stderr.decode("utf-8", errors="replace"), source, tmp))
+        data = tmp.read_bytes()
+        os.chmod(tmp, file_mode())
+        digest_tmp = tmp.with_name(tmp.name + DIGEST_SUFFIX)
+        digest_tmp.write_text(_digest(data) + "\n", encoding="ascii")
+        os.chmod(digest_tmp, file_mode())
+        # digest first, then the object: a reader that finds the object finds its digest
+        os.replace(digest_tmp, target.with_name(target.name + DIGEST_SUFFIX))
         os.replace(tmp, target)  # atomic: a concurrent or interrupted run never sees half an object
     finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        for p in (tmp, tmp.with_name(tmp.name + DIGEST_SUFFIX)):
+            if p.exists():
+                p.unlink()
     return target

@@ -23,7 +23,7 @@ from unicorn import x86_const as X
 from unicorn.unicorn_py3.unicorn import uclib
 
 from . import asm, elf
-from .errors import ArgumentError, GuestFault, RunawayKernel
+from .errors import ArgumentError, GuestFault, LoadError, RunawayKernel
 from .kernels import EntryPoint, entry_points
 from .trace import NativeTracer, Trace
 
@@ -161,8 +161,11 @@ class Machine:
     @classmethod
     def from_source(cls, source: str | Path, assembler: str | None = None, **kwargs) -> Machine:
         obj = asm.assemble(source, assembler)
-        image = elf.load_object(obj)
-        image.path = Path(source)
+        try:
+            image = elf.load_object(obj, source)
+        except LoadError:
+            asm.evict(obj)  # an object that cannot load is useless in the cache (and may be large)
+            raise
         return cls(image, entry_points(source), **kwargs)
 
     # -- state -------------------------------------------------------------------------------

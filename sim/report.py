@@ -12,12 +12,11 @@ import csv
 import html
 import io
 import json
-import os
-import tempfile
 from pathlib import Path
 
 from typing import TYPE_CHECKING
 
+from . import output
 from .frames import VARIANT_LABELS
 
 if TYPE_CHECKING:
@@ -36,15 +35,9 @@ EXPLAIN_COUNTERS = ["uops", "msrom_uops", "decode_groups", "l1d_load_misses", "l
 
 
 def atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    # one writer for every output (sim.output: refuses devices and folders, follows the umask)
+    output.check_output_dir(Path(path).parent)
+    output.atomic_write(path, data)
 
 
 def _f(x: float, digits: int = 2) -> str:

@@ -19,7 +19,7 @@ from .cpus import make_model
 from .decode import Decoder
 from .emu import Machine
 from .errors import RetrosimError
-from .trace import Trace
+from .trace import Trace, check_trace_bytes
 
 Setup = Callable[[Machine], list]  # builds the call's arguments (and buffers) in a fresh machine
 
@@ -88,14 +88,20 @@ class Emulation:
 
 def emulate(source: str | Path, entry: str, setup: Setup | None = None, repeat: int = 2,
             budget: int = 200_000_000, assembler: str | None = None,
-            rdtsc_values: list[int] | None = None) -> Emulation:
+            rdtsc_values: list[int] | None = None, progress: Callable[[int, int], None] | None = None) -> Emulation:
     if repeat < 1:
         raise RetrosimError(f"--repeat must be at least 1, got {repeat}")
     answers = iter(rdtsc_values or [])
     clock = (lambda ev: next(answers, 0)) if rdtsc_values is not None else None
     machine = Machine.from_source(source, assembler=assembler, rdtsc=clock)
     args = setup(machine) if setup else []
-    parts = [machine.call(entry, *args, budget=budget, trace=True).trace for _ in range(repeat)]
+    parts = []
+    for k in range(repeat):
+        parts.append(machine.call(entry, *args, budget=budget, trace=True).trace)
+        # the calls' traces are all kept (the model times them in one machine state): bound them
+        check_trace_bytes(sum(p.nbytes for p in parts), sum(p.instructions for p in parts))
+        if progress is not None:
+            progress(k + 1, repeat)
     bounds = np.cumsum([p.instructions for p in parts]).tolist()
     return Emulation(Path(source), entry, setup, repeat, budget, assembler, machine, Trace.concatenate(parts), bounds)
 
@@ -121,8 +127,9 @@ def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None
 
 def time_kernel(source: str | Path, entry: str, setup: Setup | None = None, cpu: str = "pentium2-233",
                 memory: str | None = None, repeat: int = 2, budget: int = 200_000_000,
-                timeline_iterations: int = 0, assembler: str | None = None) -> TimingResult:
+                timeline_iterations: int = 0, assembler: str | None = None,
+                progress: Callable[[int, int], None] | None = None) -> TimingResult:
     """Emulate and time in one step (see :func:`emulate` and :func:`time_emulation`)."""
     model = make_model(cpu, memory)  # before emulating: an unknown preset fails fast
-    emu = emulate(source, entry, setup, repeat, budget, assembler)
+    emu = emulate(source, entry, setup, repeat, budget, assembler, progress=progress)
     return time_emulation(emu, model, timeline_iterations=timeline_iterations)
