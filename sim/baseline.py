@@ -44,8 +44,9 @@ def entries(result: SceneResult) -> dict[str, dict[str, int]]:
     return {f"{t.variant}@{t.key}": {c: int(t.counters[c]) for c in COUNTERS} for t in result.timings}
 
 
-def load(path: Path = BASELINE_FILE) -> dict:
+def load(path: Path | None = None) -> dict:
     """The recorded baselines ({} when there is no file); a damaged file is one clear error."""
+    path = Path(path) if path is not None else BASELINE_FILE
     if not path.exists():
         return {}
     try:
@@ -72,7 +73,8 @@ def load(path: Path = BASELINE_FILE) -> dict:
     return data
 
 
-def save(data: dict, path: Path = BASELINE_FILE) -> None:
+def save(data: dict, path: Path | None = None) -> None:
+    path = Path(path) if path is not None else BASELINE_FILE
     atomic_write(path, (json.dumps(data, indent=1, sort_keys=True) + "\n").encode())
 
 

@@ -438,6 +438,10 @@ def _run_scenes(scenes, cpus, on_result=None) -> tuple[list, list[str]]:
 
                 result = run_scene(scene, list(cpus) or None, progress)
                 bar.update(task, completed=steps, description=f"{scene.name}: done")
+                if result.pixels == 0:
+                    bar.console.print(f"{scene.name}: the scene draws no pixels (degenerate, collinear, off-screen or "
+                                      "sub-pixel triangles): every metric counts 0 covered pixels",
+                                      markup=False, highlight=False, soft_wrap=True)
                 if on_result is not None:
                     on_result(result)
             except RetrosimError as e:
