@@ -25,7 +25,7 @@ from pathlib import Path
 
 from .elf import CODE_BASE, CODE_LIMIT
 from .errors import AssemblerError, AssemblerMissing
-from .output import file_mode
+from .output import file_mode, temporary_file
 
 CACHE_ENV = "RETROSIM_CACHE"
 ASSEMBLER_ENV = "RETROSIM_ASSEMBLER"
@@ -249,10 +249,7 @@ def assemble(source: str | os.PathLike, assembler: str | None = None) -> Path:
     if target.is_file() and _verified(target):
         return target
     _prepare_cache(out_dir)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".o", dir=out_dir)
-    os.close(fd)
-    tmp = Path(tmp)
-    try:
+    with temporary_file(out_dir, ".tmp-", ".o") as tmp, temporary_file(out_dir, ".tmp-", ".sha256") as digest_tmp:
         proc = subprocess.run(asm.argv(source, tmp), capture_output=True, check=False,
                               preexec_fn=_limit_output_size)
         if proc.returncode != 0:
@@ -264,14 +261,9 @@ def assemble(source: str | os.PathLike, assembler: str | None = None) -> Path:
             raise AssemblerError(format_diagnostics(proc.stderr.decode("utf-8", errors="replace"), source, tmp))
         data = tmp.read_bytes()
         os.chmod(tmp, file_mode())
-        digest_tmp = tmp.with_name(tmp.name + DIGEST_SUFFIX)
         digest_tmp.write_text(_digest(data) + "\n", encoding="ascii")
         os.chmod(digest_tmp, file_mode())
         # digest first, then the object: a reader that finds the object finds its digest
         os.replace(digest_tmp, target.with_name(target.name + DIGEST_SUFFIX))
         os.replace(tmp, target)  # atomic: a concurrent or interrupted run never sees half an object
-    finally:
-        for p in (tmp, tmp.with_name(tmp.name + DIGEST_SUFFIX)):
-            if p.exists():
-                p.unlink()
     return target

@@ -11,6 +11,7 @@ from pathlib import Path
 import click
 import numpy as np
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from . import kernels as catalogue_mod
@@ -219,14 +220,14 @@ def kernels_cmd(as_json: bool):
         click.echo(json.dumps({str(p.relative_to(root)): [e.signature() for e in entries.values()]
                                for p, entries in cat.items()}, indent=2))
         return
-    table = Table(title=f"kernels in {root}")
+    table = Table(title=f"kernels in {escape(str(root))}")
     table.add_column("file")
     table.add_column("entry point")
     for path, entries in cat.items():
         for i, e in enumerate(entries.values()):
-            table.add_row(str(path.relative_to(root)) if i == 0 else "", e.signature())
+            table.add_row(escape(str(path.relative_to(root))) if i == 0 else "", escape(e.signature()))
         if not entries:
-            table.add_row(str(path.relative_to(root)), "[dim](no @entry declared)[/]")
+            table.add_row(escape(str(path.relative_to(root))), "[dim](no @entry declared)[/]")
     console.print(table)
 
 
@@ -248,13 +249,13 @@ def run_kernel_cmd(source, entry, args_text, budget, assembler, as_json):
     if as_json:
         click.echo(json.dumps(report, indent=2))
         return
-    table = Table(title=f"{Path(source).name}: {entry}", show_header=False)
+    table = Table(title=f"{escape(Path(source).name)}: {escape(entry)}", show_header=False)
     for key in ("eax", "edx"):
         table.add_row(key.upper(), f"{report[key]:#010x}  ({report[key]})")
     for key in ("instructions", "distinct_pcs", "accesses", "reads", "writes", "bytes_read", "bytes_written"):
         table.add_row(key.replace("_", " "), f"{report[key]:,}")
     for b in report["buffers"]:
-        table.add_row(b["arg"], f"@{b['address']:#010x} first {b['first']} sum {b['sum']}")
+        table.add_row(escape(b["arg"]), escape(f"@{b['address']:#010x} first {b['first']} sum {b['sum']}"))
     console.print(table)
 
 
@@ -448,7 +449,9 @@ def _run_scenes(scenes, cpus, on_result=None) -> tuple[list, list[str]]:
                 if on_result is None:
                     raise
                 failures.append(one_line(str(e)))
-                bar.console.print(f"retrosim: error: {one_line(str(e))}", markup=False, highlight=False, soft_wrap=True)
+                if item is not scenes[-1]:  # say it now when other scenes still run; the last line repeats it
+                    bar.console.print(f"retrosim: error: {one_line(str(e))}", markup=False, highlight=False,
+                                      soft_wrap=True)
                 continue
             results.append(result)
     return results, failures
@@ -498,6 +501,8 @@ def report_cmd(scenes, cpus, out):
         say(f"wrote {_write_conversion_report(out)}")
     if results:
         console.print(_summary_table(results))
+    if len(paths) == 1 and failures:
+        raise RetrosimError(failures[0])
     if failures:
         raise RetrosimError(f"{len(failures)} of {len(paths)} scene(s) failed, the others' reports are written: "
                             + "; ".join(failures))

@@ -257,7 +257,7 @@ class Machine:
     def _check_finished(self, budget: int) -> None:
         pc = self.reg("eip")
         if pc != elf.EXIT_ADDR:
-            raise RunawayKernel(f"kernel ran past its budget of {budget:,} instructions; stopped at "
+            raise RunawayKernel(f"{self.image.path}: kernel ran past its budget of {budget:,} instructions; stopped at "
                                 f"{self.where(pc)}: {self.disassemble(pc)} (raise --budget if it is not a hang)", pc)
 
     def _run_traced(self, start: int, budget: int) -> Trace:
@@ -327,6 +327,12 @@ class Machine:
         return pc
 
     def _describe_fault(self, errno: int) -> GuestFault:
+        """The fault as one line that starts with the kernel's source file."""
+        fault = self._fault_of(errno)
+        fault.args = (f"{self.image.path}: {fault.args[0]}",)
+        return fault
+
+    def _fault_of(self, errno: int) -> GuestFault:
         pc = self.reg("eip")
         if errno == UC_ERR_EXCEPTION and self._interrupt is not None:
             pc = self._trap_pc(pc, self._interrupt)

@@ -11,12 +11,34 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import stat
 import tempfile
 from pathlib import Path
 from typing import Iterator
 
 from .errors import OutputError
+
+
+@contextlib.contextmanager
+def temporary_file(folder: str | os.PathLike, prefix: str, suffix: str = "") -> Iterator[Path]:
+    """A new empty file in `folder` (mode 0600 until the caller publishes it), removed on exit
+    unless it was renamed away. SIGINT/SIGTERM are held while it is created, so an interrupt can
+    never land between its creation and the `finally` that removes it."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    path = None
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        try:
+            fd, name = tempfile.mkstemp(prefix=prefix, suffix=suffix, dir=folder)
+            path = Path(name)  # known before any held signal can be delivered
+            os.close(fd)
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        yield path
+    finally:
+        if path is not None and os.path.lexists(path):
+            os.unlink(path)
 
 
 def _umask() -> int:
@@ -91,21 +113,15 @@ def atomic_output(path: str | os.PathLike, what: str = "output", suffix: str = "
     path = check_output_file(path, what)
     folder = path.parent if str(path.parent) else Path(".")
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or ".tmp", dir=folder)
-    except OSError as e:
-        raise OutputError(f"{what} {path}: cannot write in {folder}: {_reason(e)}") from None
-    try:
-        with os.fdopen(fd, "wb") as f:
-            yield f
-        os.chmod(tmp, file_mode())
-        # re-check just before the rename: something may have appeared at the target meanwhile
-        check_output_file(path, what)
-        os.replace(tmp, path)
+        with temporary_file(folder, f".{path.name}.", suffix or ".tmp") as tmp:
+            with open(tmp, "wb") as f:
+                yield f
+            os.chmod(tmp, file_mode())
+            # re-check just before the rename: something may have appeared at the target meanwhile
+            check_output_file(path, what)
+            os.replace(tmp, path)
     except OSError as e:
         raise OutputError(f"{what} {path}: {_reason(e)}") from None
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
 
 
 def atomic_write(path: str | os.PathLike, data: bytes, what: str = "output") -> None:

@@ -57,10 +57,13 @@ ZBUF_BYTES = {v: raster.ZBUF_DTYPE[v].itemsize for v in VARIANTS}
 KERNEL_DIR = "kernels/zbuffer"
 MAX_COORDINATE = 1 << 20  # screens are at most 32768 wide; the plane math stays exact far beyond
 # Host memory a scene may take: the runner holds a few int64/float64 arrays per pixel visit
-# (rasterized spans expanded to pixels, the reference, the expected frames), so the visits drawn per
-# frame are bounded. Raise it with RETROSIM_MAX_VISITS if the machine has the memory.
+# (rasterized spans expanded to pixels, the reference, the expected frames): about 220 bytes per
+# visit at peak (a 1024x1024 frame at depth complexity 60, 62 M visits, peaked at 14 GB). The
+# default admits a 4096x3072 frame at depth complexity 3 (38 M visits, ~8 GB); raise it with
+# RETROSIM_MAX_VISITS if the machine has the memory.
 MAX_VISITS_ENV = "RETROSIM_MAX_VISITS"
-DEFAULT_MAX_VISITS = 20_000_000
+DEFAULT_MAX_VISITS = 48_000_000
+VISIT_BYTES = 220
 
 # key -> (kind, required) per table; kinds: int, number, str, strlist, range, tables
 _SCENE_KEYS = {"name": ("str", True), "description": ("str", False), "width": ("int", True), "height": ("int", True)}
@@ -435,8 +438,9 @@ def _check_visits(v: _Validator, geometry: GeometrySpec, width: int, height: int
         v.fail("geometry", f"cannot build the geometry: {e}", "geometry")
     if visits > limit:
         v.fail("geometry", f"a frame draws {visits:,} pixels ({visits / (width * height):.1f} per screen pixel), "
-               f"more than the {limit:,} the host-side reference can follow in bounded memory (about 200 bytes "
-               f"each); raise {MAX_VISITS_ENV} if the machine has the memory", "geometry")
+               f"more than the limit of {limit:,} (host memory: about {VISIT_BYTES} bytes each, "
+               f"{visits * VISIT_BYTES / 2**30:.0f} GB here); raise {MAX_VISITS_ENV} if the machine has the memory",
+               "geometry")
 
 
 def load_scene(path: str | Path) -> Scene:

@@ -4,6 +4,7 @@ model's counters; they never change a simulation (the llvm-mca split)."""
 from __future__ import annotations
 
 import numpy as np
+from rich.markup import escape  # file names are shown literally, brackets included
 from rich.table import Table
 
 from .cpus import p6_core as core
@@ -31,7 +32,7 @@ def summary(result: TimingResult) -> dict:
 
 def summary_table(result: TimingResult) -> Table:
     s = summary(result)
-    t = Table(title=f"{result.source.name}:{result.entry} on {result.cpu} with {result.memory} "
+    t = Table(title=f"{escape(result.source.name)}:{result.entry} on {result.cpu} with {result.memory} "
                     f"(call {result.repeat} of {result.repeat})", show_header=False)
     t.add_column(style="bold")
     t.add_column(justify="right")
@@ -88,7 +89,7 @@ def explain_rows(result: TimingResult) -> list[dict]:
 
 
 def explain_table(result: TimingResult) -> Table:
-    t = Table(title=f"{result.source.name}:{result.entry} on {result.cpu}: per instruction, last call "
+    t = Table(title=f"{escape(result.source.name)}:{result.entry} on {result.cpu}: per instruction, last call "
                     "(stall columns are cycles per execution)")
     cols = [("pc", "right"), ("instruction", "left"), ("runs", "right"), ("dec", "left"), ("uops", "right"),
             ("ports", "left"), ("iss->ret", "right"), ("dep", "right"), ("port", "right"), ("decode", "right"),
