@@ -29,7 +29,8 @@ from .output import file_mode, temporary_file
 
 CACHE_ENV = "RETROSIM_CACHE"
 ASSEMBLER_ENV = "RETROSIM_ASSEMBLER"
-_INCLUDE = re.compile(rb'^\s*\.include\s+"([^"]+)"', re.MULTILINE)
+# .include (assembly, scanned for its own includes) and .incbin (bytes): both are part of the object
+_INCLUDE = re.compile(rb'^\s*(?:[\w.$]+:\s*)*\.(include|incbin)\s+"([^"]+)"', re.MULTILINE)
 
 
 @dataclass(frozen=True)
@@ -137,9 +138,9 @@ def _content_key(source: Path, asm: Assembler) -> str:
     h = hashlib.sha256()
     h.update(repr((asm.name, asm.version, asm.command[1:])).encode())
     seen: set[Path] = set()
-    pending: list[tuple[Path, str]] = [(source.resolve(), str(source))]
+    pending: list[tuple[Path, str, bool]] = [(source.resolve(), str(source), False)]  # (path, name, binary)
     while pending:
-        path, what = pending.pop()
+        path, what, binary = pending.pop()
         if path in seen:
             continue
         seen.add(path)
@@ -147,10 +148,12 @@ def _content_key(source: Path, asm: Assembler) -> str:
             continue  # a missing include is reported by the assembler itself, with its line
         data = read_source(path, what)
         h.update(str(path.name).encode() + b"\0" + data)
+        if binary:
+            continue  # .incbin data: not scanned for directives
         for m in _INCLUDE.finditer(data):
-            line = data.count(b"\n", 0, m.start(1)) + 1
-            name = m.group(1).decode(errors="replace")
-            pending.append((path.parent / name, f'{_shown(path, source)}:{line}: .include "{name}"'))
+            line = data.count(b"\n", 0, m.start(2)) + 1
+            kind, name = m.group(1).decode(), m.group(2).decode(errors="replace")
+            pending.append((path.parent / name, f'{_shown(path, source)}:{line}: .{kind} "{name}"', kind == "incbin"))
     return h.hexdigest()
 
 

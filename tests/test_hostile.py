@@ -347,3 +347,39 @@ def test_sigterm_during_assembly_leaves_no_temporary_file(tmp_path):
     out, err = proc.communicate(timeout=30)
     assert proc.returncode == 128 + signal.SIGTERM, (out, err)
     assert not list((cache / "asm").iterdir())
+
+
+def test_includes_are_hashed_with_a_size_limit_and_incbin_counts(tmp_path):
+    sparse = tmp_path / "big.inc"
+    with open(sparse, "wb") as f:
+        f.truncate(1 << 30)  # 1 GB, sparse: reading it whole is what must not happen
+    src = kernel(tmp_path, "k.S", '.intel_syntax noprefix\n# a comment\n.include "big.inc"\n')
+    line = one_error(cli("run-kernel", src))
+    assert f"{src}:3:" in line and "big.inc" in line and "MB" in line
+    src = kernel(tmp_path, "bin.S", '.intel_syntax noprefix\n.globl f\nf:\n    mov eax, [d]\n    ret\n'
+                 '.data\nd: .incbin "d.bin"\n')
+    (tmp_path / "d.bin").write_bytes(bytes([1, 0, 0, 0]))
+    assert json.loads(succeeds("run-kernel", src, "--json").stdout)["eax"] == 1
+    (tmp_path / "d.bin").write_bytes(bytes([2, 0, 0, 0]))  # the object depends on it: not served stale
+    assert json.loads(succeeds("run-kernel", src, "--json").stdout)["eax"] == 2
+    (tmp_path / "d.bin").unlink()
+    (tmp_path / "d.bin").symlink_to("/dev/zero")
+    assert "not a regular file" in fails("run-kernel", src)
+
+
+def test_sigterm_during_a_trace_save_leaves_no_temporary_file(tmp_path):
+    # ~8 M instructions: saving (compressing) the trace takes a good fraction of a second
+    src = kernel(tmp_path, "loop.S", "    mov ecx, 2000000\n1:  mov eax, [esp]\n    dec ecx\n    jnz 1b\n    ret")
+    out = tmp_path / "out"
+    out.mkdir()
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "NUMBA_NUM_THREADS": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "sim.cli", "trace", str(src), "--out", str(out / "t.npz")],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 60
+    while not list(out.glob(".t.npz*")) and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.005)
+    assert proc.poll() is None, "the trace was saved before the test could interrupt it"
+    proc.send_signal(signal.SIGTERM)
+    out_text, err = proc.communicate(timeout=30)
+    assert proc.returncode == 128 + signal.SIGTERM, (out_text, err)
+    assert not list(out.iterdir())
