@@ -314,7 +314,7 @@ def _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iter
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     # many calls: show where the emulation is (stderr, so --json stays clean)
-    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+    with Progress(TextColumn("{task.description}", markup=False), BarColumn(), TextColumn("{task.completed}/{task.total}"),
                   TimeElapsedColumn(), console=err_console, transient=True) as bar:
         task = bar.add_task(f"emulating {entry} x {repeat:,}", total=repeat)
         return time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=cpu, memory=memory,
@@ -426,7 +426,7 @@ def _run_scenes(scenes, cpus, on_result=None) -> tuple[list, list[str]]:
     from .scene import load_scene
 
     results, failures = [], []
-    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+    with Progress(TextColumn("{task.description}", markup=False), BarColumn(), TextColumn("{task.completed}/{task.total}"),
                   TimeElapsedColumn(), console=err_console, transient=False) as bar:
         for item in scenes:
             try:
@@ -474,7 +474,7 @@ def _summary_table(results) -> Table:
                 except KeyError:
                     cells.append("")
             vis = r.accuracy[v].visibility
-            t.add_row(r.scene.name if i == 0 else "", v, *cells,
+            t.add_row(escape(r.scene.name) if i == 0 else "", v, *cells,
                       f"{vis['fraction']:.3%}" if vis else "-")
     return t
 

@@ -288,7 +288,12 @@ def test_a_failing_scene_keeps_the_finished_ones(tmp_path):
     good = scene(tmp_path, "good")
     bad = scene(tmp_path, "bad", RANDOM.format(seed=-1))
     out = tmp_path / "out"
-    r = CliRunner().invoke(main, ["report", str(good), str(bad), "--out", str(out)])
+    old = os.umask(0o022)
+    try:
+        r = CliRunner().invoke(main, ["report", str(good), str(bad), "--out", str(out)])
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((out / "good.md").stat().st_mode) == 0o644
     assert r.exit_code == 2 and isinstance(r.exception, SystemExit)
     assert (out / "good.md").is_file() and (out / "good.json").is_file()
     assert not list(out.glob("bad.*"))
@@ -383,3 +388,9 @@ def test_sigterm_during_a_trace_save_leaves_no_temporary_file(tmp_path):
     out_text, err = proc.communicate(timeout=30)
     assert proc.returncode == 128 + signal.SIGTERM, (out_text, err)
     assert not list(out.iterdir())
+
+
+def test_a_scene_name_with_markup_is_shown_literally(tmp_path):
+    path = scene(tmp_path, "x[bold]y")
+    r = succeeds("report", path, "--out", tmp_path / "out")
+    assert "x[bold]y" in r.stdout and (tmp_path / "out" / "x[bold]y.md").is_file()
