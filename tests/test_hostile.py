@@ -394,3 +394,9 @@ def test_a_scene_name_with_markup_is_shown_literally(tmp_path):
     path = scene(tmp_path, "x[bold]y")
     r = succeeds("report", path, "--out", tmp_path / "out")
     assert "x[bold]y" in r.stdout and (tmp_path / "out" / "x[bold]y.md").is_file()
+
+
+def test_timing_memory_is_bounded_with_the_limit_named(tmp_path):
+    src = kernel(tmp_path, "cnt.S", "    mov ecx, 200000\n1:  dec ecx\n    jnz 1b\n    ret")
+    line = fails("time", src, env={"RETROSIM_MODEL_MB": "10"})  # 2 x 400,002 instructions x 90 bytes > 10 MB
+    assert "RETROSIM_MODEL_MB=10" in line and "800,004 instructions" in line  # 2 calls (--repeat 2)
