@@ -6,6 +6,7 @@ import json
 import math
 import signal
 import sys
+import threading
 from pathlib import Path
 
 import click
@@ -54,7 +55,8 @@ class RetrosimGroup(click.Group):
     """Turn every RetrosimError into one clean line on stderr and exit status 2."""
 
     def invoke(self, ctx):
-        signal.signal(signal.SIGTERM, _terminate)
+        if threading.current_thread() is threading.main_thread():  # signal handlers live in the main thread
+            signal.signal(signal.SIGTERM, _terminate)
         try:
             return super().invoke(ctx)
         except RetrosimError as e:
@@ -64,6 +66,8 @@ class RetrosimGroup(click.Group):
             print_error("out of host memory (a limit of the machine or of `ulimit -v`); "
                         "lower the workload (--budget, --repeat, the scene's size)")
             sys.exit(2)
+        except BrokenPipeError:
+            raise  # `retrosim ... | head`: click exits quietly
         except OSError as e:
             # a safety net: the checks above each writer should have named the problem first
             where = f"{e.filename}: " if getattr(e, "filename", None) else ""
