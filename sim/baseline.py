@@ -56,10 +56,10 @@ def load(path: Path | None = None) -> dict:
         raise BaselineError(f"{path}: cannot read: {e.strerror or e}") from None
     except UnicodeDecodeError as e:
         raise BaselineError(f"{path}: not UTF-8 text ({e.reason} at byte {e.start}); "
-                            "restore it from git or re-record with `retrosim check --update`") from None
+                            "restore it from git (git checkout -- reports/baselines.json)") from None
     except json.JSONDecodeError as e:
         raise BaselineError(f"{path}:{e.lineno}: not valid JSON ({e.msg}); "
-                            "restore it from git or re-record with `retrosim check --update`") from None
+                            "restore it from git (git checkout -- reports/baselines.json)") from None
     # expected shape: {scene: {case: {counter: int}}}
     if not isinstance(data, dict):
         raise BaselineError(f"{path}: expected a JSON object of scenes, got {type(data).__name__}")

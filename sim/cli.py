@@ -186,8 +186,7 @@ def _bounded(low: int, high: int | None = None, note: str = ""):
     def check(ctx, param, value):
         if value is None:
             return value
-        name = "--" + param.name.replace("_", "-") if param.name else "value"
-        name = param.opts[0] if param.opts else name
+        name = max(param.opts, key=len)  # the long spelling: --repeat, not -n
         if value < low or (high is not None and value > high):
             bound = f"at least {low:,}" if high is None else f"between {low:,} and {high:,}"
             raise ArgumentError(f"{name} {value}: must be {bound}{note}")
