@@ -404,8 +404,8 @@ def _scene_paths(names) -> list[Path]:
     paths = []
     for n in names:
         p = Path(n)
-        p = p if p.suffix == ".toml" and p.is_file() else SCENES_DIR / f"{n}.toml"
-        if not p.is_file():
+        p = p if p.suffix == ".toml" and p.exists() else SCENES_DIR / f"{n}.toml"
+        if not p.exists():  # anything else that exists (a device, a pipe) is refused by load_scene
             known = ", ".join(sorted(q.stem for q in SCENES_DIR.glob("*.toml")))
             raise ArgumentError(f"no scene '{n}' (shipped scenes: {known})")
         paths.append(p)

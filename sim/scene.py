@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 import re
+import stat
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -55,6 +56,7 @@ SPAN_RECORD_BYTES = 32  # kernels/zbuffer/draw.inc: 8 dwords per span
 ARENA_ALIGN = 64        # sim.emu.Arena.alloc's default alignment
 ZBUF_BYTES = {v: raster.ZBUF_DTYPE[v].itemsize for v in VARIANTS}
 KERNEL_DIR = "kernels/zbuffer"
+MAX_SCENE_BYTES = 64 << 20  # 65535 explicit triangles take about 6 MB
 MAX_COORDINATE = 1 << 20  # screens are at most 32768 wide; the plane math stays exact far beyond
 # Host memory a scene may take: the runner holds a few int64/float64 arrays per pixel visit
 # (rasterized spans expanded to pixels, the reference, the expected frames): about 220 bytes per
@@ -451,6 +453,12 @@ def load_scene(path: str | Path) -> Scene:
 
     path = Path(path)
     try:
+        st = path.stat()
+        # a scene is text of modest size: never read a device, a pipe or a sparse giant whole
+        if not stat.S_ISREG(st.st_mode):
+            raise SceneError(f"{path}: not a regular file (a device, pipe or folder)")
+        if st.st_size > MAX_SCENE_BYTES:
+            raise SceneError(f"{path}: {st.st_size:,} bytes, more than the {MAX_SCENE_BYTES >> 20} MB a scene file may have")
         raw = path.read_bytes()
     except OSError as e:
         raise SceneError(f"{path}: cannot read scene file: {e.strerror or e}") from None

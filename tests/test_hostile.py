@@ -400,3 +400,11 @@ def test_timing_memory_is_bounded_with_the_limit_named(tmp_path):
     src = kernel(tmp_path, "cnt.S", "    mov ecx, 200000\n1:  dec ecx\n    jnz 1b\n    ret")
     line = fails("time", src, env={"RETROSIM_MODEL_MB": "10"})  # 2 x 400,002 instructions x 90 bytes > 10 MB
     assert "RETROSIM_MODEL_MB=10" in line and "800,004 instructions" in line  # 2 calls (--repeat 2)
+
+
+def test_scene_files_that_are_not_text_files(tmp_path):
+    (tmp_path / "z.toml").symlink_to("/dev/zero")
+    assert "z.toml: not a regular file" in fails("report", tmp_path / "z.toml", "--out", tmp_path / "o")
+    with open(tmp_path / "big.toml", "wb") as f:
+        f.truncate(1 << 30)
+    assert "big.toml: 1,073,741,824 bytes" in fails("report", tmp_path / "big.toml", "--out", tmp_path / "o")
