@@ -10,12 +10,17 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from .errors import RetrosimError
 from .report import atomic_write
 from .runner import SceneResult
 
 BASELINE_FILE = Path(__file__).resolve().parent.parent / "reports" / "baselines.json"
 COUNTERS = ("cycles", "instructions", "uops", "decode_groups", "l1d_load_misses", "l1d_store_misses", "l2_misses",
             "dram_fills", "mispredicts")
+
+
+class BaselineError(RetrosimError):
+    """reports/baselines.json is unreadable or has the wrong shape."""
 
 
 @dataclass(frozen=True)
@@ -39,14 +44,37 @@ def entries(result: SceneResult) -> dict[str, dict[str, int]]:
     return {f"{t.variant}@{t.key}": {c: int(t.counters[c]) for c in COUNTERS} for t in result.timings}
 
 
-def load(path: Path = BASELINE_FILE) -> dict:
-    if not path.is_file():
+def load(path: Path | None = None) -> dict:
+    """The recorded baselines ({} when there is no file); a damaged file is one clear error."""
+    path = Path(path) if path is not None else BASELINE_FILE
+    if not path.exists():
         return {}
-    with open(path) as f:
-        return json.load(f)
+    try:
+        text = path.read_bytes().decode("utf-8")
+        data = json.loads(text)
+    except OSError as e:
+        raise BaselineError(f"{path}: cannot read: {e.strerror or e}") from None
+    except UnicodeDecodeError as e:
+        raise BaselineError(f"{path}: not UTF-8 text ({e.reason} at byte {e.start}); "
+                            "restore it from git (git checkout -- reports/baselines.json)") from None
+    except json.JSONDecodeError as e:
+        raise BaselineError(f"{path}:{e.lineno}: not valid JSON ({e.msg}); "
+                            "restore it from git (git checkout -- reports/baselines.json)") from None
+    # expected shape: {scene: {case: {counter: int}}}
+    if not isinstance(data, dict):
+        raise BaselineError(f"{path}: expected a JSON object of scenes, got {type(data).__name__}")
+    for scene, cases in data.items():
+        if not isinstance(cases, dict):
+            raise BaselineError(f"{path}: {scene}: expected an object of cases, got {type(cases).__name__}")
+        for case, counters in cases.items():
+            if not isinstance(counters, dict) or not all(
+                    isinstance(v, int) and not isinstance(v, bool) for v in counters.values()):
+                raise BaselineError(f"{path}: {scene}.{case}: expected an object of integer counters")
+    return data
 
 
-def save(data: dict, path: Path = BASELINE_FILE) -> None:
+def save(data: dict, path: Path | None = None) -> None:
+    path = Path(path) if path is not None else BASELINE_FILE
     atomic_write(path, (json.dumps(data, indent=1, sort_keys=True) + "\n").encode())
 
 

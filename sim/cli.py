@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import json
+import math
+import signal
 import sys
+import threading
 from pathlib import Path
 
 import click
@@ -26,15 +29,50 @@ _ARGS_HELP = ("comma-separated cdecl arguments: integers (12, -3, 0x1F), 32-bit 
               + ", ".join(_DTYPES))
 
 
+def one_line(message: str) -> str:
+    """A message as one literal line: control characters (newlines in a file name, terminal escape
+    sequences) are shown escaped, never interpreted."""
+    return "".join(c if c.isprintable() or c == "\t" else repr(c)[1:-1] for c in str(message))
+
+
+def print_error(message: str) -> None:
+    """The one way errors reach the user: `retrosim: error: ...` on stderr, printed literally
+    (rich markup would eat `[...]` and crash on `[/]`, so no rich here)."""
+    sys.stderr.write(f"retrosim: error: {one_line(message)}\n")
+    sys.stderr.flush()
+
+
+def say(message: str) -> None:
+    """A status line on stderr, printed literally (paths and names may contain brackets)."""
+    err_console.print(message, markup=False, highlight=False, soft_wrap=True)
+
+
+def _terminate(signum, frame):
+    # SIGTERM unwinds like Ctrl-C, so every `finally` removes its temporary file
+    raise SystemExit(128 + signum)
+
+
 class RetrosimGroup(click.Group):
     """Turn every RetrosimError into one clean line on stderr and exit status 2."""
 
     def invoke(self, ctx):
+        if threading.current_thread() is threading.main_thread():  # signal handlers live in the main thread
+            signal.signal(signal.SIGTERM, _terminate)
         try:
             return super().invoke(ctx)
         except RetrosimError as e:
-            # escape: '[esi]' in a disassembled operand would otherwise be read as rich markup and vanish
-            err_console.print(f"[bold red]retrosim: error:[/] {escape(str(e))}", highlight=False, soft_wrap=True)
+            print_error(str(e))
+            sys.exit(2)
+        except MemoryError:
+            print_error("out of host memory (a limit of the machine or of `ulimit -v`); "
+                        "lower the workload (--budget, --repeat, the scene's size)")
+            sys.exit(2)
+        except BrokenPipeError:
+            raise  # `retrosim ... | head`: click exits quietly
+        except OSError as e:
+            # a safety net: the checks above each writer should have named the problem first
+            where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+            print_error(f"{where}{e.strerror or e}")
             sys.exit(2)
 
 
@@ -45,34 +83,76 @@ def main():
 
 
 # -- argument parsing shared by run-kernel and trace -------------------------------------------
+def _f32(text: str, what: str) -> np.float32:
+    """A 32-bit float, refusing finite values that overflow it (1e40 would silently become inf)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise ArgumentError(f"{what}: not a number") from None
+    with np.errstate(over="ignore"):
+        single = np.float32(value)
+    if math.isfinite(value) and not math.isfinite(single):
+        raise ArgumentError(f"{what}: {value:g} is out of range for a 32-bit float (largest {np.finfo(np.float32).max:g})")
+    return single
+
+
+def _buffer(item: str, what: str, machine) -> tuple[np.ndarray, np.dtype, int]:
+    """Check a buf:TYPE:COUNT[:FILL] item completely (sizes before allocating anything)."""
+    parts = item.split(":")
+    if len(parts) not in (3, 4) or parts[1] not in _DTYPES:
+        raise ArgumentError(f"{what}: expected buf:TYPE:COUNT[:FILL], TYPE one of {', '.join(_DTYPES)}")
+    dtype = np.dtype(_DTYPES[parts[1]])
+    try:
+        count = int(parts[2], 0)
+    except ValueError:
+        raise ArgumentError(f"{what}: COUNT must be a whole number") from None
+    left = machine.arena.size - machine.arena.used
+    if count < 0:
+        raise ArgumentError(f"{what}: COUNT must not be negative")
+    if count * dtype.itemsize > left:
+        raise ArgumentError(f"{what}: {count:,} x {dtype.itemsize} bytes does not fit in the workload arena "
+                            f"({left:,} of {machine.arena.size:,} bytes left)")
+    fill = 0
+    if len(parts) == 4:
+        if dtype.kind == "f":
+            if dtype == np.float32:
+                fill = _f32(parts[3], what)
+            else:
+                try:
+                    fill = float(parts[3])
+                except ValueError:
+                    raise ArgumentError(f"{what}: FILL must be a number") from None
+        else:
+            try:
+                fill = int(parts[3], 0)
+            except ValueError:
+                raise ArgumentError(f"{what}: FILL must be a whole number for {parts[1]}") from None
+            info = np.iinfo(dtype)
+            if not info.min <= fill <= info.max:
+                raise ArgumentError(f"{what}: FILL {fill} is out of range for {parts[1]} ({info.min}..{info.max})")
+    return np.full(count, fill, dtype=dtype), dtype, count
+
+
 def parse_args(text: str | None, machine) -> tuple[list, list[tuple[str, int, np.dtype, int]]]:
     """Parse --args; buffers are allocated in the machine's arena. Returns (values, buffers)."""
     values, buffers = [], []
     for i, item in enumerate(a.strip() for a in (text or "").split(",") if a.strip()):
+        what = f"--args item {i + 1} '{item}'"
         if item.startswith("buf:"):
-            parts = item.split(":")
-            if len(parts) not in (3, 4) or parts[1] not in _DTYPES:
-                raise ArgumentError(f"--args item {i + 1} '{item}': expected buf:TYPE:COUNT[:FILL], "
-                                    f"TYPE one of {', '.join(_DTYPES)}")
-            dtype = np.dtype(_DTYPES[parts[1]])
-            try:
-                count = int(parts[2], 0)
-                fill = (float(parts[3]) if dtype.kind == "f" else int(parts[3], 0)) if len(parts) == 4 else 0
-            except ValueError:
-                raise ArgumentError(f"--args item {i + 1} '{item}': COUNT and FILL must be numbers") from None
-            address = machine.arena.put(np.full(count, fill, dtype=dtype))
+            data, dtype, count = _buffer(item, what, machine)
+            address = machine.arena.put(data)
             buffers.append((item, address, dtype, count))
             values.append(address)
-        elif item.lower().endswith("f") and not item.lower().startswith("0x"):
-            try:
-                values.append(np.float32(float(item[:-1])))
-            except ValueError:
-                raise ArgumentError(f"--args item {i + 1} '{item}': not a float") from None
+        elif item.lower().endswith("f") and not item.lower().startswith(("0x", "-0x")):
+            values.append(_f32(item[:-1], what))
         else:
             try:
-                values.append(int(item, 0))
+                value = int(item, 0)
             except ValueError:
-                raise ArgumentError(f"--args item {i + 1} '{item}': not an integer, float (1.5f) or buf:TYPE:COUNT") from None
+                raise ArgumentError(f"{what}: not an integer, float (1.5f) or buf:TYPE:COUNT") from None
+            if not -(1 << 31) <= value < (1 << 32):
+                raise ArgumentError(f"{what}: does not fit in a 32-bit stack slot")
+            values.append(value)
     return values, buffers
 
 
@@ -110,11 +190,27 @@ def _set_syntax(ctx, param, value):
     return value
 
 
+def _bounded(low: int, high: int | None = None, note: str = ""):
+    """An option callback refusing integers outside [low, high] with one line naming the option."""
+    def check(ctx, param, value):
+        if value is None:
+            return value
+        name = max(param.opts, key=len)  # the long spelling: --repeat, not -n
+        if value < low or (high is not None and value > high):
+            bound = f"at least {low:,}" if high is None else f"between {low:,} and {high:,}"
+            raise ArgumentError(f"{name} {value}: must be {bound}{note}")
+        return value
+    return check
+
+
+MAX_REPEAT = 10_000  # every call's trace is kept for the model; see also RETROSIM_TRACE_MB
+
 kernel_options = [
     click.argument("source"),
     click.option("--entry", "-e", help="entry point symbol (default: the only one the file declares)"),
     click.option("--args", "args_text", help=_ARGS_HELP),
-    click.option("--budget", default=200_000_000, show_default=True, help="instruction budget (0 = unlimited)"),
+    click.option("--budget", default=200_000_000, show_default=True, callback=_bounded(0),
+                 help="instruction budget (0 = unlimited; traces are still bounded by RETROSIM_TRACE_MB)"),
     click.option("--assembler", type=click.Choice(["gnu", "zig"]), help="assembler back end (default: GNU as)"),
     click.option("--syntax", type=click.Choice(["intel", "att"]), expose_value=False, callback=_set_syntax,
                  help="syntax of a source without .intel_syntax/.att_syntax (default: detected from % register "
@@ -147,7 +243,7 @@ def kernels_cmd(as_json: bool):
         for i, e in enumerate(entries.values()):
             table.add_row(escape(str(path.relative_to(root))) if i == 0 else "", escape(e.signature()))
         if not entries:
-            table.add_row(str(path.relative_to(root)), "[dim](no @entry declared)[/]")
+            table.add_row(escape(str(path.relative_to(root))), "[dim](no @entry declared)[/]")
     console.print(table)
 
 
@@ -178,32 +274,33 @@ def run_kernel_cmd(source, entry, args_text, budget, assembler, isa_cpu, as_json
     if as_json:
         click.echo(json.dumps(report, indent=2))
         return
-    table = Table(title=f"{Path(source).name}: {entry}", show_header=False)
+    table = Table(title=f"{escape(Path(source).name)}: {escape(entry)}", show_header=False)
     for key in ("eax", "edx"):
         table.add_row(key.upper(), f"{report[key]:#010x}  ({report[key]})")
     for key in ("instructions", "distinct_pcs", "accesses", "reads", "writes", "bytes_read", "bytes_written"):
         table.add_row(key.replace("_", " "), f"{report[key]:,}")
     for b in report["buffers"]:
-        table.add_row(b["arg"], f"@{b['address']:#010x} first {b['first']} sum {b['sum']}")
+        table.add_row(escape(b["arg"]), escape(f"@{b['address']:#010x} first {b['first']} sum {b['sum']}"))
     console.print(table)
 
 
 @main.command("trace")
 @with_kernel_options
 @_isa_cpu_option
-@click.option("--out", "-o", type=click.Path(dir_okay=False, path_type=Path), required=True,
+@click.option("--out", "-o", type=click.Path(path_type=Path), required=True,
               help="output .npz (arrays pc, mem_addr, mem_size, mem_write, mem_insn)")
 def trace_cmd(source, entry, args_text, budget, assembler, isa_cpu, out):
     """Record a kernel's PC stream and data accesses to an .npz file for other simulators."""
+    from .output import check_output_file
+
+    check_output_file(out, "--out")  # before the work: a bad path fails in a second, not after the run
     m = _machine(source, assembler, isa_cpu)
     entry = _entry(m, entry)
     values, _ = parse_args(args_text, m)
     t = m.call(entry, *values, budget=budget, trace=True).trace
-    if out.parent and not out.parent.exists():
-        raise ArgumentError(f"--out {out}: directory {out.parent} does not exist")
     t.save(out)
     console.print(f"wrote {out}: {t.instructions:,} instructions, {t.accesses:,} data accesses "
-                  f"({t.reads:,} reads, {t.writes:,} writes)")
+                  f"({t.reads:,} reads, {t.writes:,} writes)", markup=False, highlight=False)
 
 
 def _cpu_choice(ctx, param, value):
@@ -218,7 +315,7 @@ timing_options = [
     click.option("--cpu", "-c", default="pentium2-233", show_default=True, callback=_cpu_choice,
                  help="CPU preset (see `retrosim cpus`)"),
     click.option("--memory", "-m", help="memory preset (default: the CPU preset's)"),
-    click.option("--repeat", "-n", default=2, show_default=True,
+    click.option("--repeat", "-n", default=2, show_default=True, callback=_bounded(1, MAX_REPEAT),
                  help="calls in one machine state; the last is reported (caches and predictors warm)"),
 ]
 
@@ -237,8 +334,18 @@ def _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iter
     probe = Machine.from_source(path, assembler=assembler, cpu=cpu)  # resolve the entry and check --args once
     entry = _entry(probe, entry)
     parse_args(args_text, probe)
-    return time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=cpu, memory=memory,
-                       repeat=repeat, budget=budget, timeline_iterations=iterations, assembler=assembler)
+    if repeat < 20:
+        return time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=cpu, memory=memory,
+                           repeat=repeat, budget=budget, timeline_iterations=iterations, assembler=assembler)
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    # many calls: show where the emulation is (stderr, so --json stays clean)
+    with Progress(TextColumn("{task.description}", markup=False), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                  TimeElapsedColumn(), console=err_console, transient=True) as bar:
+        task = bar.add_task(f"emulating {entry} x {repeat:,}", total=repeat)
+        return time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=cpu, memory=memory,
+                           repeat=repeat, budget=budget, timeline_iterations=iterations, assembler=assembler,
+                           progress=lambda done, total: bar.update(task, completed=done))
 
 
 @main.command("time")
@@ -285,7 +392,7 @@ Narrow terminals get the table in three parts keyed by the instruction."""
 @main.command("explain", help=EXPLAIN_HELP)
 @with_kernel_options
 @with_timing_options
-@click.option("--iterations", default=3, show_default=True, help="hot-loop iterations in the timeline")
+@click.option("--iterations", default=3, show_default=True, callback=_bounded(0, 1000), help="hot-loop iterations in the timeline")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object (rows and timeline)")
 def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations, as_json):
     from . import views
@@ -481,42 +588,66 @@ REPORTS_DIR = Path(__file__).resolve().parent.parent / "reports"
 SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
 
 
+def _scene_paths(names) -> list[Path]:
+    if not names:
+        return sorted(SCENES_DIR.glob("*.toml"))
+    paths = []
+    for n in names:
+        p = Path(n)
+        p = p if p.suffix == ".toml" and p.exists() else SCENES_DIR / f"{n}.toml"
+        if not p.exists():  # anything else that exists (a device, a pipe) is refused by load_scene
+            known = ", ".join(sorted(q.stem for q in SCENES_DIR.glob("*.toml")))
+            raise ArgumentError(f"no scene '{n}' (shipped scenes: {known})")
+        paths.append(p)
+    return paths
+
+
 def _scenes(names) -> list:
     from .scene import load_scene
 
-    if not names:
-        paths = sorted(SCENES_DIR.glob("*.toml"))
-    else:
-        paths = []
-        for n in names:
-            p = Path(n)
-            p = p if p.suffix == ".toml" and p.is_file() else SCENES_DIR / f"{n}.toml"
-            if not p.is_file():
-                known = ", ".join(sorted(q.stem for q in SCENES_DIR.glob("*.toml")))
-                raise ArgumentError(f"no scene '{n}' (shipped scenes: {known})")
-            paths.append(p)
-    return [load_scene(p) for p in paths]
+    return [load_scene(p) for p in _scene_paths(names)]
 
 
-def _run_scenes(scenes, cpus) -> list:
-    """Run scenes with a progress bar per scene (on stderr, so --json output stays clean)."""
+def _run_scenes(scenes, cpus, on_result=None) -> tuple[list, list[str]]:
+    """Run scenes (Scene objects, or paths loaded one by one) with a progress bar per scene (on
+    stderr, so --json output stays clean). With `on_result`, each result is handed over as soon as
+    its scene finishes and a failing scene does not stop the others: returns (results, failures).
+    Without it the first failure is raised."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from .runner import run_scene
+    from .scene import load_scene
 
-    results = []
-    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+    results, failures = [], []
+    with Progress(TextColumn("{task.description}", markup=False), BarColumn(), TextColumn("{task.completed}/{task.total}"),
                   TimeElapsedColumn(), console=err_console, transient=False) as bar:
-        for scene in scenes:
-            steps = len(scene.variants) * (1 + len(list(cpus) or scene.cpus))
-            task = bar.add_task(scene.name, total=steps)
+        for item in scenes:
+            try:
+                scene = load_scene(item) if isinstance(item, Path) else item
+                steps = len(scene.variants) * (1 + len(list(cpus) or scene.cpus))
+                task = bar.add_task(scene.name, total=steps)
 
-            def progress(msg, task=task):
-                bar.update(task, advance=1, description=msg[:70])
+                def progress(msg, task=task):
+                    bar.update(task, advance=1, description=msg[:70])
 
-            results.append(run_scene(scene, list(cpus) or None, progress))
-            bar.update(task, completed=steps, description=f"{scene.name}: done")
-    return results
+                result = run_scene(scene, list(cpus) or None, progress)
+                bar.update(task, completed=steps, description=f"{scene.name}: done")
+                if result.pixels == 0:
+                    bar.console.print(f"{scene.name}: the scene draws no pixels (degenerate, collinear, off-screen or "
+                                      "sub-pixel triangles): every metric counts 0 covered pixels",
+                                      markup=False, highlight=False, soft_wrap=True)
+                if on_result is not None:
+                    on_result(result)
+            except RetrosimError as e:
+                if on_result is None:
+                    raise
+                failures.append(one_line(str(e)))
+                if item is not scenes[-1]:  # say it now when other scenes still run; the last line repeats it
+                    bar.console.print(f"retrosim: error: {one_line(str(e))}", markup=False, highlight=False,
+                                      soft_wrap=True)
+                continue
+            results.append(result)
+    return results, failures
 
 
 PARTIAL_DIR = REPORTS_DIR.parent / "build" / "reports"
@@ -526,31 +657,40 @@ PARTIAL_DIR = REPORTS_DIR.parent / "build" / "reports"
 @click.argument("scenes", nargs=-1)
 @click.option("--cpu", "cpus", multiple=True, help="run on these presets instead of the scene's (preset[:memory]); "
               "without --out the reports then go to build/reports/, never over the committed ones")
-@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+@click.option("--out", type=click.Path(path_type=Path), default=None,
               help="directory for the Markdown, HTML, JSON, CSV and PNG reports [default: reports/, or "
                    "build/reports/ for a run restricted with --cpu]")
 def report_cmd(scenes, cpus, out):
     """Run scenes (default: every shipped scene) and write their reports; print a summary."""
+    from .output import check_output_dir
     from .report import summary_tables, write_reports
 
-    chosen = _scenes(scenes)
     if out is None:
         # reports/ holds the committed reports, which CI compares with fresh ones: a run with other
         # CPUs would silently replace them with different content
         out = PARTIAL_DIR if cpus else REPORTS_DIR
         if cpus:
-            err_console.print(f"--cpu changes the reports' content: writing to {out}/ (not over the committed "
-                              f"reports in {REPORTS_DIR}/; choose a directory with --out)", highlight=False)
-    results = _run_scenes(chosen, cpus)
-    for r in results:
-        paths = write_reports(r, out)
-        err_console.print(f"wrote {', '.join(str(p) for p in paths)}", highlight=False)
-    if not scenes and not cpus:  # the default set also regenerates the conversion report
+            say(f"--cpu changes the reports' content: writing to {out}/ (not over the committed reports in "
+                f"{REPORTS_DIR}/; choose a directory with --out)")
+            out.mkdir(parents=True, exist_ok=True)
+    check_output_dir(out, "--out")  # before the work: a read-only or impossible folder fails at once
+    paths = _scene_paths(scenes)
+
+    def write(result):  # each scene's reports as soon as it finishes: a later failure keeps them
+        say(f"wrote {', '.join(str(p) for p in write_reports(result, out))}")
+
+    results, failures = _run_scenes(paths, cpus, on_result=write)
+    if not scenes and not cpus and not failures:  # the default set also regenerates the conversion report
         err_console.print("[dim]conversion report: timing kernels/convert/loops.S ...[/]")
-        err_console.print(f"wrote {_write_conversion_report(out)}", highlight=False)
-        err_console.print(f"wrote {_write_texture_report(out)}", highlight=False)
+        say(f"wrote {_write_conversion_report(out)}")
+        say(f"wrote {_write_texture_report(out)}")
     for part in summary_tables(results):
         console.print(part, highlight=False)
+    if len(paths) == 1 and failures:
+        raise RetrosimError(failures[0])
+    if failures:
+        raise RetrosimError(f"{len(failures)} of {len(paths)} scene(s) failed, the others' reports are written: "
+                            + "; ".join(failures))
 
 
 def _write_texture_report(out: Path) -> Path:
@@ -579,7 +719,8 @@ def check_cmd(scenes, update, check_reports):
     from .report import write_reports
 
     chosen = _scenes(scenes)
-    results = _run_scenes(chosen, ())
+    baseline.load()  # a damaged baselines file fails before the work, not after it
+    results, _ = _run_scenes(chosen, ())
     if update:
         baseline.save(baseline.update(baseline.load(), results))
         console.print(f"re-recorded {len(results)} scene(s) in {baseline.BASELINE_FILE}")
@@ -608,7 +749,7 @@ def check_cmd(scenes, update, check_reports):
                       "-" if d.percent is None else f"{d.percent:+.2f}%")
         console.print(t)
     for p in stale:
-        err_console.print(f"stale report: {p} (regenerate with `retrosim report`)")
+        say(f"stale report: {p} (regenerate with `retrosim report`)")
     if drifts or stale:
         raise SystemExit(1)
     console.print(f"{sum(len(baseline.entries(r)) for r in results)} case(s) in {len(results)} scene(s) "
@@ -651,7 +792,7 @@ def validate_cmd(fams, out, check):
 
 
 @main.command("bench")
-@click.option("--pixels", default=1 << 20, show_default=True, help="pixels in the Z-buffer span workload")
+@click.option("--pixels", default=1 << 20, show_default=True, callback=_bounded(1, 1 << 22, " (the Python-hook mode keeps every instruction as Python objects, about 1 GB per million pixels)"), help="pixels in the Z-buffer span workload")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object with the figures")
 def bench_cmd(pixels: int, as_json: bool):
     """Emulation speed: Unicorn bare, with Python hooks, with the native trace (same workload)."""

@@ -283,7 +283,7 @@ def render(family_results: dict[str, tuple[list[RowResult], list[str]]]) -> str:
            "table a dependency chain (latency) and independent copies (reciprocal throughput) of the instruction,",
            f"{COPIES} more per loop iteration than a second copy of the loop ({ITERATIONS} iterations, warm second call: the",
            "difference cancels the loop and the call), run through the",
-           f"full model on each preset of the family. A row is reproduced when every figure the row states is met within",
+           "full model on each preset of the family. A row is reproduced when every figure the row states is met within",
            f"{TOLERANCE} cycles on every preset. Rows marked `estimated` are counted apart.", ""]
     out += ["| family | rows | benchmarked | reproduced (sourced) | estimated rows benchmarked | estimated reproduced | not generated |",
             "|---|---|---|---|---|---|---|"]

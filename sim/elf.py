@@ -96,14 +96,19 @@ def _place(sections, start: int) -> tuple[dict[str, int], int]:
     return placed, at
 
 
-def load_object(path: str | Path) -> GuestImage:
+def load_object(path: str | Path, source: str | Path | None = None) -> GuestImage:
+    """Load an ELF32 object. Errors (and the image's path) name `source` when given: the user wrote
+    the kernel source, the object is only the assembler cache's copy of it."""
     path = Path(path)
+    label = Path(source) if source is not None else path
     try:
         with open(path, "rb") as f:
             elf = ELFFile(f)
-            return _load(elf, path)
+            return _load(elf, label)
     except ELFError as e:
-        raise LoadError(f"{path}: not a valid ELF object ({e})") from None
+        raise LoadError(f"{label}: not a valid ELF object ({e})") from None
+    except OSError as e:
+        raise LoadError(f"{label}: cannot read the object {path}: {e.strerror or e}") from None
 
 
 def _load(elf: ELFFile, path: Path) -> GuestImage:
@@ -134,7 +139,7 @@ def _load(elf: ELFFile, path: Path) -> GuestImage:
 
     symtab = elf.get_section_by_name(".symtab")
     if symtab is None:
-        raise LoadError(f"{path}: object has no symbol table")
+        raise LoadError(f"{path}: the object has no symbol table (an empty source file?)")
     index_to_name = {i: s.name for i, s in enumerate(elf.iter_sections())}
     symbols: dict[str, int] = {}
     globals_: set[str] = set()

@@ -18,7 +18,7 @@ from capstone import CS_ARCH_X86, CS_MODE_32, Cs
 from unicorn import (UC_ARCH_X86, UC_ERR_EXCEPTION, UC_ERR_FETCH_PROT, UC_ERR_FETCH_UNMAPPED, UC_ERR_INSN_INVALID,
                      UC_ERR_READ_PROT, UC_ERR_READ_UNMAPPED, UC_ERR_WRITE_PROT, UC_ERR_WRITE_UNMAPPED, UC_HOOK_CODE,
                      UC_HOOK_INSN, UC_HOOK_INTR, UC_HOOK_MEM_INVALID, UC_HOOK_MEM_READ, UC_HOOK_MEM_WRITE,
-                     UC_MEM_WRITE, UC_MEM_WRITE_PROT, UC_MEM_WRITE_UNMAPPED, UC_MODE_32, UC_PROT_ALL, UC_PROT_EXEC, UC_PROT_READ, UC_PROT_WRITE, Uc, UcError)
+                     UC_MEM_FETCH_PROT, UC_MEM_FETCH_UNMAPPED, UC_MEM_WRITE, UC_MEM_WRITE_PROT, UC_MEM_WRITE_UNMAPPED, UC_MODE_32, UC_PROT_ALL, UC_PROT_EXEC, UC_PROT_READ, UC_PROT_WRITE, Uc, UcError)
 from unicorn import x86_const as X
 from unicorn.unicorn_py3.unicorn import uclib
 
@@ -172,11 +172,10 @@ class Machine:
 
             kwargs["emulator_cpu"] = presets.load(cpu).raw.get("emulator_cpu")
         try:
-            image = elf.load_object(obj)
-        except LoadError as e:  # name the source the user wrote, not the cached object
-            msg = str(e).replace(str(obj), str(source))
-            raise LoadError(msg.replace("object has no symbol table", "defines no symbols (an empty source file?)")) from None
-        image.path = Path(source)
+            image = elf.load_object(obj, source)
+        except LoadError:
+            asm.evict(obj)  # an object that cannot load is useless in the cache (and may be large)
+            raise
         return cls(image, entry_points(source), **kwargs)
 
     # -- state -------------------------------------------------------------------------------
@@ -208,7 +207,12 @@ class Machine:
 
     # -- hooks (Python, but only on rare events) -----------------------------------------------
     def _on_invalid(self, uc, kind, address, size, value, user_data):
-        self._fault = ("write" if kind in (UC_MEM_WRITE_UNMAPPED, UC_MEM_WRITE_PROT) else "read", address)
+        if kind in (UC_MEM_WRITE_UNMAPPED, UC_MEM_WRITE_PROT):
+            self._fault = ("write", address)
+        elif kind in (UC_MEM_FETCH_UNMAPPED, UC_MEM_FETCH_PROT):
+            self._fault = ("execute", address)  # an instruction fetch, not a data read
+        else:
+            self._fault = ("read", address)
         return False
 
     def _on_interrupt(self, uc, intno, user_data):
@@ -263,7 +267,7 @@ class Machine:
     def _check_finished(self, budget: int) -> None:
         pc = self.reg("eip")
         if pc != elf.EXIT_ADDR:
-            raise RunawayKernel(f"kernel ran past its budget of {budget:,} instructions; stopped at "
+            raise RunawayKernel(f"{self.image.path}: kernel ran past its budget of {budget:,} instructions; stopped at "
                                 f"{self.where(pc)}: {self.disassemble(pc)} (raise --budget if it is not a hang)", pc)
 
     def _run_traced(self, start: int, budget: int) -> Trace:
@@ -319,17 +323,42 @@ class Machine:
             return f"{insn.mnemonic} {insn.op_str}".strip()
         return f"<undecodable: {code[:4].hex(' ')}>"
 
+    def _trap_pc(self, pc: int, intno: int) -> int:
+        """The PC of the instruction that raised interrupt `intno`. Traps (INT n, INT3, INTO, INT1)
+        leave EIP after the instruction; faults (#DE, #UD, #GP...) leave it on the instruction."""
+        for length, pattern in ((2, bytes([0xCD, intno & 0xFF])), (1, {3: b"\xcc", 4: b"\xce", 1: b"\xf1"}.get(intno))):
+            if pattern is None or pc < length:
+                continue
+            try:
+                if bytes(self.uc.mem_read(pc - length, length)) == pattern:
+                    return pc - length
+            except UcError:
+                pass
+        return pc
+
     def _describe_fault(self, errno: int) -> GuestFault:
+        """The fault as one line that starts with the kernel's source file."""
+        fault = self._fault_of(errno)
+        fault.args = (f"{self.image.path}: {fault.args[0]}",)
+        return fault
+
+    def _fault_of(self, errno: int) -> GuestFault:
         pc = self.reg("eip")
-        where = f"{self.where(pc)}: {self.disassemble(pc)}"
         if errno == UC_ERR_EXCEPTION and self._interrupt is not None:
-            what = _INTERRUPTS.get(self._interrupt, f"CPU exception {self._interrupt}")
-            return GuestFault(f"guest fault at {where}: {what}", pc)
+            pc = self._trap_pc(pc, self._interrupt)
+            what = _INTERRUPTS.get(self._interrupt, f"interrupt {self._interrupt:#x}" if self._interrupt >= 32
+                                   else f"CPU exception {self._interrupt}")
+            if self._interrupt >= 32:
+                what += " (software interrupt: there is no operating system in the guest)"
+            return GuestFault(f"guest fault at {self.where(pc)}: {self.disassemble(pc)}: {what}", pc)
+        where = f"{self.where(pc)}: {self.disassemble(pc)}"
         what = _FAULTS.get(errno, f"Unicorn error {errno}")
+        if self._fault is not None and self._fault[0] == "execute" or errno in (UC_ERR_FETCH_UNMAPPED, UC_ERR_FETCH_PROT):
+            address = self._fault[1] if self._fault is not None else pc
+            what = _FAULTS[UC_ERR_FETCH_PROT if errno == UC_ERR_FETCH_PROT else UC_ERR_FETCH_UNMAPPED]
+            return GuestFault(f"guest fault: {what} at {self.where(address)} (an instruction fetch)", address, address)
         if self._fault is not None:
             kind, address = self._fault
             return GuestFault(f"guest fault at {where}: {kind} of unmapped or protected address {address:#010x}",
                               pc, address)
-        if errno in (UC_ERR_FETCH_UNMAPPED, UC_ERR_FETCH_PROT):
-            return GuestFault(f"guest fault: {what} at {pc:#010x}", pc, pc)
         return GuestFault(f"guest fault at {where}: {what}", pc)

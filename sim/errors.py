@@ -36,3 +36,11 @@ class RunawayKernel(GuestFault):
 
 class ArgumentError(RetrosimError):
     """A kernel was called with the wrong number or kind of arguments."""
+
+
+class OutputError(RetrosimError):
+    """An output path retrosim refuses or cannot write (a device, a folder, a read-only place)."""
+
+
+class LimitError(RetrosimError):
+    """A run or an input would exceed a size limit; the message names the limit and how to raise it."""

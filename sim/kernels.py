@@ -45,8 +45,10 @@ def kernels_root() -> Path:
 
 def entry_points(source: str | os.PathLike) -> dict[str, EntryPoint]:
     """The entry points a source file declares with `# @entry` comments, in file order."""
+    from .asm import read_source  # regular files of bounded size only (a symlink to /dev/zero never ends)
+
     found: dict[str, EntryPoint] = {}
-    lines = Path(source).read_text(encoding="utf-8", errors="replace").splitlines()
+    lines = read_source(Path(source), str(source)).decode("utf-8", errors="replace").splitlines()
     for lineno, line in enumerate(lines, 1):
         m = _ENTRY.match(line)
         if m:

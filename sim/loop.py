@@ -264,7 +264,7 @@ def _pass(machine: Machine, body: Body, regs: dict[str, int], starts: list[int],
     machine.reset_fpu()
     tracer = NativeTracer(uc, instruction_capacity=1 << 16, access_capacity=1 << 17)
     tracer.attach()
-    pc, done = starts[0], 0
+    pc = starts[0]
     try:
         while True:
             tracer.limit(min(tracer.icap, MAX_INSTRUCTIONS - tracer.recorded))

@@ -499,7 +499,10 @@ def reference(spans: Spans, width: int, height: int) -> tuple[np.ndarray, np.nda
     depth = np.full(width * height, np.inf)
     winner = np.full(width * height, -1, np.int64)
     _scan_float(pix, values, np.zeros_like(values), values, span_of, depth, winner)
-    owner = np.where(winner >= 0, spans.tri[np.maximum(winner, 0)], -1).astype(np.int32)
+    if len(spans) == 0:  # a scene that draws nothing: no pixel has an owner
+        owner = np.full(width * height, -1, np.int32)
+    else:
+        owner = np.where(winner >= 0, spans.tri[np.maximum(winner, 0)], -1).astype(np.int32)
     return depth.reshape(height, width), owner.reshape(height, width)
 
 

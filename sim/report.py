@@ -12,12 +12,11 @@ import csv
 import html
 import io
 import json
-import os
-import tempfile
 from pathlib import Path
 
 from typing import TYPE_CHECKING
 
+from . import output
 from .frames import VARIANT_LABELS
 
 if TYPE_CHECKING:
@@ -36,15 +35,9 @@ EXPLAIN_COUNTERS = ["uops", "msrom_uops", "decode_groups", "l1d_load_misses", "l
 
 
 def atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    # one writer for every output (sim.output: refuses devices and folders, follows the umask)
+    output.check_output_dir(Path(path).parent)
+    output.atomic_write(path, data)
 
 
 def _f(x: float, digits: int = 2) -> str:
@@ -292,13 +285,14 @@ def summary_tables(results: list[SceneResult]) -> list:
     columns (cycles per pixel), a row of wrong-visibility shares, and how many claims held. Variant
     names are short, so a table fits 80 columns for any number of CPUs."""
     from rich import box
+    from rich.markup import escape
     from rich.table import Table
 
     out = []
     for r in results:
         claims, unchecked = checked_claims(r)
         held = sum(1 for c in claims if c["holds"])
-        t = Table(title=f"{r.scene.name}: cycles per pixel, last frame", title_justify="left",
+        t = Table(title=f"{escape(r.scene.name)}: cycles per pixel, last frame", title_justify="left",
                   box=box.SIMPLE_HEAD, pad_edge=False)
         t.add_column("CPU (memory)", no_wrap=True)
         for v in r.scene.variants:

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 import re
+import stat
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -55,6 +56,16 @@ SPAN_RECORD_BYTES = 32  # kernels/zbuffer/draw.inc: 8 dwords per span
 ARENA_ALIGN = 64        # sim.emu.Arena.alloc's default alignment
 ZBUF_BYTES = {v: raster.ZBUF_DTYPE[v].itemsize for v in VARIANTS}
 KERNEL_DIR = "kernels/zbuffer"
+MAX_SCENE_BYTES = 64 << 20  # 65535 explicit triangles take about 6 MB
+MAX_COORDINATE = 1 << 20  # screens are at most 32768 wide; the plane math stays exact far beyond
+# Host memory a scene may take: the runner holds a few int64/float64 arrays per pixel visit
+# (rasterized spans expanded to pixels, the reference, the expected frames): about 220 bytes per
+# visit at peak (a 1024x1024 frame at depth complexity 60, 62 M visits, peaked at 14 GB). The
+# default admits a 4096x3072 frame at depth complexity 3 (38 M visits, ~8 GB); raise it with
+# RETROSIM_MAX_VISITS if the machine has the memory.
+MAX_VISITS_ENV = "RETROSIM_MAX_VISITS"
+DEFAULT_MAX_VISITS = 48_000_000
+VISIT_BYTES = 220
 
 # key -> (kind, required) per table; kinds: int, number, str, strlist, range, tables
 _SCENE_KEYS = {"name": ("str", True), "description": ("str", False), "width": ("int", True), "height": ("int", True)}
@@ -406,6 +417,34 @@ def _numbers(v, shape: tuple[int, ...]) -> bool:
     return isinstance(v, list) and len(v) == shape[0] and all(_numbers(x, shape[1:]) for x in v)
 
 
+def max_visits() -> int:
+    import os
+
+    raw = os.environ.get(MAX_VISITS_ENV, "").strip()
+    try:
+        value = int(raw) if raw else DEFAULT_MAX_VISITS
+    except ValueError:
+        raise SceneError(f"{MAX_VISITS_ENV}={raw!r}: expected a whole number of pixel visits") from None
+    return value
+
+
+def _check_visits(v: _Validator, geometry: GeometrySpec, width: int, height: int, span_bound: int) -> None:
+    """Refuse a scene whose frame draws more pixels than host memory can follow (see MAX_VISITS_ENV).
+    Cheap bound first (rows x width); only above the limit is the geometry rasterized to count."""
+    limit = max_visits()
+    if span_bound * width <= limit:
+        return
+    try:
+        visits = int(raster.rasterize(geometry.build(width, height), width, height).count.sum(dtype=np.int64))
+    except ValueError as e:
+        v.fail("geometry", f"cannot build the geometry: {e}", "geometry")
+    if visits > limit:
+        v.fail("geometry", f"a frame draws {visits:,} pixels ({visits / (width * height):.1f} per screen pixel), "
+               f"more than the limit of {limit:,} (host memory: about {VISIT_BYTES} bytes each, "
+               f"{visits * VISIT_BYTES / 2**30:.0f} GB here); raise {MAX_VISITS_ENV} if the machine has the memory",
+               "geometry")
+
+
 def load_scene(path: str | Path) -> Scene:
     """Parse and validate a scene file; raises SceneError with one line naming file and field."""
     from .cpus import memory_presets
@@ -414,6 +453,12 @@ def load_scene(path: str | Path) -> Scene:
 
     path = Path(path)
     try:
+        st = path.stat()
+        # a scene is text of modest size: never read a device, a pipe or a sparse giant whole
+        if not stat.S_ISREG(st.st_mode):
+            raise SceneError(f"{path}: not a regular file (a device, pipe or folder)")
+        if st.st_size > MAX_SCENE_BYTES:
+            raise SceneError(f"{path}: {st.st_size:,} bytes, more than the {MAX_SCENE_BYTES >> 20} MB a scene file may have")
         raw = path.read_bytes()
     except OSError as e:
         raise SceneError(f"{path}: cannot read scene file: {e.strerror or e}") from None
@@ -466,6 +511,8 @@ def load_scene(path: str | Path) -> Scene:
     allowed = {"generator": ("str", True), **_GENERATOR_KEYS[gen]}
     v.keys(ge, allowed, "geometry", note=f" for generator '{gen}'")
     vals = {k: v.typed(ge, k, kind, "geometry") for k, (kind, _) in _GENERATOR_KEYS[gen].items()}
+    if vals.get("seed") is not None and not 0 <= vals["seed"] < 1 << 63:
+        v.fail("geometry.seed", f"must be between 0 and 2^63 - 1, got {vals['seed']}", "geometry", "seed")
     max_tri = raster.MAX_TRIANGLES
     if vals.get("triangles") is not None:
         v.at_least(vals["triangles"], 1, "geometry.triangles", "geometry", "triangles")
@@ -494,6 +541,10 @@ def load_scene(path: str | Path) -> Scene:
             v.keys(t, _TRIANGLE_KEYS, tname, i, field)
             if not _numbers(t["xy"], (3, 2)):
                 v.fail(f"{field}.xy", f"expected three [x, y] pairs of finite numbers, got {_show(t['xy'])}",
+                       tname, "xy", i)
+            if any(abs(float(c)) > MAX_COORDINATE for p in t["xy"] for c in p):
+                # the plane setup multiplies coordinate differences: far beyond the screen they overflow
+                v.fail(f"{field}.xy", f"coordinates must be within +-{MAX_COORDINATE:,} pixels, got {_show(t['xy'])}",
                        tname, "xy", i)
             if not _numbers(t["z"], (3,)):
                 v.fail(f"{field}.z", f"expected three finite numbers, got {_show(t['z'])}", tname, "z", i)
@@ -545,8 +596,11 @@ def load_scene(path: str | Path) -> Scene:
             except RetrosimError as e:
                 v.fail(f"run.cpus[{i}]", f"CPU preset '{preset}' is unusable: {e}", "run", "cpus")
         choice = CpuChoice(preset, memory, bool(sep))
-        if choice in machines:
-            v.fail(f"run.cpus[{i}]", f"'{entry}' repeats '{choice.label}'", "run", "cpus")
+        # the same machine spelled twice ('pentium2-233' and its default 'pentium2-233:edo')
+        same = next((j for j, m in enumerate(machines) if (m.preset, m.memory) == (preset, memory)), None)
+        if same is not None:
+            v.fail(f"run.cpus[{i}]", f"'{entry}' repeats run.cpus[{same}] '{cpus[same]}' (both are {preset} "
+                   f"with {memory} memory)", "run", "cpus")
         machines.append(choice)
     v.at_least(frames, 1, "run.frames", "run", "frames")
     v.at_most(frames, 1000, "run.frames", "run", "frames")
@@ -574,6 +628,8 @@ def load_scene(path: str | Path) -> Scene:
                f"bytes ({widest} depth buffer {need['zbuf']:,} + colour buffer {need['fbuf']:,} + "
                f"{need['span_count']:,} span records x {SPAN_RECORD_BYTES} = {need['spans']:,}), "
                f"the arena has {DEFAULT_ARENA:,}", "scene", "width")
+
+    _check_visits(v, geometry, width, height, span_bound)
 
     # [[claims]]
     claims = []

@@ -9,6 +9,7 @@ RDTSC returns unless the kernel branches on them; the replay checks that it did 
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -18,8 +19,8 @@ import numpy as np
 from .cpus import make_model
 from .decode import Decoder
 from .emu import Machine
-from .errors import RetrosimError
-from .trace import Trace
+from .errors import LimitError, RetrosimError
+from .trace import Trace, check_trace_bytes
 
 Setup = Callable[[Machine], list]  # builds the call's arguments (and buffers) in a fresh machine
 
@@ -90,19 +91,46 @@ class Emulation:
 
 def emulate(source: str | Path, entry: str, setup: Setup | None = None, repeat: int = 2,
             budget: int = 200_000_000, assembler: str | None = None,
-            rdtsc_values: list[int] | None = None, isa_cpu: str | None = None) -> Emulation:
+            rdtsc_values: list[int] | None = None, isa_cpu: str | None = None,
+            progress: Callable[[int, int], None] | None = None) -> Emulation:
     """`isa_cpu`: assemble for that preset's instruction set (shipped kernels stay plain i686, so
-    one emulation serves every preset)."""
+    one emulation serves every preset). `progress(done, repeat)` is called after each call."""
     if repeat < 1:
         raise RetrosimError(f"--repeat must be at least 1, got {repeat}")
     answers = iter(rdtsc_values or [])
     clock = (lambda ev: next(answers, 0)) if rdtsc_values is not None else None
     machine = Machine.from_source(source, assembler=assembler, cpu=isa_cpu, rdtsc=clock)
     args = setup(machine) if setup else []
-    parts = [machine.call(entry, *args, budget=budget, trace=True).trace for _ in range(repeat)]
+    parts = []
+    for k in range(repeat):
+        parts.append(machine.call(entry, *args, budget=budget, trace=True).trace)
+        # the calls' traces are all kept (the model times them in one machine state): bound them
+        check_trace_bytes(sum(p.nbytes for p in parts), sum(p.instructions for p in parts))
+        if progress is not None:
+            progress(k + 1, repeat)
     bounds = np.cumsum([p.instructions for p in parts]).tolist()
     return Emulation(Path(source), entry, setup, repeat, budget, assembler, machine, Trace.concatenate(parts), bounds,
                      isa_cpu)
+
+
+# The timing models keep per-instruction state (decoded uops, issue and retire cycles, the timeline):
+# about 90 bytes per traced instruction, measured on `retrosim time` (1 M and 4 M instruction loops:
+# +88 MB per million). Bounded so that a long run stops with a message instead of exhausting memory.
+MODEL_LIMIT_ENV = "RETROSIM_MODEL_MB"
+DEFAULT_MODEL_LIMIT_MB = 8192
+MODEL_BYTES_PER_INSTRUCTION = 90
+
+
+def check_model_memory(instructions: int) -> None:
+    raw = os.environ.get(MODEL_LIMIT_ENV, "").strip()
+    try:
+        limit_mb = int(raw) if raw else DEFAULT_MODEL_LIMIT_MB
+    except ValueError:
+        raise LimitError(f"{MODEL_LIMIT_ENV}={raw!r}: expected a whole number of megabytes") from None
+    need_mb = instructions * MODEL_BYTES_PER_INSTRUCTION >> 20
+    if need_mb > limit_mb:
+        raise LimitError(f"timing {instructions:,} instructions needs about {need_mb:,} MB of host memory, more than "
+                         f"the limit {MODEL_LIMIT_ENV}={limit_mb}; raise it, or lower --budget or --repeat")
 
 
 def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None,
@@ -112,6 +140,7 @@ def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None
     loop (the last call's most executed PC), from the middle of the last call."""
     model = make_model(cpu, memory) if isinstance(cpu, str) else cpu
     cpu = model.preset.name
+    check_model_memory(emu.trace.instructions)
     timeline = hot_loop_window(emu.trace.pc, emu.last_call, timeline_iterations)
     decoder = emu.decoder()
     check_isa(emu, decoder, model.preset)
@@ -150,9 +179,10 @@ def check_isa(emu: Emulation, decoder: Decoder, preset) -> None:
 
 def time_kernel(source: str | Path, entry: str, setup: Setup | None = None, cpu: str = "pentium2-233",
                 memory: str | None = None, repeat: int = 2, budget: int = 200_000_000,
-                timeline_iterations: int = 0, assembler: str | None = None) -> TimingResult:
+                timeline_iterations: int = 0, assembler: str | None = None,
+                progress: Callable[[int, int], None] | None = None) -> TimingResult:
     """Emulate and time in one step (see :func:`emulate` and :func:`time_emulation`); the kernel is
     assembled for the preset's instruction set."""
     model = make_model(cpu, memory)  # before emulating: an unknown preset fails fast
-    emu = emulate(source, entry, setup, repeat, budget, assembler, isa_cpu=model.preset.name)
+    emu = emulate(source, entry, setup, repeat, budget, assembler, isa_cpu=model.preset.name, progress=progress)
     return time_emulation(emu, model, timeline_iterations=timeline_iterations)

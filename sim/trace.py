@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import ctypes
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,11 +28,38 @@ from numba import carray, cfunc, types
 from unicorn import UC_HOOK_CODE, UC_HOOK_MEM_READ, UC_HOOK_MEM_WRITE, UC_MEM_WRITE
 from unicorn.unicorn_py3.unicorn import uclib
 
+from . import output
+from .errors import LimitError
+
 HEADER = 8
 # Room kept for the accesses of one instruction (FSAVE/FRSTOR/PUSHA make many); the code hook stops
 # the run before an instruction could overflow the access area.
 ACCESS_SLACK = 256
 _U64 = np.uint64
+# Traces live in host memory (4 bytes per instruction, 10 per data access, more while they are
+# joined), so one endless or enormous run must stop with a clear message instead of exhausting the
+# machine. The limit is on the arrays held; raise it with this variable (megabytes).
+TRACE_LIMIT_ENV = "RETROSIM_TRACE_MB"
+DEFAULT_TRACE_LIMIT_MB = 2048
+
+
+def trace_limit_bytes() -> int:
+    raw = os.environ.get(TRACE_LIMIT_ENV, "")
+    try:
+        mb = int(raw) if raw.strip() else DEFAULT_TRACE_LIMIT_MB
+    except ValueError:
+        raise LimitError(f"{TRACE_LIMIT_ENV}={raw!r}: expected a whole number of megabytes") from None
+    if mb < 1:
+        raise LimitError(f"{TRACE_LIMIT_ENV}={raw!r}: must be at least 1 (megabytes)")
+    return mb << 20
+
+
+def check_trace_bytes(nbytes: int, instructions: int) -> None:
+    """Refuse to hold more than the trace limit (see TRACE_LIMIT_ENV)."""
+    limit = trace_limit_bytes()
+    if nbytes > limit:
+        raise LimitError(f"the trace passed {limit >> 20:,} MB of host memory after {instructions:,} instructions "
+                         f"(limit {TRACE_LIMIT_ENV}={limit >> 20}; raise it, or lower --budget or --repeat)")
 
 _uc_emu_stop = uclib.uc_emu_stop
 
@@ -117,17 +143,15 @@ class Trace:
             if np.any(self.mem_size == 0):
                 raise ValueError("trace field mem_size: zero-byte access")
 
+    @property
+    def nbytes(self) -> int:
+        return sum(getattr(self, k).nbytes for k in _FIELDS)
+
     def save(self, path: str | os.PathLike) -> None:
-        """Write the trace as .npz, atomically (an interrupted write leaves any old file intact)."""
-        path = Path(path)
-        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=path.parent or ".")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez_compressed(f, **{k: getattr(self, k) for k in _FIELDS})
-            os.replace(tmp, path)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+        """Write the trace as .npz, atomically (an interrupted write leaves any old file intact;
+        a device, FIFO or folder at `path` is refused, see sim.output)."""
+        with output.atomic_output(path, "--out", suffix=".npz") as f:
+            np.savez_compressed(f, **{k: getattr(self, k) for k in _FIELDS})
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> Trace:
@@ -138,18 +162,28 @@ class Trace:
 
     @classmethod
     def concatenate(cls, parts: list[Trace]) -> Trace:
+        """One trace from consecutive parts. Empties `parts` as it copies them, so memory peaks at
+        the whole trace plus one part, not twice the trace."""
         if not parts:
             return cls.empty()
         if len(parts) == 1:
-            return parts[0]  # traces are immutable by convention: no copy
-        offsets = np.cumsum([0] + [p.pc.size for p in parts[:-1]]).astype(np.uint32)
-        return cls(
-            pc=np.concatenate([p.pc for p in parts]),
-            mem_addr=np.concatenate([p.mem_addr for p in parts]),
-            mem_size=np.concatenate([p.mem_size for p in parts]),
-            mem_write=np.concatenate([p.mem_write for p in parts]),
-            mem_insn=np.concatenate([p.mem_insn + off for p, off in zip(parts, offsets)]),
-        )
+            return parts.pop()  # traces are immutable by convention: no copy
+        sizes = [(p.pc.size, p.mem_addr.size) for p in parts]
+        n, m = sum(s[0] for s in sizes), sum(s[1] for s in sizes)
+        out = cls(np.empty(n, np.uint32), np.empty(m, np.uint32), np.empty(m, np.uint8), np.empty(m, np.bool_),
+                  np.empty(m, np.uint32))
+        i = j = 0
+        parts.reverse()
+        while parts:
+            p = parts.pop()
+            out.pc[i:i + p.pc.size] = p.pc
+            k = p.mem_addr.size
+            out.mem_addr[j:j + k] = p.mem_addr
+            out.mem_size[j:j + k] = p.mem_size
+            out.mem_write[j:j + k] = p.mem_write
+            out.mem_insn[j:j + k] = p.mem_insn + np.uint32(i)
+            i, j = i + p.pc.size, j + k
+        return out
 
     @classmethod
     def empty(cls) -> Trace:
@@ -171,6 +205,7 @@ class NativeTracer:
         self.buffer[1], self.buffer[3], self.buffer[5] = self.icap, self.acap, self.icap
         self._handles: list[ctypes.c_size_t] = []
         self.recorded = 0  # instructions recorded since the last reset (all drained chunks)
+        self.held_bytes = 0  # bytes of the drained chunks (bounded by trace_limit_bytes)
         self._parts: list[Trace] = []
         self.active = False
 
@@ -205,6 +240,14 @@ class NativeTracer:
         if b[4]:
             raise RuntimeError("native trace lost memory accesses (buffer overflow)")
         n, m = int(b[0]), int(b[2])
+        self.held_bytes += 4 * n + 10 * m
+        try:
+            check_trace_bytes(self.held_bytes, self.recorded + n)
+        except LimitError:
+            b[0] = b[2] = 0  # drop everything held: the run is abandoned
+            self._parts.clear()
+            self.recorded = self.held_bytes = 0
+            raise
         pcs = b[HEADER:HEADER + n].astype(np.uint32)
         pairs = b[HEADER + self.icap:HEADER + self.icap + 2 * m].reshape(m, 2)
         packed = pairs[:, 0]
@@ -223,6 +266,6 @@ class NativeTracer:
         self.drain()
         trace = Trace.concatenate(self._parts)
         self._parts.clear()
-        self.recorded = 0
+        self.recorded = self.held_bytes = 0
         trace.validate()
         return trace

@@ -203,7 +203,7 @@ def explain_tables(result: TimingResult, width: int) -> list[Table]:
             t.add_row(*cells)
         return t
 
-    head = f"per instruction, last call"
+    head = "per instruction, last call"
     wide = build(["pc", "instruction", "runs", "dec", "ops", "units", "i2r", "stalls", "mispred", "row"], stalls,
                  head + " (stall columns: cycles per execution)")
     if _natural_width(wide) <= width:

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from sim import asm, baseline, report
+from sim import asm, baseline, output, report
 from sim.runner import run_scene
 from sim.scene import load_scene
 
@@ -99,7 +99,7 @@ def test_reports_are_deterministic_and_written_atomically(tmp_path, monkeypatch)
     def boom(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(report.os, "replace", boom)
+    monkeypatch.setattr(output.os, "replace", boom)  # the one writer, sim.output
     with pytest.raises(KeyboardInterrupt):
         report.atomic_write(target, b"new report")
     assert target.read_text() == "old report"
