@@ -58,37 +58,18 @@ def _cpu_label(key: str) -> str:
 
 # -- claims ----------------------------------------------------------------------------------
 def evaluate_claims(result: SceneResult) -> list[dict]:
-    """Each `[[claims]]` entry of the scene checked against the model, with the counters that
-    explain the outcome. A claim the model does not reproduce is reported as such, not tuned away."""
-    out = []
-    for claim in result.scene.claims:
-        key = claim.cpu if ":" in claim.cpu else next(k for k in result.cpu_keys if k.startswith(claim.cpu + ":"))
-        a, b = (result.timing(v, key) for v in claim.variants)
-        ca, cb = a.per_pixel("cycles"), b.per_pixel("cycles")
-        ratio = ca / cb if cb else float("inf")
-        holds = {"similar": abs(ratio - 1) <= claim.tolerance, "faster": ratio < 1 - claim.tolerance,
-                 "slower": ratio > 1 + claim.tolerance}[claim.expect]
-        diffs = []
-        for name in EXPLAIN_COUNTERS:
-            d = a.per_pixel(name) - b.per_pixel(name)
-            if abs(d) >= 0.005:
-                diffs.append((name, d))
-        out.append({"text": claim.text, "cpu": key, "variants": list(claim.variants), "expect": claim.expect,
-                    "tolerance": claim.tolerance, "cycles_per_pixel": [round(ca, 3), round(cb, 3)],
-                    "ratio": round(ratio, 4), "holds": holds,
-                    "explanation": {n: round(d, 3) for n, d in diffs}})
-    return out
+    """Each `[[claims]]` entry of the scene checked on every machine of the run its words cover,
+    with the counters that explain the outcome and its robustness to the model's estimates
+    (sim.claims). A claim the model does not reproduce is reported as such, not tuned away."""
+    from .claims import evaluate
+
+    return evaluate(result, EXPLAIN_COUNTERS)
 
 
 def _claim_sentence(c: dict) -> str:
-    a, b = c["variants"]
-    verdict = "**reproduced**" if c["holds"] else "**not reproduced**"
-    word = {"similar": "about the same as", "faster": "faster than", "slower": "slower than"}[c["expect"]]
-    more = ", ".join(f"{'+' if d > 0 else ''}{d:g} {n.replace('_', ' ')}" for n, d in c["explanation"].items())
-    return (f"- {c['text']} — {verdict}. Claim: {a} {word} {b} on {_cpu_label(c['cpu'])} "
-            f"(tolerance {c['tolerance']:.0%}). Model: {a} {c['cycles_per_pixel'][0]:.2f} vs {b} "
-            f"{c['cycles_per_pixel'][1]:.2f} cycles/pixel, ratio {c['ratio']:.3f}. Per pixel, {a} minus {b}: "
-            f"{more or 'no counter differs'}.")
+    from .claims import sentence
+
+    return sentence(c, _cpu_label)
 
 
 # -- tables ------------------------------------------------------------------------------------
