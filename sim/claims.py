@@ -160,14 +160,13 @@ def evaluate(result, explain_counters: list[str]) -> list[dict]:
             verdict = holds(claim, ratio)
             diffs = {n: round(a.per_pixel(n) - b.per_pixel(n), 3) for n in explain_counters
                      if n in a.counters and abs(a.per_pixel(n) - b.per_pixel(n)) >= 0.005}
-            entry = {"cpu": key, "cycles_per_pixel": [round(ca, 3), round(cb, 3)], "ratio": round(ratio, 4),
+            entry = {"cpu": key, "cycles_per_pixel": [round(ca, 4), round(cb, 4)], "ratio": round(ratio, 4),
                      "holds": verdict, "explanation": diffs}
             entry["robustness"] = _robustness(claim, result, key, a, b, verdict)
             entry["verdict"] = _verdict(verdict, entry["robustness"])
             per_cpu.append(entry)
         verdicts = {e["verdict"] for e in per_cpu}
-        overall = ("reproduced" if verdicts == {"reproduced"} else "not reproduced" if verdicts == {"not reproduced"}
-                   else "mixed" if per_cpu else "not checked")
+        overall = verdicts.pop() if len(verdicts) == 1 else "mixed (see each machine)" if per_cpu else "not checked"
         out.append({"text": claim.text, "covers": claim.describe_coverage(), "variants": list(claim.variants),
                     "expect": claim.expect, "tolerance": claim.tolerance,
                     "holds": bool(per_cpu) and all(e["holds"] for e in per_cpu), "verdict": overall,

@@ -80,7 +80,7 @@ expect = "faster"
     data = json.loads((tmp_path / "out" / "tiny-test.json").read_text())
     verdicts = [c["holds"] for c in data["claims"]]
     assert verdicts == [True, False]  # the same two numbers: one claim holds, its opposite does not
-    assert "not reproduced" in md and "uops" in data["claims"][0]["explanation"]
+    assert "not reproduced" in md and "uops" in data["claims"][0]["per_cpu"][0]["explanation"]
     assert (tmp_path / "out" / "tiny-test.png").read_bytes()[:4] == b"\x89PNG"
     csv_lines = (tmp_path / "out" / "tiny-test.csv").read_text().splitlines()
     assert len(csv_lines) == 1 + 2  # header + one row per (variant, cpu)
