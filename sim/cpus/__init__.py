@@ -35,6 +35,11 @@ def _family_estimates(family: str) -> dict:
     return ESTIMATES
 
 
+MODEL_FIELDS = ("clock.core_mhz", "clock.fsb_mhz", "memory.overhead_bus_clocks") + tuple(
+    f"{level}.{f}" for level in ("l1i", "l1d", "l2", "l3", "board_cache")
+    for f in ("size_kb", "ways", "line_bytes", "latency_cycles", "speed_ratio"))
+
+
 def overridable(cpu: str) -> dict[str, float]:
     """Every parameter :func:`make_model` accepts in ``overrides`` for a CPU preset, with its value:
     numeric fields of the preset file by dotted path (``l2.latency_cycles``,
@@ -51,6 +56,9 @@ def overridable(cpu: str) -> dict[str, float]:
                 out[f"{prefix}{k}"] = v
 
     walk(preset.raw, "")
+    # only what a model reads: a documentation field (a measured figure, a multiplier note) would
+    # be overridden without any effect
+    out = {k: v for k, v in out.items() if k.startswith(MODEL_FIELDS)}
     for name, (value, _) in _family_estimates(preset.family).items():
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             out[f"estimates.{name}"] = value
