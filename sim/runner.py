@@ -61,6 +61,9 @@ class SceneResult:
     timings: list[Timing] = field(default_factory=list)
     accuracy: dict[str, Accuracy] = field(default_factory=dict)
     precision: dict | None = None
+    # (variant, cpu key) -> {(parameter, value): counters of the last call}: the claims' robustness
+    # to the model's estimates (sim.claims.perturbed_timings); empty when not measured
+    sensitivity: dict = field(default_factory=dict)
 
     def timing(self, variant: str, key: str) -> Timing:
         for t in self.timings:
@@ -91,7 +94,24 @@ def _cpu_keys(cpus: list[str]) -> list[tuple[str, str | None]]:
     return out
 
 
-def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | None = None) -> SceneResult:
+def _claim_machines(scene: Scene, models: dict) -> dict[str, set]:
+    """variant -> machine keys of this run on which some claim about that variant is checked."""
+    out: dict[str, set] = {}
+    for claim in scene.claims:
+        for (cpu, _), model in models.items():
+            if claim.covers(cpu, model.dram.name, model.preset.family):
+                for v in claim.variants:
+                    out.setdefault(v, set()).add(f"{cpu}:{model.dram.name}")
+    return out
+
+
+def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | None = None,
+              robustness: bool = True) -> SceneResult:
+    """Run a scene. With `robustness` (default), the claims' verdicts are also re-timed with each
+    estimated model parameter at the ends of its plausible range (sim.claims), on the machines the
+    claims cover only; a scene without claims costs nothing more."""
+    from . import claims as claim_checks
+
     say = progress or (lambda msg: None)
     geometry = scene.build_geometry()
     w, h = scene.width, scene.height
@@ -108,6 +128,7 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
     models = {}
     for cpu, memory in _cpu_keys(cpus or scene.cpus):
         models[(cpu, memory)] = make_model(cpu, memory)
+    robust = _claim_machines(scene, models) if robustness else {}
     for variant in scene.variants:
         say(f"{scene.name}: {VARIANT_LABELS[variant]}: emulating {scene.frames} frame(s) of {pixels:,} pixels")
         run = draw_frames(spans, variant, w, h, scene.frames, geometry.colour)
@@ -128,6 +149,11 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
             say(f"{scene.name}: {variant} on {cpu} with {model.dram.name}: timing")
             timed = time_emulation(run.emulation, model)
             result.timings.append(Timing(variant, cpu, model.dram.name, run.pixels, timed.last))
+            key = f"{cpu}:{model.dram.name}"
+            if key in robust.get(variant, ()):
+                say(f"{scene.name}: {variant} on {key}: re-timing with the estimates varied")
+                result.sensitivity[(variant, key)] = claim_checks.perturbed_timings(
+                    run.emulation, cpu, model.dram.name, timed.last)
     if "fp16_precision" in wanted:
         table = metrics.fp16_precision(2.0 ** -24, 1.0, 12)
         result.precision = {"rows": [{"depth from": r["depth_lo"], "depth to": r["depth_hi"],

@@ -27,6 +27,16 @@ Format::
     frames = 2                      # optional (default 1): frames drawn in one machine state,
                                     # the last one is reported
 
+    [[claims]]                      # optional, repeatable: a published claim to check
+    text = "..."                    # required
+    variants = ["fp16z", "z32"]     # required: two of run.variants
+    expect = "slower"               # required: similar | faster | slower (variants[0] than variants[1])
+    tolerance = 0.0                 # optional fraction
+    cpus = ["k6-2-300", "pentium2-233:edo"]   # the machines its words cover: presets (any memory)
+    families = ["k6"]               # ... and/or whole families (p5 p6 k6)
+    memories = ["sdram-pc100"]      # optional: only with these memory presets
+    # (cpu = "..." is accepted as a one-entry cpus). At least one covered machine must be in run.cpus.
+
 Generators are those of sim.raster (random_scene, coplanar_far_scene, ...) with the keys above as
 their arguments. Metrics: "visibility" (wrong winners), "depth_error" (stored vs exact depth),
 "fp16_precision" (the format table, needs no frame), "z_fighting" (coplanar_far only).
@@ -82,8 +92,10 @@ _GENERATOR_KEYS = {
 _TRIANGLE_KEYS = {"xy": ("any", True), "z": ("any", True), "colour": ("int", False)}
 _RUN_KEYS = {"variants": ("strlist", True), "cpus": ("strlist", True), "metrics": ("strlist", False),
              "frames": ("int", False)}
-_CLAIM_KEYS = {"text": ("str", True), "cpu": ("str", True), "variants": ("strlist", True),
+_CLAIM_KEYS = {"text": ("str", True), "cpu": ("str", False), "cpus": ("strlist", False),
+               "families": ("strlist", False), "memories": ("strlist", False), "variants": ("strlist", True),
                "expect": ("str", True), "tolerance": ("number", False)}
+FAMILIES = ("p5", "p6", "k6")  # CPU families a claim may name (sim/cpus: cpu_model of the presets)
 EXPECTATIONS = ("similar", "faster", "slower")
 _KIND_NAMES = {"int": "an integer", "number": "a number", "str": "a string", "strlist": "an array of strings",
                "range": "an array of two numbers [lo, hi]", "tables": "an array of tables", "any": "a value"}
@@ -234,13 +246,30 @@ def frame_arena_bytes(width: int, height: int, spans: int, zbuf_bytes_per_pixel:
 @dataclass(frozen=True)
 class Claim:
     """A published claim the report checks: variants[0] is `expect` (similar / faster / slower)
-    than variants[1] on `cpu` (a run.cpus entry), within `tolerance` (a fraction)."""
+    than variants[1], within `tolerance` (a fraction), on every machine its words cover.
+
+    Coverage: ``cpus`` (``preset`` = that preset with any memory, or ``preset:memory``) and
+    ``families`` (every preset whose cpu_model is one of them), narrowed by ``memories`` when
+    given. The report checks the claim on each covered machine of the run and names the covered
+    machines of the scene that the run left out ("not checked (CPU not in this run)")."""
 
     text: str
-    cpu: str
     variants: tuple[str, str]
     expect: str
     tolerance: float = 0.0
+    cpus: tuple[str, ...] = ()
+    families: tuple[str, ...] = ()
+    memories: tuple[str, ...] = ()
+
+    def covers(self, preset: str, memory: str, family: str) -> bool:
+        if self.memories and memory not in self.memories:
+            return False
+        return (family in self.families or preset in self.cpus or f"{preset}:{memory}" in self.cpus)
+
+    def describe_coverage(self) -> str:
+        parts = list(self.cpus) + [f"every {f.upper()} preset" for f in self.families]
+        text = ", ".join(parts)
+        return text + (f" (memory {', '.join(self.memories)})" if self.memories else "")
 
 
 @dataclass(frozen=True)
@@ -636,19 +665,38 @@ def load_scene(path: str | Path) -> Scene:
     raw_claims = doc.get("claims", [])
     if not isinstance(raw_claims, list) or not all(isinstance(c, dict) for c in raw_claims):
         v.fail("claims", "expected an array of tables [[claims]]", None, "claims")
-    labels = {m.label: m for m in machines}
     for i, c in enumerate(raw_claims):
         field = f"claims[{i}]"
         v.keys(c, _CLAIM_KEYS, "claims", i, field)
         text = v.typed(c, "text", "str", "claims", i, field)
         cpu = v.typed(c, "cpu", "str", "claims", i, field)
+        cover = list(v.typed(c, "cpus", "strlist", "claims", i, field, default=()))
+        families = v.typed(c, "families", "strlist", "claims", i, field, default=())
+        memories = v.typed(c, "memories", "strlist", "claims", i, field, default=())
         pair = v.typed(c, "variants", "strlist", "claims", i, field)
         expect = v.typed(c, "expect", "str", "claims", i, field)
         tolerance = v.typed(c, "tolerance", "number", "claims", i, field, default=0.0)
-        matches = [lab for lab in labels if lab == cpu or labels[lab].preset == cpu]
-        if len(matches) != 1:
-            v.fail(f"{field}.cpu", f"'{cpu}' must name exactly one run.cpus entry (have: {', '.join(labels)})",
-                   "claims", "cpu", i)
+        if cpu is not None:
+            cover.insert(0, cpu)
+        if not cover and not families:
+            v.fail(field, "names no CPU: give cpus = [...] (presets or preset:memory) and/or families = [...]",
+                   "claims", None, i)
+        for entry in cover:
+            preset, sep, memory = entry.partition(":")
+            if preset not in known_cpus:
+                v.fail(f"{field}.cpus", f"unknown CPU preset '{preset}' (known: {', '.join(known_cpus)})",
+                       "claims", "cpus" if "cpus" in c else "cpu", i)
+            if sep and memory not in known_mem:
+                v.fail(f"{field}.cpus", f"unknown memory preset '{memory}' in '{entry}' (known: {', '.join(known_mem)})",
+                       "claims", "cpus" if "cpus" in c else "cpu", i)
+        for fam in families:
+            if fam not in FAMILIES:
+                v.fail(f"{field}.families", f"unknown family '{fam}' (known: {', '.join(FAMILIES)})",
+                       "claims", "families", i)
+        for mem in memories:
+            if mem not in known_mem:
+                v.fail(f"{field}.memories", f"unknown memory preset '{mem}' (known: {', '.join(known_mem)})",
+                       "claims", "memories", i)
         if len(pair) != 2 or any(x not in variants for x in pair):
             v.fail(f"{field}.variants", f"expected two of run.variants ({', '.join(variants)}), got {_show(list(pair))}",
                    "claims", "variants", i)
@@ -657,7 +705,10 @@ def load_scene(path: str | Path) -> Scene:
                    "claims", "expect", i)
         if not 0 <= tolerance < 1:
             v.fail(f"{field}.tolerance", f"must be in [0, 1), got {tolerance}", "claims", "tolerance", i)
-        claims.append(Claim(text, matches[0], (pair[0], pair[1]), expect, tolerance))
+        claim = Claim(text, (pair[0], pair[1]), expect, tolerance, tuple(cover), tuple(families), tuple(memories))
+        if not any(claim.covers(m.preset, m.memory, cpu_presets.load(m.preset).family) for m in machines):
+            v.fail(f"{field}", f"covers none of run.cpus ({', '.join(m.label for m in machines)})", "claims", None, i)
+        claims.append(claim)
 
     return Scene(path, name, description, width, height, geometry,
                  RunSpec(variants, tuple(machines), metrics, frames), span_bound, tuple(claims))

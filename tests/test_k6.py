@@ -113,7 +113,7 @@ def test_scheduler_holds_six_opquads():
 
 
 def test_dram_beyond_the_board_cache():
-    # calibrated (k6.ESTIMATES['board_miss_bus_clocks']) on the measured K6-233: 62 clocks for a chase
+    # calibrated (k6-233.toml [memory] overhead_bus_clocks) on the measured K6-233: 62 clocks for a chase
     # at 16 MB (k6-233.toml [memory] measured_latency_cycles)
     r = time_kernel(KERNELS / "micro" / "memory.S", "chase", chase_setup(4 << 20), cpu="k6-233", repeat=1)
     c = r.last

@@ -196,8 +196,9 @@ def test_rdtsc_returns_simulated_cycles(tmp_path):
     src = rdtsc_kernel(tmp_path)
     r = time_kernel(src, "timed", lambda m: [200], cpu="pentium2-233", repeat=1)
     measured = r.run.rdtsc[1] - r.run.rdtsc[0]
-    # 200 IMULs at latency 4, plus the loop-exit mispredict and the RDTSC microcode
-    assert 4 * 200 <= measured <= 4 * 200 + 60
+    # 200 IMULs at latency 4, plus the loop-exit mispredict, the RDTSC microcode and, from a cold
+    # machine, a code line fetched from memory (~70-95 clocks with the calibrated DRAM latency)
+    assert 4 * 200 <= measured <= 4 * 200 + 120
     # the kernel itself computed the same difference from the values RDTSC returned in the replay
     from sim.emu import Machine
 

@@ -80,7 +80,7 @@ expect = "faster"
     data = json.loads((tmp_path / "out" / "tiny-test.json").read_text())
     verdicts = [c["holds"] for c in data["claims"]]
     assert verdicts == [True, False]  # the same two numbers: one claim holds, its opposite does not
-    assert "not reproduced" in md and "uops" in data["claims"][0]["explanation"]
+    assert "not reproduced" in md and "uops" in data["claims"][0]["per_cpu"][0]["explanation"]
     assert (tmp_path / "out" / "tiny-test.png").read_bytes()[:4] == b"\x89PNG"
     csv_lines = (tmp_path / "out" / "tiny-test.csv").read_text().splitlines()
     assert len(csv_lines) == 1 + 2  # header + one row per (variant, cpu)
@@ -173,8 +173,9 @@ def test_mixed_family_run_writes_every_report(tmp_path):
     assert int(p6["cycles"]) > 0 and int(k6["cycles"]) > 0
     # the claim names a CPU this run did not include: listed as not checked, not a crash
     md = (tmp_path / "out" / "tiny-test.md").read_text()
-    assert "Not checked in this run" in md and "fp16z costs more than z32 on the Pentium II" in md
-    assert json.loads((tmp_path / "out" / "tiny-test.json").read_text())["claims"] == []
+    assert "not checked (CPU not in this run)" in md and "fp16z costs more than z32 on the Pentium II" in md
+    [claim] = json.loads((tmp_path / "out" / "tiny-test.json").read_text())["claims"]
+    assert claim["verdict"] == "not checked" and claim["per_cpu"] == [] and claim["not_checked"]
 
 
 def test_summary_fits_80_columns_and_says_how_many_claims_held(tmp_path):
@@ -190,7 +191,7 @@ def test_summary_fits_80_columns_and_says_how_many_claims_held(tmp_path):
             assert label in text  # every CPU named in full, the two memories apart
         header = next(line for line in text.splitlines() if "fp16z" in line)
         assert header.split() == ["CPU", "(memory)", "z32", "z16", "fp16z", "fp16t", "zf32"]
-        assert "claims: 1 of 2 hold" in text.replace("\n", " ")
+        assert "claims: 1 of 2 reproduced" in text.replace("\n", " ")
         cells = {line.split()[0]: line.split()[-5:] for line in text.splitlines() if line.startswith(" k6-2-300")}
         want = [f"{result.timing(v, 'k6-2-300:sdram-pc100').per_pixel('cycles'):.2f}"
                 for v in ("z32", "z16", "fp16z", "fp16t", "zf32")]

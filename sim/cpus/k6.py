@@ -49,27 +49,18 @@ from ..decode import Decoder, InsnRecord
 from ..elf import EXIT_ADDR
 from ..errors import RetrosimError
 from ..memory.cache import CacheGeometry
-from ..memory.dram import DramTiming, bus_ratio, core_clocks
+from ..memory.dram import DramTiming, bus_ratio, core_clocks, line_costs
 from ..memory.hierarchy import Hierarchy
 from ..trace import Trace
 from . import k6_core as core
 from .lowering import BRANCH, COMPUTE, DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE, LOAD, STA, StaticProgram, lower
 from .p6 import CoreRun, DramCost
-from .presets import CpuPreset
 from . import vocabulary
+from .presets import CpuPreset, dram_overhead
 from .table import TABLES, InstructionTable, Match, load_table
 
 # Model choices with no figure in the sources (each says why it is what it is).
 ESTIMATES = {
-    "bus_overhead_bus_clocks": (5, "bus clocks from an L1 miss to the first transfer beyond the memory's own "
-                                "lead-off: the K6-233's board cache measures 8 bus clocks end to end "
-                                "(k6-233.toml [l2] latency_cycles 28 at 3.5x) with a 3-clock first transfer"),
-    "board_miss_bus_clocks": (7, "bus clocks a read that misses the board cache spends before the DRAM "
-                              "lead-off (tag check, row activation: no figure found); calibrated so a K6-233 "
-                              "pointer chase beyond the board cache costs the measured 62 clocks (k6-233.toml "
-                              "[memory] measured_latency_cycles linear_16mb, with the sdram-pc66 default): "
-                              "2 + (5 + 7 + 5) x 3.5 = 62. The same rule gives 58 and 75 where the K6-2 334 "
-                              "and K6-III 400 dumps measure 72 and 98"),
     "mispredict_restart": (2, "cycles from a mispredicted branch's result to the decode of the correct path: "
                            "a branch whose condition is ready completes 3 cycles after its decode (scheduler "
                            "entry, issue, execute), so the correct path decodes 5 cycles after it instead of "
@@ -276,17 +267,14 @@ class K6Rules:
 
 
 def dram_cost(memory: DramTiming, preset: CpuPreset) -> DramCost:
-    """DRAM behind the board cache, in core clocks (rounded up): lead-off = the Socket 7 bus
-    overhead estimate + the board-cache miss estimate (when the board has a cache) + the memory's
-    first transfer; a fill or writeback keeps the bus for the whole burst."""
-    if preset.fsb_mhz > memory.bus_mhz + 0.5:
-        raise RetrosimError(f"{preset.name} with {memory.name}: memory rated for {memory.bus_mhz:g} MHz, "
-                            f"below the {preset.fsb_mhz:g} MHz bus")
-    ratio = bus_ratio(preset.core_mhz, preset.fsb_mhz)
-    board_miss = ESTIMATES["board_miss_bus_clocks"][0] if (preset.l2 or preset.board_cache) else 0
-    lead = core_clocks(ESTIMATES["bus_overhead_bus_clocks"][0] + board_miss + memory.first_access_bus_clocks, ratio)
-    return DramCost(memory.name, lead, core_clocks(memory.line_fill_bus_clocks, ratio),
-                    core_clocks(memory.line_writeback_bus_clocks, ratio))
+    """DRAM behind the board cache, in core clocks (rounded up): lead-off = the board's overhead
+    (the preset's calibrated [memory] overhead_bus_clocks: Socket 7 bus, board-cache tag check,
+    chipset) + the memory's first transfer; a fill or writeback keeps the bus for the whole burst."""
+    try:
+        costs = line_costs(memory, preset.core_mhz, preset.fsb_mhz, dram_overhead(preset, memory.name))
+    except ValueError as e:
+        raise RetrosimError(f"{preset.name} with {memory.name}: {e}") from None
+    return DramCost(memory.name, costs.lead_off, costs.fill, costs.writeback)
 
 
 @dataclass
@@ -301,9 +289,10 @@ class K6Model:
     family = "k6"
     vocabulary = vocabulary.K6  # the words views use for its ports, decoders and stalls
 
-    def __init__(self, preset: CpuPreset, memory: DramTiming):
+    def __init__(self, preset: CpuPreset, memory: DramTiming, estimates: dict | None = None):
         if preset.family != "k6":
             raise ValueError(f"{preset.name} is a {preset.family} part, not K6")
+        self.estimates = {k: v for k, (v, _) in ESTIMATES.items()} | dict(estimates or {})
         self.preset = preset
         self.memory = memory
         self.key = model_key(preset)
@@ -344,19 +333,19 @@ class K6Model:
         if level == 2:
             P[core.P_ONDIE] = 1
             P[core.P_L2_LAT] = int(p.l2.latency_cycles)
-            P[core.P_L2_BUS] = ESTIMATES["ondie_l2_port"][0]
+            P[core.P_L2_BUS] = self.estimates["ondie_l2_port"]
         P[core.P_IMISS] = P[core.P_L2_LAT] if level == 2 else (P[core.P_BOARD_LAT] or self.dram.lead_off)
         P[core.P_DRAM_LAT] = self.dram.lead_off
         P[core.P_DRAM_LINE] = self.dram.line_busy
         P[core.P_DRAM_WB] = self.dram.writeback_busy
-        P[core.P_BUS_WRITE] = core_clocks(ESTIMATES["bus_write_bus_clocks"][0], self.ratio)
-        P[core.P_SQ] = ESTIMATES["store_queue"][0]
-        P[core.P_MISPREDICT] = ESTIMATES["mispredict_restart"][0]
+        P[core.P_BUS_WRITE] = core_clocks(self.estimates["bus_write_bus_clocks"], self.ratio)
+        P[core.P_SQ] = self.estimates["store_queue"]
+        P[core.P_MISPREDICT] = self.estimates["mispredict_restart"]
         b = m["branch"]
         P[core.P_BTC] = b["btc_entries"]
         P[core.P_BTC_MISS] = b["btc_miss_taken_penalty_cycles"]
         P[core.P_BHT] = b["bht_entries"]
-        P[core.P_HIST_BITS] = ESTIMATES["bht_history_bits"][0]
+        P[core.P_HIST_BITS] = self.estimates["bht_history_bits"]
         P[core.P_RSB] = b["return_stack_entries"]
         P[core.P_PARTIAL] = m["partial_register"]["penalty_cycles"]
         P[core.P_EXIT_ADDR] = EXIT_ADDR

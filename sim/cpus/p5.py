@@ -52,9 +52,10 @@ ESTIMATES = {
                                     "pipelined-burst read of the 82439TX data sheet"),
     "btb_new_entry": (3, "2-bit counter state of a branch entering the BTB (entered when first taken): 3, "
                       "strongly taken; the P54C's entry state was not found in a read source"),
-    "dram_lead_off": (None, "DRAM behind the board cache uses the K6 model's Socket 7 bus rule (sim/cpus/k6.py "
-                      "dram_cost: bus overhead 5 + board-cache miss 7 + the memory's first transfer, in bus "
-                      "clocks), calibrated there on a K6-233 on the same class of 430TX board"),
+    "dram_lead_off": (None, "DRAM behind the board cache uses the K6 model's Socket 7 rule (sim/cpus/k6.py "
+                      "dram_cost: the preset's [memory] overhead_bus_clocks + the memory's first transfer, in "
+                      "bus clocks); the presets take the 12 bus clocks calibrated on a K6-233 on the same class "
+                      "of 430TX board"),
 }
 
 
@@ -250,7 +251,9 @@ class P5Model:
     timeline_legend = ("D the previous group left the pipe, R issue (after AGI, prefix, x87 waits), E execute, "
                        "C done; in-order U/V pipes; [alone: ...] why it did not pair (in full under 'alone because')")
 
-    def __init__(self, preset: CpuPreset, memory: DramTiming):
+    def __init__(self, preset: CpuPreset, memory: DramTiming, estimates: dict | None = None):
+        # `estimates`: make_model's overrides of ESTIMATES; none of the P5's is numeric, so none is
+        # overridable yet (sim/cpus/__init__.py overridable)
         if preset.family != "p5":
             raise ValueError(f"{preset.name} is a {preset.family} part, not P5")
         self.preset = preset

@@ -19,16 +19,14 @@ from ..memory.dram import DramTiming, core_clocks, line_costs
 from ..memory.hierarchy import Hierarchy, family_policies
 from ..trace import Trace
 from . import p6_core as core
-from .lowering import P6Limits, StaticProgram, lower
-from .presets import CacheSpec, CpuPreset
 from . import vocabulary
+from .lowering import P6Limits, StaticProgram, lower
+from .presets import CacheSpec, CpuPreset, dram_overhead
 from .table import TABLES, InstructionTable, load_table
 
 # Model choices with no figure in the sources (each says why it is what it is).
 ESTIMATES = {
     "uop_queue": (6, "decoded-uop queue size: not found in any source; 6 = one cycle of full decode (4+1+1)"),
-    "fsb_overhead_bus_clocks": (4, "bus request, snoop and chipset clocks before the DRAM lead-off "
-                                "(arbitration + request phase + snoop phase of the P6 bus); estimate"),
     "mispredict_restart": (6, "cycles from a mispredicted branch's execution to the decode of the correct path; "
                            "with decode->rename->dispatch (3) this gives the sourced minimum penalty of 9"),
     "static_redirect": (3, "a taken branch missing the BTB (predicted at decode): a few cycles to redirect fetch; estimate"),
@@ -61,13 +59,13 @@ class DramCost:
 
 def dram_cost(memory: DramTiming, preset: CpuPreset) -> DramCost:
     """The memory preset's burst (bus clocks at the CPU's FSB) in core clocks, rounded up; the
-    lead-off adds the bus-protocol overhead estimate to the burst's first transfer."""
+    lead-off adds the board's overhead (the preset's calibrated [memory] overhead_bus_clocks: bus
+    protocol and chipset) to the burst's first transfer."""
     try:
-        costs = line_costs(memory, preset.core_mhz, preset.fsb_mhz)
+        costs = line_costs(memory, preset.core_mhz, preset.fsb_mhz, dram_overhead(preset, memory.name))
     except ValueError as e:
         raise RetrosimError(f"{preset.name} with {memory.name}: {e}") from None
-    lead = core_clocks(ESTIMATES["fsb_overhead_bus_clocks"][0] + memory.first_access_bus_clocks, costs.ratio)
-    return DramCost(memory.name, lead, costs.fill, costs.writeback)
+    return DramCost(memory.name, costs.lead_off, costs.fill, costs.writeback)
 
 
 def _geometry(name: str, spec: CacheSpec, policy: dict) -> CacheGeometry:
@@ -79,9 +77,10 @@ class P6Model:
     family = "p6"
     vocabulary = vocabulary.P6  # the words views use for its ports, decoders and stalls
 
-    def __init__(self, preset: CpuPreset, memory: DramTiming):
+    def __init__(self, preset: CpuPreset, memory: DramTiming, estimates: dict | None = None):
         if preset.family != "p6":
             raise ValueError(f"{preset.name} is a {preset.family} part, not P6")
+        self.estimates = {k: v for k, (v, _) in ESTIMATES.items()} | dict(estimates or {})
         self.preset = preset
         self.memory = memory
         self.machine = _machine_table()
@@ -110,30 +109,30 @@ class P6Model:
         P[core.P_RS] = m["rs"]["entries"]
         P[core.P_RENAME] = m["rename"]["uops_per_cycle"]
         P[core.P_RETIRE] = m["retire"]["uops_per_cycle"]
-        P[core.P_QUEUE] = ESTIMATES["uop_queue"][0]
+        P[core.P_QUEUE] = self.estimates["uop_queue"]
         P[core.P_FETCH_BLOCK] = m["fetch"]["block_bytes"]
         P[core.P_L1_LAT] = self.l1_latency
         if p.l2 is not None:
             P[core.P_HAS_L2] = 1
             P[core.P_L2_LAT] = int(p.l2.latency_cycles)
-            P[core.P_L2_BUS] = math.ceil(ESTIMATES["l2_bus_full_speed"][0] / p.l2.speed_ratio)
+            P[core.P_L2_BUS] = math.ceil(self.estimates["l2_bus_full_speed"] / p.l2.speed_ratio)
         P[core.P_DRAM_LAT] = self.dram.lead_off
         P[core.P_DRAM_LINE] = self.dram.line_busy
         P[core.P_DRAM_WB] = self.dram.writeback_busy
         P[core.P_MSHR] = m["caches"]["l2_bus"]["concurrent_accesses"]
         P[core.P_SB] = m["store"]["store_buffer_entries"]
-        P[core.P_MISPREDICT] = ESTIMATES["mispredict_restart"][0]
+        P[core.P_MISPREDICT] = self.estimates["mispredict_restart"]
         P[core.P_TAKEN_BUBBLE] = m["branch"]["taken_correct_bubble_cycles"]
         P[core.P_BTB_SETS] = m["branch"]["btb_entries"] // m["branch"]["btb_ways"]
         P[core.P_BTB_WAYS] = m["branch"]["btb_ways"]
         P[core.P_HIST_BITS] = m["branch"]["btb_history_bits"]
-        P[core.P_PARTIAL_EXTRA] = ESTIMATES["partial_extra"][0]
+        P[core.P_PARTIAL_EXTRA] = self.estimates["partial_extra"]
         P[core.P_FWD_FAIL] = m["store_forwarding"]["failure_penalty_cycles"]
-        P[core.P_FWD_LAT] = ESTIMATES["forward_latency"][0]
+        P[core.P_FWD_LAT] = self.estimates["forward_latency"]
         P[core.P_LCP] = math.ceil(m["decode"]["prefixes"]["lcp_penalty_cycles"]) - 1  # plus the group break
-        P[core.P_STATIC_REDIRECT] = ESTIMATES["static_redirect"][0]
+        P[core.P_STATIC_REDIRECT] = self.estimates["static_redirect"]
         P[core.P_RSB] = m["branch"]["return_stack_entries"]
-        P[core.P_MSROM_RATE] = ESTIMATES["msrom_rate"][0]
+        P[core.P_MSROM_RATE] = self.estimates["msrom_rate"]
         P[core.P_EXIT_ADDR] = EXIT_ADDR
         return P
 

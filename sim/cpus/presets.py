@@ -69,8 +69,16 @@ def load(name: str) -> CpuPreset:
     path = PRESETS / f"{name}.toml"
     if not path.is_file():
         raise UnknownPreset(f"unknown CPU preset '{name}' (choose one of: {', '.join(available())})")
-    with open(path, "rb") as f:
-        raw = tomllib.load(f)
+    try:
+        with open(path, "rb") as f:
+            raw = tomllib.load(f)
+    except tomllib.TOMLDecodeError as e:  # a package file edited by hand: name it
+        raise RetrosimError(f"{path}: {e}") from None
+    return from_raw(raw, name, path)
+
+
+def from_raw(raw: dict, name: str, where: str | Path) -> CpuPreset:
+    """A :class:`CpuPreset` from a parsed preset file (also used for overridden copies)."""
     try:
         return CpuPreset(
             name=raw.get("name", name), family=raw["cpu_model"], core_mhz=float(raw["clock"]["core_mhz"]),
@@ -78,4 +86,18 @@ def load(name: str) -> CpuPreset:
             l2=_cache(raw.get("l2")), board_cache=_cache(raw.get("board_cache") or raw.get("l3")),
             memory=raw["memory"]["default"], core=raw.get("core", ""), raw=raw)
     except KeyError as e:
-        raise RetrosimError(f"{path}: missing field {e}") from None
+        raise RetrosimError(f"{where}: missing field {e}") from None
+
+
+def dram_overhead(preset: CpuPreset, memory: str) -> float:
+    """Bus clocks the board adds before the memory's first transfer (``[memory]
+    overhead_bus_clocks``, calibrated per preset on a measured memory latency; a preset may give
+    ``overhead_bus_clocks_by_memory = {name = ...}`` for a memory whose chipset differs)."""
+    section = preset.raw.get("memory", {})
+    by_memory = section.get("overhead_bus_clocks_by_memory", {})
+    if memory in by_memory:
+        return by_memory[memory]
+    if "overhead_bus_clocks" not in section:
+        raise RetrosimError(f"CPU preset '{preset.name}': no [memory] overhead_bus_clocks (the board's "
+                            "bus clocks before the memory's first transfer)")
+    return section["overhead_bus_clocks"]

@@ -12,6 +12,15 @@ quotient to the nearest quarter. A cost in core clocks is ``ceil(bus_clocks * ra
 can only use the data at a core-clock edge, so a fraction of a core clock rounds *up* (EDO at 3.5:
 11 x 3.5 = 38.5 -> 39). Integer arithmetic on fractions only, so every machine gets the same number.
 
+Lead-off. A line fill's critical chunk reaches the core ``overhead + first transfer`` bus clocks
+after the request: the memory preset gives the first transfer (its own row/column access), the
+*board* adds the rest (bus arbitration and request phases, the chipset's DRAM controller, a board
+cache's tag check). That overhead is a property of a CPU on a given board and chipset, not of the
+memory, so it is not in the memory presets: the caller (the CPU model, from the CPU preset's
+``[memory] overhead_bus_clocks``, calibrated there on a measured memory latency) passes it in.
+It may be fractional (a measured latency rarely falls on whole bus clocks); the sum times the
+core/bus ratio is rounded up as every other cost.
+
 Writebacks. The presets give read-burst timings only; a line writeback is a 4-transfer burst write,
 and we charge it the same x-y-y-y as a fill (``writeback_estimated``). SDRAM writes have no CAS
 latency, so this overstates an SDRAM writeback's lead-off by a clock or two.
@@ -138,7 +147,7 @@ def bus_ratio(core_mhz: float, fsb_mhz: float) -> Fraction:
     return ratio
 
 
-def core_clocks(bus_clocks: int, ratio: Fraction) -> int:
+def core_clocks(bus_clocks: int | Fraction, ratio: Fraction) -> int:
     """``ceil(bus_clocks * ratio)``, exactly."""
     return -(-(bus_clocks * ratio.numerator) // ratio.denominator)
 
@@ -153,25 +162,42 @@ class LineCosts:
     writeback_bus_clocks: int
     fill: int
     writeback: int
+    overhead_bus_clocks: Fraction = Fraction(0)
+    lead_off: int = 0  # core clocks from the request to the critical chunk: ceil((overhead + first) x ratio)
 
 
-def line_costs(timing: DramTiming, core_mhz: float, fsb_mhz: float) -> LineCosts:
-    """Line fill and line writeback in core clocks (rounded up) for a core at ``core_mhz`` on a
-    ``fsb_mhz`` bus. The memory must be rated for at least the bus clock."""
+def exact(value: float | int | Fraction, what: str = "overhead_bus_clocks") -> Fraction:
+    """A preset figure as an exact fraction (15.5 -> 31/2, not the binary float), checked >= 0."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, Fraction)):
+        raise ValueError(f"{what} must be a number, got {value!r}")
+    f = value if isinstance(value, Fraction) else Fraction(str(value))
+    if f < 0:
+        raise ValueError(f"{what} must be >= 0, got {value}")
+    return f
+
+
+def line_costs(timing: DramTiming, core_mhz: float, fsb_mhz: float,
+               overhead_bus_clocks: float | Fraction = 0) -> LineCosts:
+    """Line fill, line writeback and the fill's lead-off in core clocks (rounded up) for a core at
+    ``core_mhz`` on a ``fsb_mhz`` bus whose board adds ``overhead_bus_clocks`` before the memory's
+    first transfer (see the module docstring). The memory must be rated for at least the bus clock."""
     if fsb_mhz > timing.bus_mhz + 0.5:
         raise ValueError(f"memory preset {timing.name} is rated for {timing.bus_mhz:g} MHz, "
                          f"below the {fsb_mhz:g} MHz bus")
     ratio = bus_ratio(core_mhz, fsb_mhz)
+    over = exact(overhead_bus_clocks)
     fill, wb = timing.line_fill_bus_clocks, timing.line_writeback_bus_clocks
-    return LineCosts(timing.name, ratio, fill, wb, core_clocks(fill, ratio), core_clocks(wb, ratio))
+    lead = core_clocks(over + timing.first_access_bus_clocks, ratio)
+    return LineCosts(timing.name, ratio, fill, wb, core_clocks(fill, ratio), core_clocks(wb, ratio), over, lead)
 
 
 def line_costs_for_cpu(cpu_preset: dict, memory: str | None = None) -> LineCosts:
-    """:func:`line_costs` for a parsed CPU preset, with its default memory unless ``memory`` names
-    another preset."""
+    """:func:`line_costs` for a parsed CPU preset (a dict the caller read), with its default memory
+    unless ``memory`` names another preset, and the preset's ``[memory] overhead_bus_clocks``."""
     clock = cpu_preset["clock"]
     name = memory or cpu_preset["memory"]["default"]
-    return line_costs(load_memory_preset(name), clock["core_mhz"], clock["fsb_mhz"])
+    return line_costs(load_memory_preset(name), clock["core_mhz"], clock["fsb_mhz"],
+                      cpu_preset["memory"].get("overhead_bus_clocks", 0))
 
 
 class OpenRowModel:

@@ -1,0 +1,141 @@
+"""Claims checked on every machine their words cover, claims about machines not in the run, the
+verdict's robustness to the estimated parameters, and make_model's overrides."""
+
+import json
+
+import pytest
+
+from sim import report
+from sim.cpus import make_model, overridable
+from sim.errors import RetrosimError
+from sim.runner import run_scene
+from sim.scene import SceneError, load_scene
+
+SCENE = """
+[scene]
+name = "{name}"
+width = 40
+height = 24
+
+[geometry]
+generator = "random"
+seed = 5
+triangles = 10
+depth_complexity = 2.0
+
+[run]
+variants = ["z32", "fp16z"]
+cpus = {cpus}
+frames = 2
+{claims}
+"""
+
+FAMILY_CLAIM = """
+[[claims]]
+text = "BSR is exorbitant on the K6 family"
+families = ["k6"]
+variants = ["fp16z", "z32"]
+expect = "slower"
+"""
+
+
+def scene(tmp_path, cpus='["pentium2-233:edo", "k6-233", "k6-2-300"]', claims=FAMILY_CLAIM, name="claims-test"):
+    path = tmp_path / f"{name}.toml"
+    path.write_text(SCENE.format(name=name, cpus=cpus, claims=claims))
+    return load_scene(path)
+
+
+def test_a_claim_is_checked_on_every_machine_its_words_cover(tmp_path):
+    result = run_scene(scene(tmp_path), robustness=False)
+    (c,) = report.evaluate_claims(result)
+    assert [e["cpu"] for e in c["per_cpu"]] == ["k6-233:sdram-pc66", "k6-2-300:sdram-pc100"]  # not the P6
+    assert c["not_checked"] == [] and c["covers"] == "every K6 preset"
+    for e in c["per_cpu"]:
+        a, b = e["cycles_per_pixel"]
+        assert e["holds"] == (a > b) and e["verdict"] in ("reproduced", "not reproduced")
+        assert e["robustness"] is None  # not measured in this run
+    md = report._claim_sentence(c)
+    assert "k6-233 (sdram-pc66)" in md and "k6-2-300 (sdram-pc100)" in md and "pentium2-233" not in md
+
+
+def test_claims_about_cpus_not_in_the_run_are_not_checked(tmp_path):
+    """Issue 13: `report --cpu k6-2-300` on a scene whose claims name other CPUs must not crash."""
+    claims = FAMILY_CLAIM + """
+[[claims]]
+text = "about the Pentium II with EDO"
+cpus = ["pentium2-233:edo"]
+variants = ["fp16z", "z32"]
+expect = "similar"
+tolerance = 0.1
+"""
+    s = scene(tmp_path, claims=claims)
+    result = run_scene(s, ["k6-2-300"], robustness=False)
+    family, pii = report.evaluate_claims(result)
+    assert [e["cpu"] for e in family["per_cpu"]] == ["k6-2-300:sdram-pc100"]
+    assert family["not_checked"] == ["k6-233:sdram-pc66"]
+    assert pii["per_cpu"] == [] and pii["not_checked"] == ["pentium2-233:edo"] and pii["verdict"] == "not checked"
+    out = report.write_reports(result, tmp_path / "out", formats=("md", "json"))
+    md = (tmp_path / "out" / "claims-test.md").read_text()
+    assert "pentium2-233 (edo): not checked (CPU not in this run)" in md
+    assert "k6-233 (sdram-pc66): not checked (CPU not in this run)" in md
+    assert json.loads(out[1].read_text())["claims"][1]["verdict"] == "not checked"
+
+
+def test_robustness_reruns_the_trace_with_each_estimate_at_its_ends(tmp_path):
+    s = scene(tmp_path, cpus='["k6-2-300"]')
+    result = run_scene(s)
+    (c,) = report.evaluate_claims(result)
+    (e,) = c["per_cpu"]
+    rows = {r["parameter"]: r for r in e["robustness"]}
+    # every estimate of the K6 model and the preset's estimated board-cache latency and DRAM overhead
+    assert {"estimates.store_queue", "l2.latency_cycles", "memory.overhead_bus_clocks"} <= set(rows)
+    over = rows["memory.overhead_bus_clocks"]
+    assert (over["low"], over["high"]) == (15.0, 19.0)  # calibrated on a measurement: +-2 bus clocks
+    # a longer DRAM lead-off cannot make both formats faster: z32 and fp16z both slow down
+    sens = result.sensitivity
+    for v in ("z32", "fp16z"):
+        table = sens[(v, "k6-2-300:sdram-pc100")]
+        assert table[("memory.overhead_bus_clocks", 19.0)]["cycles"] >= table[("memory.overhead_bus_clocks", 15.0)]["cycles"]
+    flips = [r["parameter"] for r in e["robustness"] if not r["same_verdict"]]
+    assert e["verdict"] == (f"depends on {', '.join(flips)}" if flips else
+                            "reproduced" if e["holds"] else "not reproduced")
+    assert "Robustness:" in report._claim_sentence(c)
+
+
+def test_claim_coverage_is_validated(tmp_path):
+    bad = FAMILY_CLAIM.replace('families = ["k6"]', 'families = ["z80"]')
+    with pytest.raises(SceneError, match=r"claims\[0\]\.families: unknown family 'z80'"):
+        scene(tmp_path, claims=bad)
+    bad = FAMILY_CLAIM.replace('families = ["k6"]', 'cpus = ["pentium5"]')
+    with pytest.raises(SceneError, match=r"claims\[0\]\.cpus: unknown CPU preset 'pentium5'"):
+        scene(tmp_path, claims=bad)
+    bad = FAMILY_CLAIM.replace('families = ["k6"]\n', '')
+    with pytest.raises(SceneError, match=r"claims\[0\]: names no CPU"):
+        scene(tmp_path, claims=bad)
+    with pytest.raises(SceneError, match=r"claims\[0\]: covers none of run.cpus"):
+        scene(tmp_path, cpus='["pentium2-233"]')
+
+
+def test_make_model_overrides():
+    base = make_model("pentium2-233")
+    m = make_model("pentium2-233", "edo", {"l2.latency_cycles": 10, "memory.overhead_bus_clocks": 4,
+                                           "estimates.uop_queue": 8})
+    assert m.params is not base.params and m.estimates["uop_queue"] == 8
+    assert m.preset.l2.latency_cycles == 10
+    assert m.dram.lead_off == 32 and base.dram.lead_off == 72  # ceil((4 + 5) x 3.5), ceil((15.5 + 5) x 3.5)
+    assert make_model("pentium2-233").preset.l2.latency_cycles == 23  # the preset file is untouched
+    assert "estimates.store_queue" in overridable("k6-233") and "l1d.latency_cycles" in overridable("k6-233")
+
+
+@pytest.mark.parametrize("overrides,message", [
+    ({"l2.latency": 10}, r"unknown override 'l2.latency'"),
+    ({"estimates.store_queue": 4}, r"unknown override 'estimates.store_queue'"),  # a K6 estimate on a P6
+    ({"l2.latency_cycles": -1}, r"override l2.latency_cycles: must be >= 0"),
+    ({"l2.latency_cycles": 0}, r"override l2.latency_cycles: must be > 0"),
+    ({"l2.latency_cycles": 2.5}, r"must be a whole number"),
+    ({"l2.latency_cycles": "fast"}, r"expected a finite number"),
+    ({"l2.size_kb": 300}, r"CPU preset 'pentium2-233': .*L2"),  # not a cache geometry
+])
+def test_make_model_refuses_bad_overrides(overrides, message):
+    with pytest.raises(RetrosimError, match=message):
+        make_model("pentium2-233", None, overrides)
