@@ -195,7 +195,39 @@ timing_options = [
     click.option("--memory", "-m", help="memory preset (default: the CPU preset's)"),
     click.option("--repeat", "-n", default=2, show_default=True,
                  help="calls in one machine state; the last is reported (caches and predictors warm)"),
+    click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
+                 help="override a preset field (l2.size_kb=256, l2.size_kb=none, l2.latency_cycles=10, "
+                      "write_allocate.mode=full, estimates.uop_queue=8, memory=sdram-pc100); repeatable"),
 ]
+
+
+def _overrides(sets) -> tuple[dict, str | None]:
+    """--set KEY=VALUE items as (preset overrides, memory preset or None); checked by make_model."""
+    from .cpus import parse_value
+
+    out, memory = {}, None
+    for item in sets:
+        key, eq, value = item.partition("=")
+        key = key.strip()
+        if not eq or not key or not value.strip():
+            raise ArgumentError(f"--set '{item}': expected KEY=VALUE (e.g. l2.size_kb=256)")
+        if key == "memory":
+            memory = value.strip()
+        else:
+            out[key] = parse_value(value)
+    return out, memory
+
+
+def _label(cpu: str, sets) -> tuple[str, str | None]:
+    """(machine label, memory from --set) for a CPU preset and --set items, validated now."""
+    from .cpus import load_dram, machine_label, make_model
+
+    overrides, memory = _overrides(sets)
+    label = machine_label(cpu, overrides)
+    if memory is not None:
+        load_dram(memory)
+    make_model(label, memory)  # one clear error for an unknown key or an impossible value
+    return label, memory
 
 
 def with_timing_options(fn):
@@ -204,27 +236,31 @@ def with_timing_options(fn):
     return fn
 
 
-def _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations=0):
+def _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations=0, sets=()):
     from .emu import Machine
     from .timing import time_kernel
 
+    cpu, set_memory = _label(cpu, sets)
+    memory = memory or set_memory
     path = catalogue_mod.resolve(source)
     probe = Machine.from_source(path, assembler=assembler)  # resolve the entry and check --args once
     entry = _entry(probe, entry)
     parse_args(args_text, probe)
-    return time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=cpu, memory=memory,
-                       repeat=repeat, budget=budget, timeline_iterations=iterations, assembler=assembler)
+    result = time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=cpu, memory=memory,
+                         repeat=repeat, budget=budget, timeline_iterations=iterations, assembler=assembler)
+    result.cpu = cpu  # the machine label: the preset with its overrides
+    return result
 
 
 @main.command("time")
 @with_kernel_options
 @with_timing_options
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
-def time_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, as_json):
+def time_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets, as_json):
     """Cycle counts of a kernel on a CPU model: cycles, uops, decode, ports, stalls, caches, DRAM."""
     from . import views
 
-    result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat)
+    result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets=sets)
     if as_json:
         click.echo(json.dumps(views.summary(result), indent=2))
         return
@@ -236,11 +272,11 @@ def time_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, a
 @with_timing_options
 @click.option("--iterations", default=3, show_default=True, help="hot-loop iterations in the timeline")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object (rows and timeline)")
-def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations, as_json):
+def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets, iterations, as_json):
     """Per-instruction table of the last call (decoder, uops, ports, latency, stalls) and a timeline."""
     from . import views
 
-    result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations)
+    result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations, sets=sets)
     if as_json:
         click.echo(json.dumps({"summary": views.summary(result), "instructions": views.explain_rows(result),
                                "timeline": views.timeline_rows(result)}, indent=2))
@@ -306,12 +342,14 @@ def _scenes(names) -> list:
     return [load_scene(p) for p in paths]
 
 
-def _run_scenes(scenes, cpus) -> list:
+def _run_scenes(scenes, cpus, jobs: int | None = None) -> list:
     """Run scenes with a progress bar per scene (on stderr, so --json output stays clean)."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from .parallel import check_jobs
     from .runner import run_scene
 
+    jobs = check_jobs(jobs)
     results = []
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
                   TimeElapsedColumn(), console=err_console, transient=False) as bar:
@@ -322,7 +360,7 @@ def _run_scenes(scenes, cpus) -> list:
             def progress(msg, task=task):
                 bar.update(task, advance=1, description=msg[:70])
 
-            results.append(run_scene(scene, list(cpus) or None, progress))
+            results.append(run_scene(scene, list(cpus) or None, progress, jobs=jobs))
             bar.update(task, completed=steps, description=f"{scene.name}: done")
     return results
 
@@ -349,20 +387,41 @@ def _summary_table(results) -> Table:
     return t
 
 
+_JOBS_OPTION = click.option("--jobs", "-j", type=int, default=None,
+                            help="worker processes (default: every core); results are the same for any N")
+
+
+def _with_sets(chosen, cpus, sets) -> list[str]:
+    """--cpu entries (or every scene's machines) with the --set overrides applied to each."""
+    if not sets:
+        return list(cpus)
+    out = []
+    for spec in (list(cpus) or [c for s in chosen for c in s.cpus]):
+        cpu, _, memory = spec.partition(":")
+        label, set_memory = _label(cpu, sets)
+        memory = set_memory or memory
+        out.append(f"{label}:{memory}" if memory else label)
+    return list(dict.fromkeys(out))
+
+
 @main.command("report")
 @click.argument("scenes", nargs=-1)
 @click.option("--cpu", "cpus", multiple=True, help="run on these presets instead of the scene's (preset[:memory])")
+@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE", help="override a preset field of every CPU run, as in `time --set`; repeatable")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=REPORTS_DIR, show_default=True,
               help="directory for the Markdown, HTML, JSON, CSV and PNG reports")
-def report_cmd(scenes, cpus, out):
+@_JOBS_OPTION
+def report_cmd(scenes, cpus, sets, out, jobs):
     """Run scenes (default: every shipped scene) and write their reports; print a summary."""
     from .report import write_reports
 
-    results = _run_scenes(_scenes(scenes), cpus)
+    chosen = _scenes(scenes)
+    cpus = _with_sets(chosen, cpus, sets)
+    results = _run_scenes(chosen, cpus, jobs)
     for r in results:
         paths = write_reports(r, out)
         err_console.print(f"wrote {', '.join(str(p) for p in paths)}")
-    if not scenes and not cpus:  # the default set also regenerates the conversion report
+    if not scenes and not cpus and not sets:  # the default set also regenerates the conversion report
         err_console.print("[dim]conversion report: timing kernels/convert/loops.S ...[/]")
         err_console.print(f"wrote {_write_conversion_report(out)}")
     console.print(_summary_table(results))
@@ -382,13 +441,14 @@ def _write_conversion_report(out: Path) -> Path:
 @click.option("--update", is_flag=True, help="re-record the baselines of the scenes run (say why in the commit)")
 @click.option("--reports/--no-reports", "check_reports", default=False,
               help="also check that the committed Markdown/JSON/CSV reports are up to date")
-def check_cmd(scenes, update, check_reports):
+@_JOBS_OPTION
+def check_cmd(scenes, update, check_reports, jobs):
     """Re-run scenes and compare exact cycle counts with reports/baselines.json."""
     from . import baseline
     from .report import write_reports
 
     chosen = _scenes(scenes)
-    results = _run_scenes(chosen, ())
+    results = _run_scenes(chosen, (), jobs)
     if update:
         baseline.save(baseline.update(baseline.load(), results))
         console.print(f"re-recorded {len(results)} scene(s) in {baseline.BASELINE_FILE}")
