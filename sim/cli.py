@@ -483,6 +483,37 @@ def check_cmd(scenes, update, check_reports, jobs):
                   "match the baselines" + (" and the committed reports" if check_reports else ""))
 
 
+@main.command("sweep")
+@click.argument("spec", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="output path without suffix (default: the spec's path without .toml); writes .parquet, "
+                   ".csv, .md and a PNG per swept parameter")
+@click.option("--scheduler", default="local", show_default=True,
+              help="'local' (an embedded Dask LocalCluster on 127.0.0.1), 'serial' (this process), or the "
+                   "address of a running Dask scheduler (tcp://HOST:PORT)")
+@_JOBS_OPTION
+def sweep_cmd(spec, out, scheduler, jobs):
+    """Run a design-space sweep (scenes or kernels x CPUs x memories x overrides) into one table."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from .parallel import check_jobs
+    from .sweep import load_spec, run_sweep
+
+    if scheduler not in ("local", "serial") and not scheduler.startswith(("tcp://", "tls://", "inproc://")):
+        raise ArgumentError(f"--scheduler '{scheduler}': expected local, serial or tcp://HOST:PORT")
+    parsed = load_spec(spec)
+    base = out or spec.with_suffix("")
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=err_console) as bar:
+        task = bar.add_task(f"sweep {spec.name}", total=None)
+        result = run_sweep(parsed, base, scheduler, check_jobs(jobs),
+                           progress=lambda n, total: bar.update(task, completed=n, total=total))
+    for path in result.files:
+        err_console.print(f"wrote {path}")
+    console.print(f"{len(result.rows)} point(s): {result.computed} computed now, "
+                  f"{len(result.rows) - result.computed} from {base.with_suffix('.parquet')}, {result.failed} failed")
+
+
 @main.command("bench")
 @click.option("--pixels", default=1 << 20, show_default=True, help="pixels in the Z-buffer span workload")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object with the figures")
