@@ -491,8 +491,9 @@ def check_cmd(scenes, update, check_reports, jobs):
 @click.option("--scheduler", default="local", show_default=True,
               help="'local' (an embedded Dask LocalCluster on 127.0.0.1), 'serial' (this process), or the "
                    "address of a running Dask scheduler (tcp://HOST:PORT)")
+@click.option("--retry-failed", is_flag=True, help="recompute points whose row in the output records an error")
 @_JOBS_OPTION
-def sweep_cmd(spec, out, scheduler, jobs):
+def sweep_cmd(spec, out, scheduler, retry_failed, jobs):
     """Run a design-space sweep (scenes or kernels x CPUs x memories x overrides) into one table."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -506,7 +507,7 @@ def sweep_cmd(spec, out, scheduler, jobs):
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=err_console) as bar:
         task = bar.add_task(f"sweep {spec.name}", total=None)
-        result = run_sweep(parsed, base, scheduler, check_jobs(jobs),
+        result = run_sweep(parsed, base, scheduler, check_jobs(jobs), retry_failed=retry_failed,
                            progress=lambda n, total: bar.update(task, completed=n, total=total))
     for path in result.files:
         err_console.print(f"wrote {path}")

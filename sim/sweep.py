@@ -5,15 +5,18 @@ Spec format::
 
     [sweep]
     description = "..."                  # optional
-    scenes = ["zbuffer-article"]         # shipped scene names or .toml paths ... and/or
-    kernels = [{ source = "zbuffer/fp16z.S", entry = "fp16z_span",
-                 args = "buf:u16:640:0xFFFF,buf:u16:640,640,0x10000000,0x100000,0x1234",
-                 repeat = 2 }]           # (as `retrosim time`; repeat optional, default 2)
+    scenes = ["zbuffer-article"]         # shipped scene names or .toml paths ... and/or kernels:
     variants = ["z32", "fp16z"]          # optional: these of each scene's variants (default all)
     cpus = ["pentium2-233"]              # required: CPU presets (or preset{key=value} labels)
     memories = ["edo", "sdram-pc100"]    # optional (default: each preset's own)
     compare = ["fp16z", "z32"]           # optional: state where variant 0 beats variant 1 along
                                          # the first grid parameter
+
+    [[sweep.kernels]]                    # optional, repeatable: a kernel call, as `retrosim time`
+    source = "zbuffer/fp16z.S"
+    entry = "fp16z_span"
+    args = "buf:u16:640:0xFFFF,buf:u16:640,640,0x10000000,0x100000,0x1234"
+    repeat = 2                           # optional (default 2)
 
     [grid]                               # optional: override -> values; every combination is run
     "l2.size_kb" = ["none", 128, 256]    # keys as `retrosim time --set` ("none": no such cache)
@@ -24,8 +27,8 @@ Spec format::
 A point is (scene variant or kernel, CPU, memory, overrides); its row holds the point's id, its
 coordinates (`set.KEY` columns, as text), every counter of the last frame or call, `pixels` and
 `cycles_per_pixel` for scenes, and `error` (empty, or the one-line reason the point failed: a
-failed point does not stop the sweep). Points whose id already has an error-free row in the output
-are not recomputed, so an interrupted sweep resumes where it stopped.
+failed point does not stop the sweep). Points whose id already has a row in the output are not
+recomputed (failed ones are with --retry-failed), so an interrupted sweep resumes where it stopped.
 
 Work is grouped by emulation (a scene's variant, or a kernel call): one task times one emulation on
 every machine of its points, so a trace is emulated once per group, not per point.
@@ -318,10 +321,12 @@ def _warm(spec: Spec) -> None:
 
 
 def run_sweep(spec: Spec, base: Path, scheduler: str = "local", jobs: int = 2,
-              progress: Callable[[int, int], None] | None = None, plots: bool = True) -> SweepResult:
-    """Run the spec's points not already in `base`.parquet; write the table after every group
-    (so an interrupted sweep keeps what it finished), then the plots and findings."""
-    done = {r["point"]: r for r in read_rows(base) if not r.get("error")}
+              progress: Callable[[int, int], None] | None = None, plots: bool = True,
+              retry_failed: bool = False) -> SweepResult:
+    """Run the spec's points not already in `base`.parquet (failed ones too with `retry_failed`);
+    write the table after every group (so an interrupted sweep keeps what it finished), then the
+    plots and findings."""
+    done = {r["point"]: r for r in read_rows(base) if not (retry_failed and r.get("error"))}
     wanted = {p["point"] for p in spec.points}
     todo = []
     for g in spec.groups:
@@ -366,7 +371,8 @@ def _run_dask(spec, todo, scheduler, jobs, new, checkpoint, tick):
         _warm(spec)
         # loopback only: the embedded cluster is not reachable from other machines
         cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address=None, silence_logs=40)
+                               dashboard_address="127.0.0.1:0", worker_dashboard_address="127.0.0.1:0",
+                               silence_logs=40)
         address = cluster
     else:
         address = scheduler
