@@ -67,6 +67,14 @@ class SharedPool:
             return f
         return self.pool.submit(_call, self.token, task, args)
 
+    def release(self) -> None:
+        """Drop this process's references to the shared object once every task is submitted: the
+        workers (forked at the first submit) keep their view, and the parent's memory can go to
+        the next emulation (a fork-context pool never forks again)."""
+        if self.pool is not None:
+            _SHARED.pop(self.token, None)
+        self.shared = None
+
     def close(self) -> None:
         if self.pool is not None:
             self.pool.shutdown(wait=True)

@@ -193,6 +193,7 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
             for f in futures:
                 if isinstance(f[2], tuple):
                     f[2] = pool.submit(_time_task, *f[2])
+            pool.release()  # only the workers keep this variant's trace now
             pending.append((variant, run.pixels, pool, futures))
             del run, shared
         while pending:
