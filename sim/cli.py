@@ -317,7 +317,39 @@ timing_options = [
     click.option("--memory", "-m", help="memory preset (default: the CPU preset's)"),
     click.option("--repeat", "-n", default=2, show_default=True, callback=_bounded(1, MAX_REPEAT),
                  help="calls in one machine state; the last is reported (caches and predictors warm)"),
+    click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
+                 help="override a preset field (l2.size_kb=256, l2.size_kb=none, l2.latency_cycles=10, "
+                      "write_allocate.mode=full, estimates.uop_queue=8, memory=sdram-pc100); repeatable"),
 ]
+
+
+def _overrides(sets) -> tuple[dict, str | None]:
+    """--set KEY=VALUE items as (preset overrides, memory preset or None); checked by make_model."""
+    from .cpus import parse_value
+
+    out, memory = {}, None
+    for item in sets:
+        key, eq, value = item.partition("=")
+        key = key.strip()
+        if not eq or not key or not value.strip():
+            raise ArgumentError(f"--set '{item}': expected KEY=VALUE (e.g. l2.size_kb=256)")
+        if key == "memory":
+            memory = value.strip()
+        else:
+            out[key] = parse_value(value)
+    return out, memory
+
+
+def _label(cpu: str, sets) -> tuple[str, str | None]:
+    """(machine label, memory from --set) for a CPU preset and --set items, validated now."""
+    from .cpus import load_dram, machine_label, make_model
+
+    overrides, memory = _overrides(sets)
+    label = machine_label(cpu, overrides)
+    if memory is not None:
+        load_dram(memory)
+    make_model(label, memory)  # one clear error for an unknown key or an impossible value
+    return label, memory
 
 
 def with_timing_options(fn):
@@ -326,37 +358,43 @@ def with_timing_options(fn):
     return fn
 
 
-def _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations=0):
+def _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations=0, sets=()):
     from .emu import Machine
     from .timing import time_kernel
 
+    cpu, set_memory = _label(cpu, sets)
+    memory = memory or set_memory
     path = catalogue_mod.resolve(source)
     probe = Machine.from_source(path, assembler=assembler, cpu=cpu)  # resolve the entry and check --args once
     entry = _entry(probe, entry)
     parse_args(args_text, probe)
     if repeat < 20:
-        return time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=cpu, memory=memory,
-                           repeat=repeat, budget=budget, timeline_iterations=iterations, assembler=assembler)
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+        result = time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=cpu, memory=memory,
+                             repeat=repeat, budget=budget, timeline_iterations=iterations, assembler=assembler)
+    else:
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    # many calls: show where the emulation is (stderr, so --json stays clean)
-    with Progress(TextColumn("{task.description}", markup=False), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                  TimeElapsedColumn(), console=err_console, transient=True) as bar:
-        task = bar.add_task(f"emulating {entry} x {repeat:,}", total=repeat)
-        return time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=cpu, memory=memory,
-                           repeat=repeat, budget=budget, timeline_iterations=iterations, assembler=assembler,
-                           progress=lambda done, total: bar.update(task, completed=done))
+        # many calls: show where the emulation is (stderr, so --json stays clean)
+        with Progress(TextColumn("{task.description}", markup=False), BarColumn(),
+                      TextColumn("{task.completed}/{task.total}"), TimeElapsedColumn(), console=err_console,
+                      transient=True) as bar:
+            task = bar.add_task(f"emulating {entry} x {repeat:,}", total=repeat)
+            result = time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=cpu, memory=memory,
+                                 repeat=repeat, budget=budget, timeline_iterations=iterations, assembler=assembler,
+                                 progress=lambda done, total: bar.update(task, completed=done))
+    result.cpu = cpu  # the machine label: the preset with its overrides
+    return result
 
 
 @main.command("time")
 @with_kernel_options
 @with_timing_options
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
-def time_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, as_json):
+def time_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets, as_json):
     """Cycle counts of a kernel on a CPU model: cycles, uops, decode, ports, stalls, caches, DRAM."""
     from . import views
 
-    result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat)
+    result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets=sets)
     if as_json:
         click.echo(json.dumps(views.summary(result), indent=2))
         return
@@ -394,10 +432,10 @@ Narrow terminals get the table in three parts keyed by the instruction."""
 @with_timing_options
 @click.option("--iterations", default=3, show_default=True, callback=_bounded(0, 1000), help="hot-loop iterations in the timeline")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object (rows and timeline)")
-def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations, as_json):
+def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets, iterations, as_json):
     from . import views
 
-    result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations)
+    result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations, sets=sets)
     if as_json:
         click.echo(json.dumps({"summary": views.summary(result), "instructions": views.explain_rows(result),
                                "timeline": views.timeline_rows(result)}, indent=2))
@@ -608,16 +646,18 @@ def _scenes(names) -> list:
     return [load_scene(p) for p in _scene_paths(names)]
 
 
-def _run_scenes(scenes, cpus, on_result=None) -> tuple[list, list[str]]:
+def _run_scenes(scenes, cpus, on_result=None, jobs: int | None = None) -> tuple[list, list[str]]:
     """Run scenes (Scene objects, or paths loaded one by one) with a progress bar per scene (on
-    stderr, so --json output stays clean). With `on_result`, each result is handed over as soon as
-    its scene finishes and a failing scene does not stop the others: returns (results, failures).
-    Without it the first failure is raised."""
+    stderr, so --json output stays clean), timing on `jobs` worker processes. With `on_result`, each
+    result is handed over as soon as its scene finishes and a failing scene does not stop the others:
+    returns (results, failures). Without it the first failure is raised."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from .parallel import check_jobs
     from .runner import run_scene
     from .scene import load_scene
 
+    jobs = check_jobs(jobs)
     results, failures = [], []
     with Progress(TextColumn("{task.description}", markup=False), BarColumn(), TextColumn("{task.completed}/{task.total}"),
                   TimeElapsedColumn(), console=err_console, transient=False) as bar:
@@ -630,7 +670,7 @@ def _run_scenes(scenes, cpus, on_result=None) -> tuple[list, list[str]]:
                 def progress(msg, task=task):
                     bar.update(task, advance=1, description=msg[:70])
 
-                result = run_scene(scene, list(cpus) or None, progress)
+                result = run_scene(scene, list(cpus) or None, progress, jobs=jobs)
                 bar.update(task, completed=steps, description=f"{scene.name}: done")
                 if result.pixels == 0:
                     bar.console.print(f"{scene.name}: the scene draws no pixels (degenerate, collinear, off-screen or "
@@ -653,14 +693,35 @@ def _run_scenes(scenes, cpus, on_result=None) -> tuple[list, list[str]]:
 PARTIAL_DIR = REPORTS_DIR.parent / "build" / "reports"
 
 
+_JOBS_OPTION = click.option("--jobs", "-j", type=int, default=None,
+                            help="worker processes (default: every core); results are the same for any N")
+
+
+def _with_sets(chosen, cpus, sets) -> list[str]:
+    """--cpu entries (or every scene's machines) with the --set overrides applied to each."""
+    if not sets:
+        return list(cpus)
+    out = []
+    for spec in (list(cpus) or [c for s in chosen for c in s.cpus]):
+        cpu, _, memory = spec.partition(":")
+        label, set_memory = _label(cpu, sets)
+        memory = set_memory or memory
+        out.append(f"{label}:{memory}" if memory else label)
+    return list(dict.fromkeys(out))
+
+
 @main.command("report")
 @click.argument("scenes", nargs=-1)
 @click.option("--cpu", "cpus", multiple=True, help="run on these presets instead of the scene's (preset[:memory]); "
               "without --out the reports then go to build/reports/, never over the committed ones")
+@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
+              help="override a preset field of every CPU run, as in `time --set`; repeatable (like --cpu, "
+                   "writes to build/reports/ without --out)")
 @click.option("--out", type=click.Path(path_type=Path), default=None,
               help="directory for the Markdown, HTML, JSON, CSV and PNG reports [default: reports/, or "
-                   "build/reports/ for a run restricted with --cpu]")
-def report_cmd(scenes, cpus, out):
+                   "build/reports/ for a run restricted with --cpu or changed with --set]")
+@_JOBS_OPTION
+def report_cmd(scenes, cpus, sets, out, jobs):
     """Run scenes (default: every shipped scene) and write their reports; print a summary."""
     from .output import check_output_dir
     from .report import summary_tables, write_reports
@@ -668,19 +729,24 @@ def report_cmd(scenes, cpus, out):
     if out is None:
         # reports/ holds the committed reports, which CI compares with fresh ones: a run with other
         # CPUs would silently replace them with different content
-        out = PARTIAL_DIR if cpus else REPORTS_DIR
-        if cpus:
-            say(f"--cpu changes the reports' content: writing to {out}/ (not over the committed reports in "
+        out = PARTIAL_DIR if cpus or sets else REPORTS_DIR
+        if cpus or sets:
+            say(f"--cpu/--set change the reports' content: writing to {out}/ (not over the committed reports in "
                 f"{REPORTS_DIR}/; choose a directory with --out)")
             out.mkdir(parents=True, exist_ok=True)
     check_output_dir(out, "--out")  # before the work: a read-only or impossible folder fails at once
     paths = _scene_paths(scenes)
+    if sets:
+        from .scene import load_scene
+
+        paths = [load_scene(p) for p in paths]
+        cpus = _with_sets(paths, cpus, sets)
 
     def write(result):  # each scene's reports as soon as it finishes: a later failure keeps them
         say(f"wrote {', '.join(str(p) for p in write_reports(result, out))}")
 
-    results, failures = _run_scenes(paths, cpus, on_result=write)
-    if not scenes and not cpus and not failures:  # the default set also regenerates the conversion report
+    results, failures = _run_scenes(paths, cpus, on_result=write, jobs=jobs)
+    if not scenes and not cpus and not sets and not failures:  # the default set also regenerates the conversion report
         err_console.print("[dim]conversion report: timing kernels/convert/loops.S ...[/]")
         say(f"wrote {_write_conversion_report(out)}")
         say(f"wrote {_write_texture_report(out)}")
@@ -713,14 +779,15 @@ def _write_conversion_report(out: Path) -> Path:
 @click.option("--update", is_flag=True, help="re-record the baselines of the scenes run (say why in the commit)")
 @click.option("--reports/--no-reports", "check_reports", default=False,
               help="also check that the committed Markdown/JSON/CSV reports are up to date")
-def check_cmd(scenes, update, check_reports):
+@_JOBS_OPTION
+def check_cmd(scenes, update, check_reports, jobs):
     """Re-run scenes and compare exact cycle counts with reports/baselines.json."""
     from . import baseline
     from .report import write_reports
 
     chosen = _scenes(scenes)
     baseline.load()  # a damaged baselines file fails before the work, not after it
-    results, _ = _run_scenes(chosen, ())
+    results, _ = _run_scenes(chosen, (), jobs=jobs)
     if update:
         baseline.save(baseline.update(baseline.load(), results))
         console.print(f"re-recorded {len(results)} scene(s) in {baseline.BASELINE_FILE}")
@@ -789,6 +856,38 @@ def validate_cmd(fams, out, check):
         t.add_row(fr.family.family, fr.family.cpu, str(len(fr.timed)), f"{fr.mape():.1f} %", f"{fr.within_one():.0%}",
                   str(len(fr.results) - len(fr.timed)))
     console.print(t)
+
+
+@main.command("sweep")
+@click.argument("spec", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="output path without suffix (default: the spec's path without .toml); writes .parquet, "
+                   ".csv, .md and a PNG per swept parameter")
+@click.option("--scheduler", default="local", show_default=True,
+              help="'local' (an embedded Dask LocalCluster on 127.0.0.1), 'serial' (this process), or the "
+                   "address of a running Dask scheduler (tcp://HOST:PORT)")
+@click.option("--retry-failed", is_flag=True, help="recompute points whose row in the output records an error")
+@_JOBS_OPTION
+def sweep_cmd(spec, out, scheduler, retry_failed, jobs):
+    """Run a design-space sweep (scenes or kernels x CPUs x memories x overrides) into one table."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from .parallel import check_jobs
+    from .sweep import load_spec, run_sweep
+
+    if scheduler not in ("local", "serial") and not scheduler.startswith(("tcp://", "tls://", "inproc://")):
+        raise ArgumentError(f"--scheduler '{scheduler}': expected local, serial or tcp://HOST:PORT")
+    parsed = load_spec(spec)
+    base = out or spec.with_suffix("")
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=err_console) as bar:
+        task = bar.add_task(f"sweep {spec.name}", total=None)
+        result = run_sweep(parsed, base, scheduler, check_jobs(jobs), retry_failed=retry_failed,
+                           progress=lambda n, total: bar.update(task, completed=n, total=total))
+    for path in result.files:
+        err_console.print(f"wrote {path}")
+    console.print(f"{len(result.rows)} point(s): {result.computed} computed now, "
+                  f"{len(result.rows) - result.computed} from {base.with_suffix('.parquet')}, {result.failed} failed")
 
 
 @main.command("bench")

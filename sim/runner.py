@@ -105,12 +105,31 @@ def _claim_machines(scene: Scene, models: dict) -> dict[str, set]:
     return out
 
 
+_WARM: set = set()  # families whose compiled core this process has run (see sim.parallel)
+
+
+def _time_task(shared, i: int, key: str, robust: bool) -> tuple[dict, dict | None]:
+    """Counters of the last call of the shared emulation on machine `i`, and the claims' robustness
+    re-timings when `robust` (a pure function of its arguments: the same in any process)."""
+    from . import claims as claim_checks
+
+    emulation, models = shared
+    timed = time_emulation(emulation, models[i])
+    cpu, memory = key.split(":")
+    sens = claim_checks.perturbed_timings(emulation, cpu, memory, timed.last) if robust else None
+    return timed.last, sens
+
+
 def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | None = None,
-              robustness: bool = True) -> SceneResult:
+              robustness: bool = True, jobs: int = 1) -> SceneResult:
     """Run a scene. With `robustness` (default), the claims' verdicts are also re-timed with each
     estimated model parameter at the ends of its plausible range (sim.claims), on the machines the
-    claims cover only; a scene without claims costs nothing more."""
-    from . import claims as claim_checks
+    claims cover only; a scene without claims costs nothing more.
+
+    `jobs` > 1 times each variant's emulation on the machines in that many forked processes
+    sharing the trace (sim.parallel), while this process emulates the next variant; the result is
+    the same for any `jobs`."""
+    from .parallel import SharedPool
 
     say = progress or (lambda msg: None)
     geometry = scene.build_geometry()
@@ -129,31 +148,59 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
     for cpu, memory in _cpu_keys(cpus or scene.cpus):
         models[(cpu, memory)] = make_model(cpu, memory)
     robust = _claim_machines(scene, models) if robustness else {}
-    for variant in scene.variants:
-        say(f"{scene.name}: {VARIANT_LABELS[variant]}: emulating {scene.frames} frame(s) of {pixels:,} pixels")
-        run = draw_frames(spans, variant, w, h, scene.frames, geometry.colour)
-        expect_z, expect_f = raster.simulate_frame(spans, variant, w, h)
-        same = bool(np.array_equal(run.zbuf.view(np.uint8), expect_z.view(np.uint8)) and np.array_equal(run.fbuf, expect_f))
-        if not same:
-            raise RetrosimError(f"{scene.path}: variant {variant}: the emulated frame differs from the numpy "
-                                "reference model of the kernel (a kernel or emulator bug)")
-        vis = depth = fight = None
-        if "visibility" in wanted:
-            vis = metrics.visibility_errors(run.fbuf, ref_owner, geometry.colour, run.zbuf, variant).as_dict()
-        if "depth_error" in wanted:
-            depth = metrics.depth_error(run.zbuf, variant, ref_depth, ref_owner).as_dict()
-        if "z_fighting" in wanted:
-            fight = metrics.z_fighting(run.fbuf, spans, geometry.pairs, ref_owner, geometry.colour).as_dict()
-        result.accuracy[variant] = Accuracy(variant, same, vis, depth, fight)
-        for (cpu, memory), model in models.items():
-            say(f"{scene.name}: {variant} on {cpu} with {model.dram.name}: timing")
-            timed = time_emulation(run.emulation, model)
-            result.timings.append(Timing(variant, cpu, model.dram.name, run.pixels, timed.last))
-            key = f"{cpu}:{model.dram.name}"
-            if key in robust.get(variant, ()):
-                say(f"{scene.name}: {variant} on {key}: re-timing with the estimates varied")
-                result.sensitivity[(variant, key)] = claim_checks.perturbed_timings(
-                    run.emulation, cpu, model.dram.name, timed.last)
+    pending = []  # (variant, pixels, pool, [(cpu, memory name, future)]): collected in this order
+
+    def collect(item):
+        variant, npix, pool, futures = item
+        for cpu, mem, fut in futures:
+            counters, sens = fut.result()
+            say(f"{scene.name}: {variant} on {cpu} with {mem}: timed")
+            result.timings.append(Timing(variant, cpu, mem, npix, counters))
+            if sens is not None:
+                result.sensitivity[(variant, f"{cpu}:{mem}")] = sens
+        pool.close()
+
+    try:
+        for variant in scene.variants:
+            say(f"{scene.name}: {VARIANT_LABELS[variant]}: emulating {scene.frames} frame(s) of {pixels:,} pixels")
+            run = draw_frames(spans, variant, w, h, scene.frames, geometry.colour)
+            expect_z, expect_f = raster.simulate_frame(spans, variant, w, h)
+            same = bool(np.array_equal(run.zbuf.view(np.uint8), expect_z.view(np.uint8)) and np.array_equal(run.fbuf, expect_f))
+            if not same:
+                raise RetrosimError(f"{scene.path}: variant {variant}: the emulated frame differs from the numpy "
+                                    "reference model of the kernel (a kernel or emulator bug)")
+            vis = depth = fight = None
+            if "visibility" in wanted:
+                vis = metrics.visibility_errors(run.fbuf, ref_owner, geometry.colour, run.zbuf, variant).as_dict()
+            if "depth_error" in wanted:
+                depth = metrics.depth_error(run.zbuf, variant, ref_depth, ref_owner).as_dict()
+            if "z_fighting" in wanted:
+                fight = metrics.z_fighting(run.fbuf, spans, geometry.pairs, ref_owner, geometry.colour).as_dict()
+            result.accuracy[variant] = Accuracy(variant, same, vis, depth, fight)
+            del expect_z, expect_f
+            shared = (run.emulation, list(models.values()))
+            futures, local = [], SharedPool(shared, 1)
+            for i, ((cpu, _), model) in enumerate(models.items()):
+                key = f"{cpu}:{model.dram.name}"
+                futures.append([cpu, model.dram.name, (i, key, key in robust.get(variant, ()))])
+                if jobs > 1 and model.family not in _WARM:
+                    # time it here: the compiled core is then loaded before the pool forks
+                    _WARM.add(model.family)
+                    futures[-1][2] = local.submit(_time_task, *futures[-1][2])
+            while pending:  # the previous variant's timings ran while this one was emulated
+                collect(pending.pop(0))
+            pool = SharedPool(shared, jobs)
+            for f in futures:
+                if isinstance(f[2], tuple):
+                    f[2] = pool.submit(_time_task, *f[2])
+            pool.release()  # only the workers keep this variant's trace now
+            pending.append((variant, run.pixels, pool, futures))
+            del run, shared
+        while pending:
+            collect(pending.pop(0))
+    finally:
+        for item in pending:
+            item[2].close()
     if "fp16_precision" in wanted:
         table = metrics.fp16_precision(2.0 ** -24, 1.0, 12)
         result.precision = {"rows": [{"depth from": r["depth_lo"], "depth to": r["depth_hi"],

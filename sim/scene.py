@@ -27,6 +27,17 @@ Format::
     frames = 2                      # optional (default 1): frames drawn in one machine state,
                                     # the last one is reported
 
+    [[run.machine]]                 # optional, repeatable: a CPU preset with overrides, run after
+    cpu = "k6-233"                  #   run.cpus; required: the CPU preset
+    memory = "sdram-pc66"           #   optional (default: the preset's)
+    set = { "write_allocate.mode" = "full", "l2.size_kb" = 256 }   # required: preset fields or
+                                    #   estimates to change (sim.cpus.make_model's overrides, the
+                                    #   names `retrosim time --set` takes; "l2.size_kb" = "none"
+                                    #   removes the L2)
+    # Its label, in the report, baselines and claims, is the preset with its overrides sorted by
+    # key: "k6-233{l2.size_kb=256,write_allocate.mode=full}:sdram-pc66". run.cpus accepts such a
+    # label as well. Claims naming a preset cover it with any overrides.
+
     [[claims]]                      # optional, repeatable: a published claim to check
     text = "..."                    # required
     variants = ["fp16z", "z32"]     # required: two of run.variants
@@ -91,7 +102,8 @@ _GENERATOR_KEYS = {
 }
 _TRIANGLE_KEYS = {"xy": ("any", True), "z": ("any", True), "colour": ("int", False)}
 _RUN_KEYS = {"variants": ("strlist", True), "cpus": ("strlist", True), "metrics": ("strlist", False),
-             "frames": ("int", False)}
+             "frames": ("int", False), "machine": ("tables", False)}
+_MACHINE_KEYS = {"cpu": ("str", True), "memory": ("str", False), "set": ("any", True)}
 _CLAIM_KEYS = {"text": ("str", True), "cpu": ("str", False), "cpus": ("strlist", False),
                "families": ("strlist", False), "memories": ("strlist", False), "variants": ("strlist", True),
                "expect": ("str", True), "tolerance": ("number", False)}
@@ -264,6 +276,7 @@ class Claim:
     def covers(self, preset: str, memory: str, family: str) -> bool:
         if self.memories and memory not in self.memories:
             return False
+        preset = preset.split("{")[0]  # a preset with overrides (run.machine) is still that preset
         return (family in self.families or preset in self.cpus or f"{preset}:{memory}" in self.cpus)
 
     def describe_coverage(self) -> str:
@@ -612,25 +625,61 @@ def load_scene(path: str | Path) -> Scene:
                    "run", "metrics")
     known_cpus, known_mem = cpu_presets.available(), memory_presets()
     machines = []
+    from .cpus import machine_label, make_model, split_label
+
+    def machine(label: str, memory: str | None, field: str, table: str, key: str, index=None):
+        try:
+            preset, overrides = split_label(label)
+        except RetrosimError as e:
+            v.fail(field, str(e), table, key, index)
+        if preset not in known_cpus:
+            v.fail(field, f"unknown CPU preset '{preset}' (known: {', '.join(known_cpus)})", table, key, index)
+        if memory is not None and memory not in known_mem:
+            v.fail(field, f"unknown memory preset '{memory}' (known: {', '.join(known_mem)})", table, key, index)
+        try:
+            label = machine_label(preset, overrides)
+            model = make_model(label, memory)  # validates every override (and the geometry it makes)
+        except RetrosimError as e:
+            v.fail(field, f"CPU preset '{preset}' is unusable: {e}", table, key, index)
+        choice = CpuChoice(label, model.dram.name, memory is not None)
+        # the same machine spelled twice ('pentium2-233' and its default 'pentium2-233:edo')
+        same = next((m for m in machines if (m.preset, m.memory) == (choice.preset, choice.memory)), None)
+        if same is not None:
+            v.fail(field, f"repeats '{same.label}' (both are {choice.preset} with {choice.memory} memory)",
+                   table, key, index)
+        machines.append(choice)
+
     for i, entry in enumerate(cpus):
         preset, sep, memory = entry.partition(":")
-        if preset not in known_cpus:
-            v.fail(f"run.cpus[{i}]", f"unknown CPU preset '{preset}' (known: {', '.join(known_cpus)})", "run", "cpus")
-        if sep and memory not in known_mem:
-            v.fail(f"run.cpus[{i}]", f"unknown memory preset '{memory}' in '{entry}' (known: {', '.join(known_mem)})",
-                   "run", "cpus")
-        if not sep:
-            try:
-                memory = cpu_presets.load(preset).memory
-            except RetrosimError as e:
-                v.fail(f"run.cpus[{i}]", f"CPU preset '{preset}' is unusable: {e}", "run", "cpus")
-        choice = CpuChoice(preset, memory, bool(sep))
-        # the same machine spelled twice ('pentium2-233' and its default 'pentium2-233:edo')
-        same = next((j for j, m in enumerate(machines) if (m.preset, m.memory) == (preset, memory)), None)
-        if same is not None:
-            v.fail(f"run.cpus[{i}]", f"'{entry}' repeats run.cpus[{same}] '{cpus[same]}' (both are {preset} "
-                   f"with {memory} memory)", "run", "cpus")
-        machines.append(choice)
+        machine(preset, memory if sep else None, f"run.cpus[{i}]", "run", "cpus")
+    for i, table in enumerate(v.typed(ru, "machine", "tables", "run", default=[])):
+        field = f"run.machine[{i}]"
+        v.keys(table, _MACHINE_KEYS, "run.machine", i, field)
+        cpu = v.typed(table, "cpu", "str", "run.machine", i, field)
+        memory = v.typed(table, "memory", "str", "run.machine", i, field)
+        sets = table["set"]
+        if not isinstance(sets, dict) or not sets:
+            v.fail(f"{field}.set", f"expected a non-empty table of overrides, got {_toml_type(sets)} {_show(sets)}",
+                   "run.machine", "set", i)
+        flat = {}
+
+        def walk(d, prefix):  # set = { l2.size_kb = 256 } parses as nested tables: dotted keys again
+            for k, x in d.items():
+                if isinstance(x, dict):
+                    walk(x, f"{prefix}{k}.")
+                elif isinstance(x, list):
+                    v.fail(f"{field}.set.{prefix}{k}", f"expected a number, a string or a boolean, got {_show(x)}",
+                           "run.machine", "set", i)
+                else:
+                    flat[f"{prefix}{k}"] = x
+
+        walk(sets, "")
+        sets = flat
+        try:
+            label = machine_label(cpu, sets)
+        except RetrosimError as e:
+            v.fail(f"{field}.set", str(e), "run.machine", "set", i)
+        machine(label, memory, field, "run.machine", "set", i)
     v.at_least(frames, 1, "run.frames", "run", "frames")
     v.at_most(frames, 1000, "run.frames", "run", "frames")
 

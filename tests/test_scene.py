@@ -124,7 +124,7 @@ def sub(old, new):
 # (edit of the valid file, file stem, the line, the field, a phrase of the message)
 BAD = {
     "unknown key": (sub("frames = 2", "frames = 2\nframe = 3"), None, 19, "run.frame",
-                    "unknown key (allowed: variants, cpus, metrics, frames)"),
+                    "unknown key (allowed: variants, cpus, metrics, frames, machine)"),
     "unknown key for generator": (sub("seed = 1998", "seed = 1998\npairs = 3"), None, 10, "geometry.pairs",
                                   "unknown key for generator 'random'"),
     "wrong type": (sub("seed = 1998", 'seed = "1998"'), None, 9, "geometry.seed",

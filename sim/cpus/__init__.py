@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import math
+import re
 
 from ..errors import RetrosimError
 from ..memory import dram
@@ -59,16 +60,29 @@ def overridable(cpu: str) -> dict[str, float]:
     # only what a model reads: a documentation field (a measured figure, a multiplier note) would
     # be overridden without any effect
     out = {k: v for k, v in out.items() if k.startswith(MODEL_FIELDS)}
+    for key in CHOICES:  # non-numeric fields that may be overridden, where the preset has the section
+        if key.split(".")[0] in preset.raw:
+            out[key] = CHOICES[key][0]
     for name, (value, _) in _family_estimates(preset.family).items():
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             out[f"estimates.{name}"] = value
     return out
 
 
-def _check_value(cpu: str, key: str, value, old) -> float:
+# Overrides that are not numbers: key (dotted, as in the preset file) -> allowed values. The
+# K6 presets' write allocation (sim.memory.hierarchy.WRITE_ALLOCATE_MODES) and an L2 that is absent.
+CHOICES = {"write_allocate.mode": ("full", "page+sector only", "none"), "l2.present": (True, False)}
+
+
+def _check_value(cpu: str, key: str, value, old) -> float | str | bool:
     """One override value: a finite number >= 0, whole where the field is whole, >= 1 for a latency,
-    a count or a size (a zero there is no machine)."""
+    a count or a size (a zero there is no machine); or one of CHOICES[key]."""
     where = f"CPU preset '{cpu}': override {key}"
+    if key in CHOICES:
+        if value not in CHOICES[key] or type(value) is not type(CHOICES[key][0]):
+            shown = ", ".join(_format(c) for c in CHOICES[key])
+            raise RetrosimError(f"{where}: expected one of {shown}, got {_format(value)}")
+        return value
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise RetrosimError(f"{where}: expected a finite number, got {value!r}")
     if value < 0:
@@ -81,32 +95,116 @@ def _check_value(cpu: str, key: str, value, old) -> float:
     return int(value) if isinstance(old, int) else float(value)
 
 
+# -- machine labels: a preset with overrides, as one string --------------------------------------
+# "k6-233{write_allocate.mode=full}" or "pentium2-233{l2.latency_cycles=10,l2.size_kb=256}": the
+# preset name, then the overrides sorted by key. Labels name machines in reports, baselines and
+# sweeps, so they say exactly what was changed; they never contain ':' (the memory separator).
+_LABEL = re.compile(r"^([A-Za-z0-9._-]+)(?:\{(.*)\})?$")
+_FORBIDDEN = set(":{},=")
+
+
+def _format(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float) and value == int(value):
+        return str(int(value)) if abs(value) < 1e15 else repr(value)
+    return str(value)
+
+
+def parse_value(text: str):
+    """A command-line or label override value: true/false, an integer, a number, or a string."""
+    t = text.strip()
+    if t.lower() in ("true", "false"):
+        return t.lower() == "true"
+    for conv in (lambda x: int(x, 0), float):
+        try:
+            return conv(t)
+        except ValueError:
+            pass
+    return t
+
+
+def normalize_overrides(overrides: dict | None) -> dict:
+    """Overrides with the shorthands expanded: ``SECTION.size_kb = "none"`` means the cache level is
+    absent (``SECTION.present = false``)."""
+    out = {}
+    for key, value in (overrides or {}).items():
+        key = str(key)
+        if key.endswith(".size_kb") and isinstance(value, str) and value.lower() == "none":
+            out[key[: -len("size_kb")] + "present"] = False
+        else:
+            out[key] = value
+    return out
+
+
+def machine_label(cpu: str, overrides: dict | None = None) -> str:
+    """The label of a preset with overrides (just the preset's name without any)."""
+    base, given = split_label(cpu)
+    merged = {**given, **normalize_overrides(overrides)}
+    if not merged:
+        return base
+    for k, v in merged.items():
+        if _FORBIDDEN & set(_format(v)):
+            raise RetrosimError(f"CPU preset '{base}': override {k}: value {_format(v)!r} may not contain "
+                                f"any of {' '.join(sorted(_FORBIDDEN))}")
+    return base + "{" + ",".join(f"{k}={_format(merged[k])}" for k in sorted(merged)) + "}"
+
+
+def split_label(label: str) -> tuple[str, dict]:
+    """(preset name, overrides) of a machine label (see :func:`machine_label`)."""
+    m = _LABEL.match(label.strip())
+    if not m:
+        raise RetrosimError(f"malformed CPU '{label}': expected PRESET or PRESET{{key=value,...}}")
+    overrides = {}
+    for item in filter(None, (m.group(2) or "").split(",")):
+        key, eq, value = item.partition("=")
+        if not eq or not key.strip():
+            raise RetrosimError(f"malformed CPU '{label}': '{item}' is not key=value")
+        overrides[key.strip()] = parse_value(value)
+    return m.group(1), normalize_overrides(overrides)
+
+
+def load_preset(label: str):
+    """The preset a machine label names, with its overrides applied and validated."""
+    base, overrides = split_label(label)
+    preset, _ = _apply(base, overrides)
+    return preset
+
+
+def _apply(cpu: str, overrides: dict):
+    """(preset with `overrides` applied, estimate overrides), every override validated."""
+    preset = presets.load(cpu)
+    estimates = {}
+    if not overrides:
+        return preset, estimates
+    allowed = overridable(cpu)
+    raw = copy.deepcopy(preset.raw)
+    for key, value in overrides.items():
+        if key not in allowed:
+            near = sorted(k for k in allowed if k.rsplit(".", 1)[-1] == str(key).rsplit(".", 1)[-1])
+            hint = f" (did you mean {', '.join(near)}?)" if near else f" (known: {', '.join(sorted(allowed))})"
+            raise RetrosimError(f"CPU preset '{cpu}': unknown override '{key}'{hint}")
+        value = _check_value(cpu, key, value, allowed[key])
+        if key.startswith("estimates."):
+            estimates[key.split(".", 1)[1]] = value
+            continue
+        *path, leaf = key.split(".")
+        section = raw
+        for part in path:
+            section = section[part]
+        section[leaf] = value
+    return presets.from_raw(raw, cpu, f"CPU preset '{cpu}' (overridden)"), estimates
+
+
 def make_model(cpu: str, memory: str | None = None, overrides: dict | None = None):
     """The timing model for a CPU preset, with its default memory unless `memory` names another.
 
     `overrides` replaces preset fields or model estimates by name (see :func:`overridable`), e.g.
     ``{"l2.latency_cycles": 10, "memory.overhead_bus_clocks": 12, "estimates.uop_queue": 8}``;
-    an unknown name or an impossible value is one clear error."""
-    preset = presets.load(cpu)
-    estimates = {}
-    if overrides:
-        allowed = overridable(cpu)
-        raw = copy.deepcopy(preset.raw)
-        for key, value in overrides.items():
-            if key not in allowed:
-                near = sorted(k for k in allowed if k.rsplit(".", 1)[-1] == str(key).rsplit(".", 1)[-1])
-                hint = f" (did you mean {', '.join(near)}?)" if near else f" (known: {', '.join(sorted(allowed))})"
-                raise RetrosimError(f"CPU preset '{cpu}': unknown override '{key}'{hint}")
-            value = _check_value(cpu, key, value, allowed[key])
-            if key.startswith("estimates."):
-                estimates[key.split(".", 1)[1]] = value
-                continue
-            *path, leaf = key.split(".")
-            section = raw
-            for part in path:
-                section = section[part]
-            section[leaf] = value
-        preset = presets.from_raw(raw, cpu, f"CPU preset '{cpu}' (overridden)")
+    an unknown name or an impossible value is one clear error. `cpu` may be a machine label
+    (``"k6-233{write_allocate.mode=full}"``, see :func:`machine_label`); `overrides` add to its own."""
+    base, given = split_label(cpu)
+    preset, estimates = _apply(base, {**given, **normalize_overrides(overrides)})
     mem = load_dram(memory or preset.memory)
     try:
         if preset.family == "p6":

@@ -66,6 +66,10 @@ def available() -> list[str]:
 
 
 def load(name: str) -> CpuPreset:
+    if "{" in name:  # a machine label: the preset with its overrides (sim.cpus.machine_label)
+        from . import load_preset
+
+        return load_preset(name)
     path = PRESETS / f"{name}.toml"
     if not path.is_file():
         raise UnknownPreset(f"unknown CPU preset '{name}' (choose one of: {', '.join(available())})")
