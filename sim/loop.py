@@ -226,8 +226,9 @@ def parse_regs(items) -> dict[str, int]:
 
 
 def run_body(body: Body, iterations: int = DEFAULT_ITERATIONS, regs: dict[str, int] | None = None,
-             assembler: str | None = None) -> LoopRun:
-    """Assemble the body in its wrapper and trace the warm and the measured pass."""
+             assembler: str | None = None, cpu: str | None = None) -> LoopRun:
+    """Assemble the body in its wrapper (for `cpu`'s instruction set, if given) and trace the warm
+    and the measured pass."""
     if iterations < 4:
         raise ArgumentError(f"--iterations must be at least 4, got {iterations}")
     regs = regs or dict(REG_DEFAULTS)
@@ -237,7 +238,7 @@ def run_body(body: Body, iterations: int = DEFAULT_ITERATIONS, regs: dict[str, i
         path = Path(tmp) / "loop.S"
         path.write_text(text)
         try:
-            machine = Machine.from_source(path, assembler=assembler)
+            machine = Machine.from_source(path, assembler=assembler, cpu=cpu)
         except AssemblerError as e:
             raise AssemblerError(_user_line(body, lines, str(e), path)) from None
         except RetrosimError as e:
@@ -373,5 +374,17 @@ def time_body(text: str, cpus: list[str], name: str = "<stdin>", syntax: str | N
     for c in cpus:  # an unknown preset fails before any emulation
         if c not in presets.available():
             raise ArgumentError(f"unknown CPU preset '{c}' (choose one of: {', '.join(presets.available())})")
-    run = run_body(body, iterations, regs, assembler)
-    return [time_run(run, c, timeline_iterations=timeline_iterations) for c in cpus]
+    # one emulation per instruction set: the body assembles for each CPU's own (MMX, 3DNow!, SSE)
+    # and runs on the Unicorn CPU model that has it
+    runs = {}
+    for c in cpus:
+        raw = presets.load(c).raw
+        key = (raw.get("gnu_march"), raw.get("zig_mcpu"), raw.get("emulator_cpu"))
+        if key not in runs:
+            runs[key] = run_body(body, iterations, regs, assembler, cpu=c)
+    out = []
+    for c in cpus:
+        raw = presets.load(c).raw
+        run = runs[(raw.get("gnu_march"), raw.get("zig_mcpu"), raw.get("emulator_cpu"))]
+        out.append(time_run(run, c, timeline_iterations=timeline_iterations))
+    return out

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import functools
 import itertools
+import re
 import tomllib
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -92,6 +93,9 @@ def family_mnemonic(mnemonic: str) -> str:
     return mnemonic
 
 
+_STRING = re.compile(r"^(lods|stos|movs|scas|cmps|ins|outs)[bwdl]?$")
+
+
 def _signature_candidates(signature: str):
     """The signature itself, then generalised variants with the fewest substitutions first."""
     tokens = signature.split(",") if signature else []
@@ -163,6 +167,10 @@ class InstructionTable:
                 row = self.rows.get((name, sig))
                 if row is not None:
                     return Match(row, asked)
+            # string instructions' operands are implicit (ESI, EDI, EAX): Capstone spells them out,
+            # the tables key the plain form by mnemonic alone
+            if _STRING.match(name) and (name, "") in self.rows:
+                return Match(self.rows[(name, "")], asked)
         return None
 
     def require(self, mnemonic: str, signature: str, where: str) -> Match:
