@@ -8,22 +8,7 @@
 .intel_syntax noprefix
 .text
 
-.macro PROLOGUE
-    push    ebx
-    push    esi
-    push    edi
-    push    ebp
-    mov     ebp, [esp+20]
-    mov     esi, [esp+24]
-.endm
-
-.macro EPILOGUE
-    pop     ebp
-    pop     edi
-    pop     esi
-    pop     ebx
-    ret
-.endm
+.include "chain_frame.inc"
 
 
 # @entry bsr_chain(n, buf) -> 8 dependent instances per iteration: BSR r32,r32

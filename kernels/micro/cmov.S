@@ -4,22 +4,7 @@
 .intel_syntax noprefix
 .text
 
-.macro PROLOGUE
-    push    ebx
-    push    esi
-    push    edi
-    push    ebp
-    mov     ebp, [esp+20]
-    mov     esi, [esp+24]
-.endm
-
-.macro EPILOGUE
-    pop     ebp
-    pop     edi
-    pop     esi
-    pop     ebx
-    ret
-.endm
+.include "chain_frame.inc"
 
 
 # @entry cmov_chain(n, buf) -> 8 dependent instances per iteration: CMOVNZ r32,r32 (flags from the loop counter, never zero inside the body)
