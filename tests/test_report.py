@@ -182,7 +182,8 @@ def test_summary_fits_80_columns_and_says_how_many_claims_held(tmp_path):
     claim = CLAIM_ON_ANOTHER_CPU.replace('"pentium2-233"', '"pentium2-233:edo"')
     claims = claim + claim.replace("slower", "faster").replace("on the", "vs the")
     scene = write_scene(tmp_path, variants='["z32", "z16", "fp16z", "fp16t", "zf32"]',
-                        cpus='["pentium2-233:edo", "pentium2-233:sdram-pc100", "k6-2-300"]', claims=claims)
+                        cpus='["pentium2-233:edo", "pentium2-233:sdram-pc100", "k6-2-300", '
+                             '"k6-233{write_allocate.mode=page+sector only}"]', claims=claims)
     result = run_scene(scene)
     for width in (80, 200):
         text = render(report.summary_tables([result]), width)
