@@ -45,7 +45,7 @@ def _f(x: float, digits: int = 2) -> str:
 
 
 def _cpu_label(key: str) -> str:
-    cpu, memory = key.split(":")
+    cpu, memory = key.rsplit(":", 1)
     return f"{cpu} ({memory})"
 
 
@@ -174,7 +174,8 @@ def work_precision_figure(result: SceneResult):
     wrong = sorted((v for v in variants if v not in exact), key=lambda v: -share[v])
     rows = wrong + exact  # top to bottom
     keys = result.cpu_keys
-    legend_rows = -(-(len(keys) + bool(exact)) // 3)
+    ncol = 2 if any(len(_cpu_label(k)) > 28 for k in keys) else 3  # long override labels: two columns
+    legend_rows = -(-(len(keys) + bool(exact)) // ncol)
     fig_h = 1.3 + 0.22 * legend_rows + 0.45 * len(rows) * max(1.0, len(keys) / 4)
     fig, ax = plt.subplots(figsize=(8, fig_h), dpi=100, layout="constrained")
     # the same CPU has the same colour in every plot, the same memory the same marker
@@ -187,15 +188,22 @@ def work_precision_figure(result: SceneResult):
     ypos = {v: len(rows) - 1 - i for i, v in enumerate(rows)}
     if exact:
         ax.axhspan(-0.5, len(exact) - 0.5, color="#dcefdc", zorder=0, label="exact: no pixel with wrong visibility")
+    overridden = 0
     for i, key in enumerate(keys):
         offset = (i - (len(keys) - 1) / 2) * (spread / max(1, len(keys) - 1)) if len(keys) > 1 else 0.0
         xs = [result.timing(v, key).per_pixel("cycles") for v in rows]
         ys = [ypos[v] - offset for v in rows]
-        cpu, memory = key.split(":")
-        colour = palette(cpu_names.index(cpu) % palette.N) if cpu in cpu_names else "0.5"
-        marker = markers[memories.index(memory) % len(markers)] if memory in memories else "X"
-        ax.scatter(xs, ys, marker=marker, s=46, color=colour, label=_cpu_label(key), zorder=3,
-                   edgecolors="black", linewidths=0.4)
+        cpu, memory = key.rsplit(":", 1)
+        base = cpu.split("{", 1)[0]  # a preset with overrides keeps its preset's colour
+        colour = palette(cpu_names.index(base) % palette.N) if base in cpu_names else "0.5"
+        m = memories.index(memory) if memory in memories else len(markers) - 1
+        if base == cpu:
+            ax.scatter(xs, ys, marker=markers[m % len(markers)], s=46, color=colour, label=_cpu_label(key),
+                       zorder=3, edgecolors="black", linewidths=0.4)
+        else:  # overridden: hollow, and a shape of its own, so two variants of one preset differ
+            overridden += 1
+            ax.scatter(xs, ys, marker=markers[(m + overridden) % len(markers)], s=52, facecolors="none",
+                       edgecolors=colour, linewidths=1.6, label=_cpu_label(key), zorder=3)
     for k in range(len(rows) - 1):
         ax.axhline(k + 0.5, color="0.85", lw=0.8, zorder=1)
     labels = []
@@ -211,7 +219,7 @@ def work_precision_figure(result: SceneResult):
     ax.grid(axis="x", color="0.9", zorder=0)
     ax.tick_params(axis="x", labelsize=9)
     ax.margins(x=0.04)
-    fig.legend(fontsize=9, loc="outside lower center", ncol=3, frameon=False, handletextpad=0.3, columnspacing=1.2)
+    fig.legend(fontsize=9, loc="outside lower center", ncol=ncol, frameon=False, handletextpad=0.3, columnspacing=1.2)
     return fig
 
 
