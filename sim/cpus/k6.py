@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import functools
 import math
-import re
 import tomllib
 from dataclasses import dataclass
 
@@ -56,7 +55,7 @@ from . import k6_core as core
 from .lowering import BRANCH, COMPUTE, DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE, LOAD, STA, StaticProgram, lower
 from .p6 import CoreRun, DramCost
 from . import vocabulary
-from .presets import CpuPreset, dram_overhead
+from .presets import CpuPreset, dram_overhead, model_by_cpuid
 from .table import TABLES, InstructionTable, Match, load_table
 
 # Model choices with no figure in the sources (each says why it is what it is).
@@ -90,13 +89,7 @@ def _machine_table() -> dict:
 
 def model_key(preset: CpuPreset) -> str:
     """'k6', 'k6-2' or 'k6-3' from the preset's CPUID model (k6_machine.toml [models])."""
-    m = re.search(r"model\s+(\d+)", str(preset.raw.get("cpuid_signature", "")))
-    if m:
-        for key, info in _machine_table()["models"].items():
-            if isinstance(info, dict) and int(m.group(1)) in info.get("models", ()):
-                return key
-    raise RetrosimError(f"CPU preset {preset.name}: cpuid_signature {preset.raw.get('cpuid_signature')!r} "
-                        "names no K6 model of k6_machine.toml [models]")
+    return model_by_cpuid(preset, _machine_table()["models"], "K6", "k6_machine.toml")
 
 
 def _whole(x: float) -> int:

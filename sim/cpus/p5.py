@@ -21,7 +21,6 @@ modelled.
 from __future__ import annotations
 
 import functools
-import re
 import tomllib
 from dataclasses import dataclass
 
@@ -37,7 +36,7 @@ from . import p5_core as core
 from .k6 import dram_cost as socket7_dram_cost
 from .lowering import COMPUTE, DEC_SIMPLE, GPRS, PART_MASK, StaticProgram, lower
 from .p6 import CoreRun
-from .presets import CpuPreset
+from .presets import CpuPreset, model_by_cpuid
 from .table import TABLES, InstructionTable, Match, load_table
 
 CLASSES = {"NP": core.NP, "UV": core.UV, "PU": core.PU, "PV": core.PV, "FX": core.FX, "FXCH": core.FXCH,
@@ -67,13 +66,7 @@ def _machine_table() -> dict:
 
 def model_key(preset: CpuPreset) -> str:
     """'p54c' or 'p55c' from the preset's CPUID model (p5_machine.toml [models])."""
-    m = re.search(r"model\s+(\d+)", str(preset.raw.get("cpuid_signature", "")))
-    if m:
-        for key, info in _machine_table()["models"].items():
-            if int(m.group(1)) in info.get("models", ()):
-                return key
-    raise RetrosimError(f"CPU preset {preset.name}: cpuid_signature {preset.raw.get('cpuid_signature')!r} "
-                        "names no P5 model of p5_machine.toml [models]")
+    return model_by_cpuid(preset, _machine_table()["models"], "P5", "p5_machine.toml")
 
 
 def _gpr_mask(refs) -> int:

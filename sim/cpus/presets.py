@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -105,3 +106,15 @@ def dram_overhead(preset: CpuPreset, memory: str) -> float:
         raise RetrosimError(f"CPU preset '{preset.name}': no [memory] overhead_bus_clocks (the board's "
                             "bus clocks before the memory's first transfer)")
     return section["overhead_bus_clocks"]
+
+
+def model_by_cpuid(preset: CpuPreset, models: dict, family: str, machine_file: str) -> str:
+    """The key of the `[models]` entry (of a family's machine file) whose `models` list holds the
+    preset's CPUID model number ('p54c', 'k6-2', ...), or one error naming the preset."""
+    m = re.search(r"model\s+(\d+)", str(preset.raw.get("cpuid_signature", "")))
+    if m:
+        for key, info in models.items():
+            if isinstance(info, dict) and int(m.group(1)) in info.get("models", ()):
+                return key
+    raise RetrosimError(f"CPU preset {preset.name}: cpuid_signature {preset.raw.get('cpuid_signature')!r} "
+                        f"names no {family} model of {machine_file} [models]")
