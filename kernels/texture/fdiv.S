@@ -13,45 +13,12 @@
 .intel_syntax noprefix
 .text
 
-.macro SETUP
-    push ebp
-    push ebx
-    push esi
-    push edi
-    mov edx, [esp+32]
-    mov eax, [esp+36]
-    mov esi, [esp+40]
-    mov ecx, [esp+44]
-    mov ebx, edx
-    shr ebx, 16
-    and ebx, 0xFF
-    mov edi, eax
-    shr edi, 8
-    and edi, 0xFF00
-    or ebx, edi
-    or ebx, [esp+24]
-    shl edx, 16
-    shl eax, 16
-    mov edi, esi
-    shr edi, 16
-    and edi, 0xFF
-    or edx, edi
-    mov edi, ecx
-    shr edi, 8
-    and edi, 0xFF00
-    or edx, edi
-    shl esi, 16
-    shl ecx, 16
-    mov edi, [esp+20]
-.endm
+.include "span_frame.inc"
 
-.macro RESTORE
-    mov eax, [esp+28]
-    pop edi
-    pop esi
-    pop ebx
-    pop ebp
-    ret
+# SETUP, then EDI = dst
+.macro SETUP_DST
+    SETUP
+    mov edi, [esp+20]
 .endm
 
 # the 16-pixel inner loop of tex5 (the sub-span counter is a local at [esp], pushed after SETUP)
@@ -74,7 +41,7 @@
 # @entry sub16(dst, tex, count, u, v, du, dv, c) -> EAX = count
 .globl sub16
 sub16:
-    SETUP
+    SETUP_DST
     mov ebp, [esp+28]
     shr ebp, 4
     push ebp
@@ -88,7 +55,7 @@ sub16:
 # @entry sub16_overlap(dst, tex, count, u, v, du, dv, c) -> EAX = count
 .globl sub16_overlap
 sub16_overlap:
-    SETUP
+    SETUP_DST
     mov ebp, [esp+28]
     shr ebp, 4
     push ebp
@@ -107,7 +74,7 @@ sub16_overlap:
 # @entry sub16_serial(dst, tex, count, u, v, du, dv, c) -> EAX = count
 .globl sub16_serial
 sub16_serial:
-    SETUP
+    SETUP_DST
     mov ebp, [esp+28]
     shr ebp, 4
     push ebp

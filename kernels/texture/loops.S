@@ -15,47 +15,7 @@
 .intel_syntax noprefix
 .text
 
-# Common setup: [esp+20] dst, [esp+24] tex, [esp+28] count, [esp+32] u, [esp+36] v, [esp+40] du,
-# [esp+44] dv (after four pushes). Leaves EAX, EBX, ECX (CX = 0), EDX, ESI as in Table 1.
-.macro SETUP
-    push ebp
-    push ebx
-    push esi
-    push edi
-    mov edx, [esp+32]
-    mov eax, [esp+36]
-    mov esi, [esp+40]
-    mov ecx, [esp+44]
-    mov ebx, edx
-    shr ebx, 16
-    and ebx, 0xFF
-    mov edi, eax
-    shr edi, 8
-    and edi, 0xFF00
-    or ebx, edi
-    or ebx, [esp+24]
-    shl edx, 16
-    shl eax, 16
-    mov edi, esi
-    shr edi, 16
-    and edi, 0xFF
-    or edx, edi
-    mov edi, ecx
-    shr edi, 8
-    and edi, 0xFF00
-    or edx, edi
-    shl esi, 16
-    shl ecx, 16
-.endm
-
-.macro RESTORE
-    mov eax, [esp+28]
-    pop edi
-    pop esi
-    pop ebx
-    pop ebp
-    ret
-.endm
+.include "span_frame.inc"
 
 # @entry tex9(dst, tex, count, u, v, du, dv) -> EAX = count
 .globl tex9
