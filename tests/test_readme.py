@@ -62,7 +62,7 @@ def test_every_readme_command_runs(command, tmp_path, monkeypatch):
         argv = shlex.split(command)[1:]
         out = [a for a in argv if a.startswith("build/")]  # example output directories go to tmp_path
         argv = [str(tmp_path / a) if a in out else a for a in argv]
-        monkeypatch.setattr(cli, "PARTIAL_DIR", tmp_path / "partial")
+        monkeypatch.setattr(cli.scene_cmds, "PARTIAL_DIR", tmp_path / "partial")
         r = CliRunner().invoke(cli.main, argv, catch_exceptions=False)
         assert r.exit_code == 0, (command, r.output)
     else:

@@ -1,0 +1,292 @@
+"""The `retrosim` command group and what its commands share: error printing, argument parsing,
+kernel and timing options, CPU choices, where reports and scenes live."""
+
+from __future__ import annotations
+
+import math
+import signal
+import sys
+import threading
+from pathlib import Path
+
+import click
+import numpy as np
+from rich.console import Console
+
+from .. import kernels as catalogue_mod
+from ..errors import ArgumentError, RetrosimError
+
+console = Console()
+err_console = Console(stderr=True)
+
+_DTYPES = {"u8": np.uint8, "u16": np.uint16, "u32": np.uint32, "i8": np.int8, "i16": np.int16, "i32": np.int32,
+           "f32": np.float32, "f64": np.float64}
+_ARGS_HELP = ("comma-separated cdecl arguments: integers (12, -3, 0x1F), 32-bit floats (1.5f), or buffers "
+              "allocated in the workload arena and passed by address: buf:TYPE:COUNT[:FILL] with TYPE one of "
+              + ", ".join(_DTYPES))
+
+
+def one_line(message: str) -> str:
+    """A message as one literal line: control characters (newlines in a file name, terminal escape
+    sequences) are shown escaped, never interpreted."""
+    return "".join(c if c.isprintable() or c == "\t" else repr(c)[1:-1] for c in str(message))
+
+
+def print_error(message: str) -> None:
+    """The one way errors reach the user: `retrosim: error: ...` on stderr, printed literally
+    (rich markup would eat `[...]` and crash on `[/]`, so no rich here)."""
+    sys.stderr.write(f"retrosim: error: {one_line(message)}\n")
+    sys.stderr.flush()
+
+
+def say(message: str) -> None:
+    """A status line on stderr, printed literally (paths and names may contain brackets)."""
+    err_console.print(message, markup=False, highlight=False, soft_wrap=True)
+
+
+def _terminate(signum, frame):
+    # SIGTERM unwinds like Ctrl-C, so every `finally` removes its temporary file
+    raise SystemExit(128 + signum)
+
+
+class RetrosimGroup(click.Group):
+    """Turn every RetrosimError into one clean line on stderr and exit status 2."""
+
+    def invoke(self, ctx):
+        if threading.current_thread() is threading.main_thread():  # signal handlers live in the main thread
+            signal.signal(signal.SIGTERM, _terminate)
+        try:
+            return super().invoke(ctx)
+        except RetrosimError as e:
+            print_error(str(e))
+            sys.exit(2)
+        except MemoryError:
+            print_error("out of host memory (a limit of the machine or of `ulimit -v`); "
+                        "lower the workload (--budget, --repeat, the scene's size)")
+            sys.exit(2)
+        except BrokenPipeError:
+            raise  # `retrosim ... | head`: click exits quietly
+        except OSError as e:
+            # a safety net: the checks above each writer should have named the problem first
+            where = f"{e.filename}: " if getattr(e, "filename", None) else ""
+            print_error(f"{where}{e.strerror or e}")
+            sys.exit(2)
+
+
+@click.group(cls=RetrosimGroup)
+@click.version_option(package_name="retrosim")
+def main():
+    """Cycle-level timing of i686 kernels on late-1990s x86 CPUs."""
+
+
+# -- argument parsing shared by run-kernel and trace -------------------------------------------
+def _f32(text: str, what: str) -> np.float32:
+    """A 32-bit float, refusing finite values that overflow it (1e40 would silently become inf)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise ArgumentError(f"{what}: not a number") from None
+    with np.errstate(over="ignore"):
+        single = np.float32(value)
+    if math.isfinite(value) and not math.isfinite(single):
+        raise ArgumentError(f"{what}: {value:g} is out of range for a 32-bit float (largest {np.finfo(np.float32).max:g})")
+    return single
+
+
+def _buffer(item: str, what: str, machine) -> tuple[np.ndarray, np.dtype, int]:
+    """Check a buf:TYPE:COUNT[:FILL] item completely (sizes before allocating anything)."""
+    parts = item.split(":")
+    if len(parts) not in (3, 4) or parts[1] not in _DTYPES:
+        raise ArgumentError(f"{what}: expected buf:TYPE:COUNT[:FILL], TYPE one of {', '.join(_DTYPES)}")
+    dtype = np.dtype(_DTYPES[parts[1]])
+    try:
+        count = int(parts[2], 0)
+    except ValueError:
+        raise ArgumentError(f"{what}: COUNT must be a whole number") from None
+    left = machine.arena.size - machine.arena.used
+    if count < 0:
+        raise ArgumentError(f"{what}: COUNT must not be negative")
+    if count * dtype.itemsize > left:
+        raise ArgumentError(f"{what}: {count:,} x {dtype.itemsize} bytes does not fit in the workload arena "
+                            f"({left:,} of {machine.arena.size:,} bytes left)")
+    fill = 0
+    if len(parts) == 4:
+        if dtype.kind == "f":
+            if dtype == np.float32:
+                fill = _f32(parts[3], what)
+            else:
+                try:
+                    fill = float(parts[3])
+                except ValueError:
+                    raise ArgumentError(f"{what}: FILL must be a number") from None
+        else:
+            try:
+                fill = int(parts[3], 0)
+            except ValueError:
+                raise ArgumentError(f"{what}: FILL must be a whole number for {parts[1]}") from None
+            info = np.iinfo(dtype)
+            if not info.min <= fill <= info.max:
+                raise ArgumentError(f"{what}: FILL {fill} is out of range for {parts[1]} ({info.min}..{info.max})")
+    return np.full(count, fill, dtype=dtype), dtype, count
+
+
+def parse_args(text: str | None, machine) -> tuple[list, list[tuple[str, int, np.dtype, int]]]:
+    """Parse --args; buffers are allocated in the machine's arena. Returns (values, buffers)."""
+    values, buffers = [], []
+    for i, item in enumerate(a.strip() for a in (text or "").split(",") if a.strip()):
+        what = f"--args item {i + 1} '{item}'"
+        if item.startswith("buf:"):
+            data, dtype, count = _buffer(item, what, machine)
+            address = machine.arena.put(data)
+            buffers.append((item, address, dtype, count))
+            values.append(address)
+        elif item.lower().endswith("f") and not item.lower().startswith(("0x", "-0x")):
+            values.append(_f32(item[:-1], what))
+        else:
+            try:
+                value = int(item, 0)
+            except ValueError:
+                raise ArgumentError(f"{what}: not an integer, float (1.5f) or buf:TYPE:COUNT") from None
+            if not -(1 << 31) <= value < (1 << 32):
+                raise ArgumentError(f"{what}: does not fit in a 32-bit stack slot")
+            values.append(value)
+    return values, buffers
+
+
+def _machine(source: str, assembler: str | None, cpu: str | None = None):
+    from ..emu import Machine
+
+    return Machine.from_source(catalogue_mod.resolve(source), assembler=assembler, cpu=cpu)
+
+
+def _entry(machine, entry: str | None) -> str:
+    if entry:
+        return entry
+    # declared entry points first; a file without `# @entry` comments offers its global symbols
+    candidates = list(machine.entries) or sorted(machine.image.global_symbols)
+    if len(candidates) == 1:
+        return candidates[0]
+    names = ", ".join(candidates) or "the file defines no global symbol"
+    raise ArgumentError(f"{machine.image.path}: choose an entry point with --entry ({names})")
+
+
+def _buffer_summary(machine, buffers) -> list[dict]:
+    out = []
+    for spec, address, dtype, count in buffers:
+        data = machine.arena.get(address, dtype, count)
+        out.append({"arg": spec, "address": address, "first": data[:8].tolist(),
+                    "sum": float(data.sum(dtype=np.float64)) if dtype.kind == "f" else int(data.astype(np.int64).sum())})
+    return out
+
+
+def _set_syntax(ctx, param, value):
+    """--syntax applies to every source the command assembles (set for each invocation, None too)."""
+    from .. import asm
+
+    asm._syntax.set(value)
+    return value
+
+
+def _bounded(low: int, high: int | None = None, note: str = ""):
+    """An option callback refusing integers outside [low, high] with one line naming the option."""
+    def check(ctx, param, value):
+        if value is None:
+            return value
+        name = max(param.opts, key=len)  # the long spelling: --repeat, not -n
+        if value < low or (high is not None and value > high):
+            bound = f"at least {low:,}" if high is None else f"between {low:,} and {high:,}"
+            raise ArgumentError(f"{name} {value}: must be {bound}{note}")
+        return value
+    return check
+
+
+MAX_REPEAT = 10_000  # every call's trace is kept for the model; see also RETROSIM_TRACE_MB
+
+kernel_options = [
+    click.argument("source"),
+    click.option("--entry", "-e", help="entry point symbol (default: the only one the file declares)"),
+    click.option("--args", "args_text", help=_ARGS_HELP),
+    click.option("--budget", default=200_000_000, show_default=True, callback=_bounded(0),
+                 help="instruction budget (0 = unlimited; traces are still bounded by RETROSIM_TRACE_MB)"),
+    click.option("--assembler", type=click.Choice(["gnu", "zig"]), help="assembler back end (default: GNU as)"),
+    click.option("--syntax", type=click.Choice(["intel", "att"]), expose_value=False, callback=_set_syntax,
+                 help="syntax of a source without .intel_syntax/.att_syntax (default: detected from % register "
+                      "prefixes or PTR/[reg], else AT&T as GNU as)"),
+]
+
+
+def with_kernel_options(fn):
+    for option in reversed(kernel_options):
+        fn = option(fn)
+    return fn
+
+
+def _cpu_choice(ctx, param, value):
+    from ..cpus import presets
+
+    if value not in presets.available():
+        raise click.BadParameter(f"unknown CPU preset '{value}' (choose one of: {', '.join(presets.available())})")
+    return value
+
+
+timing_options = [
+    click.option("--cpu", "-c", default="pentium2-233", show_default=True, callback=_cpu_choice,
+                 help="CPU preset (see `retrosim cpus`)"),
+    click.option("--memory", "-m", help="memory preset (default: the CPU preset's)"),
+    click.option("--repeat", "-n", default=2, show_default=True, callback=_bounded(1, MAX_REPEAT),
+                 help="calls in one machine state; the last is reported (caches and predictors warm)"),
+    click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
+                 help="override a preset field (l2.size_kb=256, l2.size_kb=none, l2.latency_cycles=10, "
+                      "write_allocate.mode=full, estimates.uop_queue=8, memory=sdram-pc100); repeatable"),
+]
+
+
+def _overrides(sets) -> tuple[dict, str | None]:
+    """--set KEY=VALUE items as (preset overrides, memory preset or None); checked by make_model."""
+    from ..cpus import parse_value
+
+    out, memory = {}, None
+    for item in sets:
+        key, eq, value = item.partition("=")
+        key = key.strip()
+        if not eq or not key or not value.strip():
+            raise ArgumentError(f"--set '{item}': expected KEY=VALUE (e.g. l2.size_kb=256)")
+        if key == "memory":
+            memory = value.strip()
+        else:
+            out[key] = parse_value(value)
+    return out, memory
+
+
+def _label(cpu: str, sets) -> tuple[str, str | None]:
+    """(machine label, memory from --set) for a CPU preset and --set items, validated now."""
+    from ..cpus import load_dram, machine_label, make_model
+
+    overrides, memory = _overrides(sets)
+    label = machine_label(cpu, overrides)
+    if memory is not None:
+        load_dram(memory)
+    make_model(label, memory)  # one clear error for an unknown key or an impossible value
+    return label, memory
+
+
+def with_timing_options(fn):
+    for option in reversed(timing_options):
+        fn = option(fn)
+    return fn
+
+
+def _cpu_list(values) -> list[str]:
+    """--cpu may repeat, take comma-separated presets, or `all` (every preset)."""
+    from ..cpus import presets
+
+    names = [n.strip() for v in values for n in v.split(",") if n.strip()] or ["pentium2-233"]
+    if "all" in names:
+        return presets.available()
+    for n in names:
+        if n not in presets.available():
+            raise ArgumentError(f"unknown CPU preset '{n}' (choose one of: {', '.join(presets.available())}, or all)")
+    return list(dict.fromkeys(names))
+
+REPORTS_DIR = Path(__file__).resolve().parents[2] / "reports"
+SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"

@@ -1,0 +1,300 @@
+"""Commands on one kernel or loop body: kernels, run-kernel, trace, time, explain, loop, bench."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+import numpy as np
+from rich import box
+from rich.markup import escape
+from rich.table import Table
+
+from .. import kernels as catalogue_mod
+from ..errors import ArgumentError
+from .app import (_bounded, _buffer_summary, _cpu_choice, _cpu_list, _entry, _label, _machine, console, err_console,
+                  main, parse_args, with_kernel_options, with_timing_options)
+
+
+# -- commands ------------------------------------------------------------------------------
+@main.command("kernels")
+@click.option("--json", "as_json", is_flag=True, help="print one JSON object")
+def kernels_cmd(as_json: bool):
+    """List kernel sources and the entry points they declare."""
+    root = catalogue_mod.kernels_root()
+    cat = catalogue_mod.catalogue(root)
+    if as_json:
+        click.echo(json.dumps({str(p.relative_to(root)): [e.signature() for e in entries.values()]
+                               for p, entries in cat.items()}, indent=2))
+        return
+    table = Table(title=escape(f"kernels in {root}"), box=box.SIMPLE_HEAD, title_justify="left", show_lines=True,
+                  caption="`# @entry` declarations: see kernels/README.md", caption_justify="left")
+    table.add_column("file", no_wrap=True)
+    table.add_column("entry point and what it returns", overflow="fold")
+    for path, entries in cat.items():
+        for i, e in enumerate(entries.values()):
+            table.add_row(escape(str(path.relative_to(root))) if i == 0 else "", escape(e.signature()))
+        if not entries:
+            table.add_row(escape(str(path.relative_to(root))), "[dim](no @entry declared)[/]")
+    console.print(table)
+
+
+def _isa_cpu_choice(ctx, param, value):
+    return None if value is None else _cpu_choice(ctx, param, value)
+
+
+_isa_cpu_option = click.option("--cpu", "-c", "isa_cpu", callback=_isa_cpu_choice,
+                               help="assemble for this CPU preset's instruction set (default: plain i686)")
+
+
+@main.command("run-kernel")
+@with_kernel_options
+@_isa_cpu_option
+@click.option("--json", "as_json", is_flag=True, help="print one JSON object")
+def run_kernel_cmd(source, entry, args_text, budget, assembler, isa_cpu, as_json):
+    """Call a kernel once and print its results and instruction / memory-access counts."""
+    m = _machine(source, assembler, isa_cpu)
+    entry = _entry(m, entry)
+    values, buffers = parse_args(args_text, m)
+    r = m.call(entry, *values, budget=budget, trace=True)
+    t = r.trace
+    report = {"entry": entry, "eax": r.eax, "edx": r.edx, "instructions": t.instructions,
+              "distinct_pcs": int(np.unique(t.pc).size), "accesses": t.accesses, "reads": t.reads,
+              "writes": t.writes, "bytes_read": int(t.mem_size[~t.mem_write].sum(dtype=np.int64)),
+              "bytes_written": int(t.mem_size[t.mem_write].sum(dtype=np.int64)),
+              "buffers": _buffer_summary(m, buffers)}
+    if as_json:
+        click.echo(json.dumps(report, indent=2))
+        return
+    table = Table(title=f"{escape(Path(source).name)}: {escape(entry)}", show_header=False)
+    for key in ("eax", "edx"):
+        table.add_row(key.upper(), f"{report[key]:#010x}  ({report[key]})")
+    for key in ("instructions", "distinct_pcs", "accesses", "reads", "writes", "bytes_read", "bytes_written"):
+        table.add_row(key.replace("_", " "), f"{report[key]:,}")
+    for b in report["buffers"]:
+        table.add_row(escape(b["arg"]), escape(f"@{b['address']:#010x} first {b['first']} sum {b['sum']}"))
+    console.print(table)
+
+
+@main.command("trace")
+@with_kernel_options
+@_isa_cpu_option
+@click.option("--out", "-o", type=click.Path(path_type=Path), required=True,
+              help="output .npz (arrays pc, mem_addr, mem_size, mem_write, mem_insn)")
+def trace_cmd(source, entry, args_text, budget, assembler, isa_cpu, out):
+    """Record a kernel's PC stream and data accesses to an .npz file for other simulators."""
+    from ..output import check_output_file
+
+    check_output_file(out, "--out")  # before the work: a bad path fails in a second, not after the run
+    m = _machine(source, assembler, isa_cpu)
+    entry = _entry(m, entry)
+    values, _ = parse_args(args_text, m)
+    t = m.call(entry, *values, budget=budget, trace=True).trace
+    t.save(out)
+    console.print(f"wrote {out}: {t.instructions:,} instructions, {t.accesses:,} data accesses "
+                  f"({t.reads:,} reads, {t.writes:,} writes)", markup=False, highlight=False)
+
+
+def _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations=0, sets=()):
+    from ..emu import Machine
+    from ..timing import time_kernel
+
+    cpu, set_memory = _label(cpu, sets)
+    memory = memory or set_memory
+    path = catalogue_mod.resolve(source)
+    probe = Machine.from_source(path, assembler=assembler, cpu=cpu)  # resolve the entry and check --args once
+    entry = _entry(probe, entry)
+    parse_args(args_text, probe)
+    if repeat < 20:
+        result = time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=cpu, memory=memory,
+                             repeat=repeat, budget=budget, timeline_iterations=iterations, assembler=assembler)
+    else:
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        # many calls: show where the emulation is (stderr, so --json stays clean)
+        with Progress(TextColumn("{task.description}", markup=False), BarColumn(),
+                      TextColumn("{task.completed}/{task.total}"), TimeElapsedColumn(), console=err_console,
+                      transient=True) as bar:
+            task = bar.add_task(f"emulating {entry} x {repeat:,}", total=repeat)
+            result = time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=cpu, memory=memory,
+                                 repeat=repeat, budget=budget, timeline_iterations=iterations, assembler=assembler,
+                                 progress=lambda done, total: bar.update(task, completed=done))
+    result.cpu = cpu  # the machine label: the preset with its overrides
+    return result
+
+
+@main.command("time")
+@with_kernel_options
+@with_timing_options
+@click.option("--json", "as_json", is_flag=True, help="print one JSON object")
+def time_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets, as_json):
+    """Cycle counts of a kernel on a CPU model: cycles, uops, decode, ports, stalls, caches, DRAM."""
+    from .. import views
+
+    result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets=sets)
+    if as_json:
+        click.echo(json.dumps(views.summary(result), indent=2))
+        return
+    console.print(views.summary_table(result))
+    console.print(views.stall_table(result))
+
+
+EXPLAIN_HELP = """Per-instruction table of the last call (decoder, uops, ports, latency,
+stalls) and a timeline.
+
+\b
+Columns, in each family's names (P6: ports p0-p4, decoders D0/D1/D2 and
+MS; K6: units X/Y/load/store/branch, short S1/S2, long L and vector V
+decode); the legend under the tables spells them out for the CPU asked:
+  runs       executions in the last call
+  dec        the decoder that took the instruction
+  uops/ops   uops (K6: RISC86 ops) per execution
+  ports      per execution on each port (K6: units)
+  iss->ret   average cycles from the first uop issuing to retirement
+  stalls     cycles per execution an op waited: dep (an operand),
+             port (a busy unit), decode (the decoders), partial (a
+             partial-register merge), mem (memory beyond L1), fwd
+             (store-to-load forwarding), window (room in the reorder
+             buffer or reservation station; K6: the scheduler), branch
+             (the front end after a branch)
+  mispred    mispredictions per execution; P6's branch stall also counts
+             every taken branch's fetch bubble, so it can be large with
+             few mispredictions
+  table row  the instruction-table row used; (est.) = estimated figures
+Narrow terminals get the table in three parts keyed by the instruction."""
+
+
+@main.command("explain", help=EXPLAIN_HELP)
+@with_kernel_options
+@with_timing_options
+@click.option("--iterations", default=3, show_default=True, callback=_bounded(0, 1000), help="hot-loop iterations in the timeline")
+@click.option("--json", "as_json", is_flag=True, help="print one JSON object (rows and timeline)")
+def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets, iterations, as_json):
+    from .. import views
+
+    result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations, sets=sets)
+    if as_json:
+        click.echo(json.dumps({"summary": views.summary(result), "instructions": views.explain_rows(result),
+                               "timeline": views.timeline_rows(result)}, indent=2))
+        return
+    console.print(views.summary_table(result))
+    console.print(views.stall_table(result))
+    for table in views.explain_tables(result, console.width):
+        console.print(table)
+    for line in views.explain_legend(result):
+        console.print(line, markup=False, highlight=False)
+    text = views.timeline_text(result, columns=console.width)
+    if text:
+        console.print(f"[bold]timeline[/]: {iterations} iterations of the hot loop, from the middle of the last call")
+        console.print(text, markup=False, highlight=False, soft_wrap=True)
+
+
+
+def _loop_explain_table(t) -> Table:
+    """The explain table, narrowed to what a loop body needs (fits 80 columns for short bodies)."""
+    from rich.markup import escape
+
+    from .. import views
+
+    table = Table(title=f"{t.cpu}: per instruction, cycles per execution (full table: --json)")
+    for col in ("instruction", "dec", "uops", "ports", "iss>ret", "stalls"):
+        table.add_column(col, justify="right" if col in ("uops", "iss>ret") else "left")
+    names = (("stall_dependency", "dep"), ("stall_port", "port"), ("stall_decode", "decode"),
+             ("stall_partial", "partial"), ("stall_memory", "mem"), ("stall_store_forward", "fwd"),
+             ("stall_window", "window"), ("mispredict_rate", "mispred"))
+    for r in views.explain_rows(t.result):
+        table.add_row(escape(r["instruction"]), r["decoder"], str(r["uops"]), r["ports"], f"{r['issue_to_retire']:g}",
+                      " ".join(f"{short} {r[k]:g}" for k, short in names if r[k]))
+    return table
+
+
+@main.command("loop")
+@click.argument("source")
+@click.option("--cpu", "-c", "cpus", multiple=True,
+              help="CPU preset; repeat or separate with commas for several, `all` for every preset [default: pentium2-233]")
+@click.option("--syntax", type=click.Choice(["intel", "att"]), help="source syntax (default: detected; Intel if unsure)")
+@click.option("--iterations", "-n", default=100, show_default=True,
+              help="iterations per pass; counters are taken between iteration N/2 and N of the second pass")
+@click.option("--reg", "regs", multiple=True, metavar="R=V", help="register start value, e.g. --reg ecx=1000")
+@click.option("--timeline", "timeline", default=3, show_default=True, help="iterations shown in the timeline")
+@click.option("--brief", is_flag=True, help="only the table of cycles per iteration")
+@click.option("--assembler", type=click.Choice(["gnu", "zig"]), help="assembler back end (default: GNU as)")
+@click.option("--json", "as_json", is_flag=True, help="print one JSON object")
+def loop_cmd(source, cpus, syntax, iterations, regs, timeline, brief, assembler, as_json):
+    """Time a bare loop body or basic block (FILE, or - for standard input): steady-state cycles per iteration."""
+    from .. import loop, views
+
+    if source == "-":
+        text, name = sys.stdin.read(), "<stdin>"
+    else:
+        path = Path(source)
+        if not path.is_file():
+            raise ArgumentError(f"{source}: no such file")
+        text, name = path.read_text(errors="replace"), source
+    timings = loop.time_body(text, _cpu_list(cpus), name, syntax, iterations, loop.parse_regs(regs), assembler,
+                             timeline)
+    if as_json:
+        click.echo(json.dumps({"source": name, "registers": {k: f"{v:#010x}" for k, v in loop.parse_regs(regs).items()},
+                               "results": [{"cpu": t.cpu, "memory": t.memory,
+                                            "cycles_per_iteration": t.cycles_per_iteration,
+                                            "uops_per_iteration": t.uops_per_iteration,
+                                            "instructions_per_iteration": t.per_iteration["instructions"],
+                                            "measured_iterations": t.iterations, "per_iteration": t.per_iteration,
+                                            "instructions": views.explain_rows(t.result),
+                                            "timeline": views.timeline_rows(t.result)} for t in timings]}, indent=2))
+        return
+    if not brief:
+        for t in timings:
+            if hasattr(t.result.model, "explain_cells"):  # a family with columns of its own (P5)
+                for part in views.explain_tables(t.result, console.width):
+                    console.print(part)
+            else:
+                console.print(_loop_explain_table(t))
+            text_tl = views.timeline_text(t.result)
+            if text_tl:
+                console.print(f"[bold]timeline[/] on {t.cpu}: {timeline} iterations from the middle of the measured pass")
+                console.print(text_tl, markup=False, highlight=False, soft_wrap=True)
+    table = Table(title=f"{escape(name)}: steady state per iteration (iterations {iterations // 2}..{iterations})")
+    for col in ("cpu", "cycles", "instr", "uops", "IPC", "main stalls (cycles)"):
+        table.add_column(col, justify="left" if col in ("cpu", "main stalls (cycles)") else "right")
+    for t in timings:
+        p = t.per_iteration
+        stalls = sorted(((p[k], k[6:].replace("_", " ")) for k in views.STALLS if p.get(k)), reverse=True)[:3]
+        table.add_row(t.cpu, f"{t.cycles_per_iteration:.2f}", f"{p['instructions']:g}", f"{t.uops_per_iteration:g}",
+                      f"{p['instructions'] / t.cycles_per_iteration:.2f}" if t.cycles_per_iteration else "-",
+                      ", ".join(f"{what} {v:g}" for v, what in stalls) or "none")
+    console.print(table)
+
+
+@main.command("bench")
+@click.option("--pixels", default=1 << 20, show_default=True, callback=_bounded(1, 1 << 22, " (the Python-hook mode keeps every instruction as Python objects, about 1 GB per million pixels)"), help="pixels in the Z-buffer span workload")
+@click.option("--json", "as_json", is_flag=True, help="print one JSON object with the figures")
+def bench_cmd(pixels: int, as_json: bool):
+    """Emulation speed: Unicorn bare, with Python hooks, with the native trace (same workload)."""
+    from ..bench import run_bench
+
+    result = run_bench(pixels, progress=None if as_json else console)
+    if as_json:
+        click.echo(json.dumps(result, indent=2))
+        return
+    table = Table(title=f"retrosim bench: fp16z_span over {pixels:,} pixels, "
+                        f"{result['instructions']:,} guest instructions")
+    table.add_column("mode")
+    table.add_column("seconds", justify="right")
+    table.add_column("guest instr/s", justify="right")
+    table.add_column("vs bare", justify="right")
+    for mode, key in (("Unicorn, no hooks", "unicorn_bare"), ("Python hooks (code + memory)", "python_hook"),
+                      ("native trace (numba cfuncs)", "native_trace"),
+                      ("end to end: trace + P6 model (pentium2-233)", "end_to_end"),
+                      ("end to end: trace + K6 model (k6-233)", "k6_end_to_end"),
+                      ("end to end: trace + P5 model (pentium-mmx-233)", "p5_end_to_end")):
+        ips = result[f"{key}_ips"]
+        table.add_row(mode, f"{result[f'{key}_seconds']:.3f}", f"{ips / 1e6:,.1f} M",
+                      f"{result['unicorn_bare_ips'] / ips:,.1f}x slower" if key != "unicorn_bare" else "1x")
+    console.print(table)
+    console.print(f"native trace vs Python hooks: [bold]{result['native_vs_python']:.1f}x[/] faster (target >= 15x); "
+                  f"native trace vs bare Unicorn: [bold]{result['bare_vs_native']:.1f}x[/] slower (target <= 10x); "
+                  f"end to end: [bold]{result['end_to_end_ips'] / 1e6:.1f} M[/] instructions/s (target >= 10 M), "
+                  f"{result['bare_vs_end_to_end']:.1f}x slower than bare Unicorn")

@@ -1,0 +1,254 @@
+"""Commands over scenes: report, check, texture-loops, sweep."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+from rich.table import Table
+
+from ..errors import ArgumentError, RetrosimError
+from .app import REPORTS_DIR, SCENES_DIR, _cpu_choice, _label, console, err_console, main, one_line, say
+
+
+@main.command("texture-loops")
+@click.option("--cpu", "cpus", multiple=True, callback=lambda c, p, v: [_cpu_choice(c, p, x) for x in v],
+              help="CPU preset (repeatable; default: every preset)")
+@click.option("--out", default=None, type=click.Path(path_type=Path), help="Markdown file to write")
+def texture_loops_cmd(cpus, out):
+    """Cycles per pixel of the texture-mapping article's span loops on every preset (reports/texture-loops.md)."""
+    from .. import texture
+
+    out = out or REPORTS_DIR / "texture-loops.md"
+    texture.write_report(out, list(cpus) or None)  # also part of `retrosim report` and `check --reports`
+    console.print(f"wrote {out}")
+
+
+
+def _scene_paths(names) -> list[Path]:
+    if not names:
+        return sorted(SCENES_DIR.glob("*.toml"))
+    paths = []
+    for n in names:
+        p = Path(n)
+        p = p if p.suffix == ".toml" and p.exists() else SCENES_DIR / f"{n}.toml"
+        if not p.exists():  # anything else that exists (a device, a pipe) is refused by load_scene
+            known = ", ".join(sorted(q.stem for q in SCENES_DIR.glob("*.toml")))
+            raise ArgumentError(f"no scene '{n}' (shipped scenes: {known})")
+        paths.append(p)
+    return paths
+
+
+def _scenes(names) -> list:
+    from ..scene import load_scene
+
+    return [load_scene(p) for p in _scene_paths(names)]
+
+
+def _run_scenes(scenes, cpus, on_result=None, jobs: int | None = None) -> tuple[list, list[str]]:
+    """Run scenes (Scene objects, or paths loaded one by one) with a progress bar per scene (on
+    stderr, so --json output stays clean), timing on `jobs` worker processes. With `on_result`, each
+    result is handed over as soon as its scene finishes and a failing scene does not stop the others:
+    returns (results, failures). Without it the first failure is raised."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from ..parallel import check_jobs
+    from ..runner import run_scene
+    from ..scene import load_scene
+
+    jobs = check_jobs(jobs)
+    results, failures = [], []
+    with Progress(TextColumn("{task.description}", markup=False), BarColumn(), TextColumn("{task.completed}/{task.total}"),
+                  TimeElapsedColumn(), console=err_console, transient=False) as bar:
+        for item in scenes:
+            try:
+                scene = load_scene(item) if isinstance(item, Path) else item
+                steps = len(scene.variants) * (1 + len(list(cpus) or scene.cpus))
+                task = bar.add_task(scene.name, total=steps)
+
+                def progress(msg, task=task):
+                    bar.update(task, advance=1, description=msg[:70])
+
+                result = run_scene(scene, list(cpus) or None, progress, jobs=jobs)
+                bar.update(task, completed=steps, description=f"{scene.name}: done")
+                if result.pixels == 0:
+                    bar.console.print(f"{scene.name}: the scene draws no pixels (degenerate, collinear, off-screen or "
+                                      "sub-pixel triangles): every metric counts 0 covered pixels",
+                                      markup=False, highlight=False, soft_wrap=True)
+                if on_result is not None:
+                    on_result(result)
+            except RetrosimError as e:
+                if on_result is None:
+                    raise
+                failures.append(one_line(str(e)))
+                if item is not scenes[-1]:  # say it now when other scenes still run; the last line repeats it
+                    bar.console.print(f"retrosim: error: {one_line(str(e))}", markup=False, highlight=False,
+                                      soft_wrap=True)
+                continue
+            results.append(result)
+    return results, failures
+
+
+PARTIAL_DIR = REPORTS_DIR.parent / "build" / "reports"
+
+
+_JOBS_OPTION = click.option("--jobs", "-j", type=int, default=None,
+                            help="worker processes (default: every core); results are the same for any N")
+
+
+def _with_sets(chosen, cpus, sets) -> list[str]:
+    """--cpu entries (or every scene's machines) with the --set overrides applied to each."""
+    if not sets:
+        return list(cpus)
+    out = []
+    for spec in (list(cpus) or [c for s in chosen for c in s.cpus]):
+        cpu, _, memory = spec.partition(":")
+        label, set_memory = _label(cpu, sets)
+        memory = set_memory or memory
+        out.append(f"{label}:{memory}" if memory else label)
+    return list(dict.fromkeys(out))
+
+
+@main.command("report")
+@click.argument("scenes", nargs=-1)
+@click.option("--cpu", "cpus", multiple=True, help="run on these presets instead of the scene's (preset[:memory]); "
+              "without --out the reports then go to build/reports/, never over the committed ones")
+@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
+              help="override a preset field of every CPU run, as in `time --set`; repeatable (like --cpu, "
+                   "writes to build/reports/ without --out)")
+@click.option("--out", type=click.Path(path_type=Path), default=None,
+              help="directory for the Markdown, HTML, JSON, CSV and PNG reports [default: reports/, or "
+                   "build/reports/ for a run restricted with --cpu or changed with --set]")
+@_JOBS_OPTION
+def report_cmd(scenes, cpus, sets, out, jobs):
+    """Run scenes (default: every shipped scene) and write their reports; print a summary."""
+    from ..output import check_output_dir
+    from ..report import summary_tables, write_reports
+
+    if out is None:
+        # reports/ holds the committed reports, which CI compares with fresh ones: a run with other
+        # CPUs would silently replace them with different content
+        out = PARTIAL_DIR if cpus or sets else REPORTS_DIR
+        if cpus or sets:
+            say(f"--cpu/--set change the reports' content: writing to {out}/ (not over the committed reports in "
+                f"{REPORTS_DIR}/; choose a directory with --out)")
+            out.mkdir(parents=True, exist_ok=True)
+    check_output_dir(out, "--out")  # before the work: a read-only or impossible folder fails at once
+    paths = _scene_paths(scenes)
+    if sets:
+        from ..scene import load_scene
+
+        paths = [load_scene(p) for p in paths]
+        cpus = _with_sets(paths, cpus, sets)
+
+    def write(result):  # each scene's reports as soon as it finishes: a later failure keeps them
+        say(f"wrote {', '.join(str(p) for p in write_reports(result, out))}")
+
+    results, failures = _run_scenes(paths, cpus, on_result=write, jobs=jobs)
+    if not scenes and not cpus and not sets and not failures:  # the default set also regenerates the conversion report
+        err_console.print("[dim]conversion report: timing kernels/convert/loops.S ...[/]")
+        say(f"wrote {_write_conversion_report(out)}")
+        say(f"wrote {_write_texture_report(out)}")
+    for part in summary_tables(results):
+        console.print(part, highlight=False)
+    if len(paths) == 1 and failures:
+        raise RetrosimError(failures[0])
+    if failures:
+        raise RetrosimError(f"{len(failures)} of {len(paths)} scene(s) failed, the others' reports are written: "
+                            + "; ".join(failures))
+
+
+def _write_texture_report(out: Path) -> Path:
+    from .. import texture
+
+    return texture.write_report(Path(out) / "texture-loops.md")
+
+
+def _write_conversion_report(out: Path) -> Path:
+    from ..microreport import conversion_markdown, conversion_results
+    from ..report import atomic_write
+
+    path = Path(out) / "conversion.md"
+    atomic_write(path, conversion_markdown(conversion_results()).encode())
+    return path
+
+
+@main.command("check")
+@click.argument("scenes", nargs=-1)
+@click.option("--update", is_flag=True, help="re-record the baselines of the scenes run (say why in the commit)")
+@click.option("--reports/--no-reports", "check_reports", default=False,
+              help="also check that the committed Markdown/JSON/CSV reports are up to date")
+@_JOBS_OPTION
+def check_cmd(scenes, update, check_reports, jobs):
+    """Re-run scenes and compare exact cycle counts with reports/baselines.json."""
+    from .. import baseline
+    from ..report import write_reports
+
+    chosen = _scenes(scenes)
+    baseline.load()  # a damaged baselines file fails before the work, not after it
+    results, _ = _run_scenes(chosen, (), jobs=jobs)
+    if update:
+        baseline.save(baseline.update(baseline.load(), results))
+        console.print(f"re-recorded {len(results)} scene(s) in {baseline.BASELINE_FILE}")
+        return
+    drifts = baseline.compare(baseline.load(), results)
+    stale = []
+    if check_reports:
+        import tempfile
+
+        with tempfile.TemporaryDirectory() as tmp:
+            fresh = [p for r in results for p in write_reports(r, Path(tmp), formats=("md", "json", "csv"))]
+            if not scenes:
+                fresh.append(_write_conversion_report(Path(tmp)))
+                fresh.append(_write_texture_report(Path(tmp)))
+            for path in fresh:
+                committed = REPORTS_DIR / path.name
+                if not committed.is_file() or committed.read_bytes() != path.read_bytes():
+                    stale.append(committed)
+    if drifts:
+        t = Table(title=f"{len(drifts)} counter(s) differ from reports/baselines.json")
+        for col in ("scene", "case", "counter", "old", "new", "delta", "percent"):
+            t.add_column(col, justify="right" if col in ("old", "new", "delta", "percent") else "left")
+        for d in drifts:
+            t.add_row(d.scene, d.case, d.counter, "-" if d.old is None else f"{d.old:,}",
+                      "-" if d.new is None else f"{d.new:,}", "-" if d.delta is None else f"{d.delta:+,}",
+                      "-" if d.percent is None else f"{d.percent:+.2f}%")
+        console.print(t)
+    for p in stale:
+        say(f"stale report: {p} (regenerate with `retrosim report`)")
+    if drifts or stale:
+        raise SystemExit(1)
+    console.print(f"{sum(len(baseline.entries(r)) for r in results)} case(s) in {len(results)} scene(s) "
+                  "match the baselines" + (" and the committed reports" if check_reports else ""))
+
+
+@main.command("sweep")
+@click.argument("spec", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="output path without suffix (default: the spec's path without .toml); writes .parquet, "
+                   ".csv, .md and a PNG per swept parameter")
+@click.option("--scheduler", default="local", show_default=True,
+              help="'local' (an embedded Dask LocalCluster on 127.0.0.1), 'serial' (this process), or the "
+                   "address of a running Dask scheduler (tcp://HOST:PORT)")
+@click.option("--retry-failed", is_flag=True, help="recompute points whose row in the output records an error")
+@_JOBS_OPTION
+def sweep_cmd(spec, out, scheduler, retry_failed, jobs):
+    """Run a design-space sweep (scenes or kernels x CPUs x memories x overrides) into one table."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from ..parallel import check_jobs
+    from ..sweep import load_spec, run_sweep
+
+    if scheduler not in ("local", "serial") and not scheduler.startswith(("tcp://", "tls://", "inproc://")):
+        raise ArgumentError(f"--scheduler '{scheduler}': expected local, serial or tcp://HOST:PORT")
+    parsed = load_spec(spec)
+    base = out or spec.with_suffix("")
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=err_console) as bar:
+        task = bar.add_task(f"sweep {spec.name}", total=None)
+        result = run_sweep(parsed, base, scheduler, check_jobs(jobs), retry_failed=retry_failed,
+                           progress=lambda n, total: bar.update(task, completed=n, total=total))
+    for path in result.files:
+        err_console.print(f"wrote {path}")
+    console.print(f"{len(result.rows)} point(s): {result.computed} computed now, "
+                  f"{len(result.rows) - result.computed} from {base.with_suffix('.parquet')}, {result.failed} failed")
