@@ -489,7 +489,16 @@ def to_markdown(result: SnapResult, png_name: str | None) -> str:
               "y's value; `snap_portable` does what the listing evidently means.",
               "- The trick is only defined for |x| < 2^18 (the sum's last 24-bit mantissa bit is worth 1/16 "
               "there); the `limit` and `huge` workloads show what happens beyond it. The portable variant's "
-              "`long` overflows at |x| >= 2^27.", ""]
+              "`long` overflows at |x| >= 2^27.",
+              "- The trick costs the same at every precision: FADD and FSUB times do not depend on the precision "
+              "control in any family's sources; the portable variant's FDIV does (every family times it at the "
+              "precision in force, `sim/cpus/precision.py`).",
+              "- On the P6 a divide by a power of two (here 16.0) takes 9 clocks whatever the precision (Agner "
+              "Fog's instruction tables, note h; InstLatX64 Pentium II, x/2.0); the models do not see operand "
+              "values, so the P6 presets time it at the full FDIV latency and overstate the portable variant's "
+              "cost by up to 2 x 29 clocks per vertex at 64-bit precision (38 against 9 for the divide) and 2 x 9 "
+              "at 24-bit (18 against 9). The K6 has no "
+              "such shortcut (InstLatX64 K6: x/2.0 40 clocks).", ""]
     return "\n".join(parts).rstrip() + "\n"
 
 
