@@ -25,7 +25,7 @@ from unicorn.unicorn_py3.unicorn import uclib
 from . import asm, elf
 from .errors import ArgumentError, GuestFault, LoadError, RunawayKernel
 from .kernels import EntryPoint, entry_points
-from .trace import NativeTracer, Trace
+from .trace import CONTROL_WORD_WRITERS, NativeTracer, Trace
 
 DEFAULT_BUDGET = 200_000_000  # instructions per call; 0 means unlimited
 DEFAULT_ARENA = 64 << 20
@@ -186,6 +186,19 @@ class Machine:
         self.uc.reg_write(X.UC_X86_REG_FPSW, 0)
         self.uc.reg_write(X.UC_X86_REG_FPTAG, 0xFFFF)
 
+    def control_word_pcs(self) -> list[int]:
+        """Static PCs of the instructions that write the x87 control word (FLDCW, FNINIT, FRSTOR...:
+        trace.CONTROL_WORD_WRITERS), from a linear sweep of the code section that skips bytes it
+        cannot decode. The tracer hooks only these; an extra PC (data that decodes as a writer)
+        costs one redundant control-word read, never a wrong one."""
+        if not hasattr(self, "_cw_pcs"):
+            base, blob = self.image.code
+            sweep = Cs(CS_ARCH_X86, CS_MODE_32)
+            sweep.skipdata = True
+            self._cw_pcs = [insn.address for insn in sweep.disasm(bytes(blob), base)
+                            if insn.mnemonic in CONTROL_WORD_WRITERS] if blob else []
+        return self._cw_pcs
+
     def reg(self, name: str) -> int:
         return self.uc.reg_read(_GPRS[name] if name in _GPRS else getattr(X, f"UC_X86_REG_{name.upper()}"))
 
@@ -272,7 +285,7 @@ class Machine:
 
     def _run_traced(self, start: int, budget: int) -> Trace:
         if self._tracer is None:
-            self._tracer = NativeTracer(self.uc)
+            self._tracer = NativeTracer(self.uc, control_word_pcs=self.control_word_pcs())
         tr = self._tracer
         tr.attach()
         pc = start
@@ -292,8 +305,12 @@ class Machine:
     def _run_python_traced(self, start: int, budget: int) -> Trace:
         pcs: list[int] = []
         accesses: list[tuple[int, int, bool, int]] = []
+        words: list[tuple[int, int]] = []
 
         def on_code(uc, address, size, _):
+            cw = uc.reg_read(X.UC_X86_REG_FPCW)  # before this instruction: the word in force for it
+            if not words or words[-1][1] != cw:
+                words.append((len(pcs), cw))
             pcs.append(address)
 
         def on_access(uc, kind, address, size, value, _):
@@ -310,8 +327,10 @@ class Machine:
                 self.uc.hook_del(h)
             self.uc.ctl_flush_tb()
         acc = np.array(accesses, dtype=np.int64).reshape(-1, 4)
+        cw = np.array(words, dtype=np.int64).reshape(-1, 2)
         return Trace(np.array(pcs, dtype=np.uint32), acc[:, 0].astype(np.uint32), acc[:, 1].astype(np.uint8),
-                     acc[:, 2].astype(np.bool_), acc[:, 3].astype(np.uint32))
+                     acc[:, 2].astype(np.bool_), acc[:, 3].astype(np.uint32), cw[:, 0].astype(np.uint32),
+                     cw[:, 1].astype(np.uint16))
 
     # -- errors ------------------------------------------------------------------------------
     def disassemble(self, pc: int) -> str:

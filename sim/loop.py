@@ -198,8 +198,7 @@ class _DemandZero:
 
 
 def _truncate(trace: Trace, n: int) -> Trace:
-    m = int(np.searchsorted(trace.mem_insn, n, side="left"))
-    return Trace(trace.pc[:n], trace.mem_addr[:m], trace.mem_size[:m], trace.mem_write[:m], trace.mem_insn[:m])
+    return trace.head(n)
 
 
 def _user_line(body: Body, lines: list[int], message: str, generated: Path) -> str:
@@ -263,7 +262,8 @@ def _pass(machine: Machine, body: Body, regs: dict[str, int], starts: list[int],
         machine.set_reg(name, value)
     uc.reg_write(X.UC_X86_REG_ESP, _STACK_TOP)
     machine.reset_fpu()
-    tracer = NativeTracer(uc, instruction_capacity=1 << 16, access_capacity=1 << 17)
+    tracer = NativeTracer(uc, instruction_capacity=1 << 16, access_capacity=1 << 17,
+                          control_word_pcs=machine.control_word_pcs())
     tracer.attach()
     pc = starts[0]
     try:

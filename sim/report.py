@@ -265,8 +265,13 @@ def summary_tables(results: list[SceneResult]) -> list:
     from rich.markup import escape
     from rich.table import Table
 
+    from .scene import kind_module
+
     out = []
     for r in results:
+        if kind_module(r.scene) is not None:  # a scene of another kind prints its own table
+            out += kind_module(r.scene).summary_tables([r])
+            continue
         claims, unchecked = checked_claims(r)
         held = sum(1 for c in claims if c["verdict"] == "reproduced")
         t = Table(title=f"{escape(r.scene.name)}: cycles per pixel, last frame", title_justify="left",
@@ -402,6 +407,10 @@ def _precision_md(precision: dict) -> str:
 
 def write_reports(result: SceneResult, out_dir: Path,
                   formats: tuple[str, ...] = ("md", "png", "json", "csv", "html")) -> list[Path]:
+    from .scene import kind_module
+
+    if kind_module(result.scene) is not None:  # a scene of another kind writes its own reports
+        return kind_module(result.scene).write_reports(result, out_dir, formats)
     out_dir = Path(out_dir)
     name = result.scene.name
     has_plot = any(a.visibility for a in result.accuracy.values())

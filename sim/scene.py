@@ -4,6 +4,8 @@ Format::
 
     [scene]
     name = "zbuffer-article"        # required; must equal the file stem
+    kind = "zbuffer"                # optional (default "zbuffer"): other kinds have their own
+                                    #   format, loader, runner and report (SCENE_KINDS)
     description = "..."             # optional
     width = 640                     # required, pixels
     height = 480                    # required, pixels
@@ -89,7 +91,19 @@ DEFAULT_MAX_VISITS = 48_000_000
 VISIT_BYTES = 220
 
 # key -> (kind, required) per table; kinds: int, number, str, strlist, range, tables
-_SCENE_KEYS = {"name": ("str", True), "description": ("str", False), "width": ("int", True), "height": ("int", True)}
+_SCENE_KEYS = {"name": ("str", True), "kind": ("str", False), "description": ("str", False), "width": ("int", True),
+               "height": ("int", True)}
+# [scene] kind -> the module that loads, runs and reports it (load_scene, run_scene, write_reports,
+# summary_tables); None: this module's Z-buffer scenes
+SCENE_KINDS = {"zbuffer": None, "snap": "sim.snapscene"}
+
+
+def kind_module(scene):
+    """The module of a scene's kind, or None for a Z-buffer scene."""
+    import importlib
+
+    name = SCENE_KINDS.get(getattr(scene, "kind", "zbuffer"))
+    return importlib.import_module(name) if name else None
 _GENERATOR_KEYS = {
     "random": {"seed": ("int", True), "triangles": ("int", True), "depth_complexity": ("number", True),
                "z_range": ("range", False)},
@@ -296,6 +310,7 @@ class Scene:
     run: RunSpec
     span_bound: int  # at most this many spans per frame (rows crossed inside the screen)
     claims: tuple[Claim, ...] = ()
+    kind = "zbuffer"
 
     # short names for what the runner and reports read
     @property
@@ -523,6 +538,13 @@ def load_scene(path: str | Path) -> Scene:
         raise SceneError(f"{path}: TOML syntax error: {msg}") from None
 
     v = _Validator(path, text)
+    kind = doc.get("scene", {}).get("kind", "zbuffer") if isinstance(doc.get("scene"), dict) else "zbuffer"
+    if not isinstance(kind, str) or kind not in SCENE_KINDS:
+        v.fail("scene.kind", f"unknown kind {_show(kind)} (known: {', '.join(SCENE_KINDS)})", "scene", "kind")
+    if SCENE_KINDS[kind]:
+        import importlib
+
+        return importlib.import_module(SCENE_KINDS[kind]).load_scene(path, text, doc)
     for key in doc:
         if key not in ("scene", "geometry", "run", "claims"):
             v.fail(key, "unknown table (allowed: scene, geometry, run, claims)", key if isinstance(doc[key], dict) else None,

@@ -209,8 +209,8 @@ def report(cpus: list[str] | None = None, n: int = 256) -> str:
               "it. The article: the divide \"can actually be done in parallel with the inner loop. This converts "
               "a 40 cycle operation to 2 cycles\"; TIMESNAP adds \"about 16 clock cycles of overhead\"; \"an L1 "
               "data cache miss costs up to 18 clock cycles\"; single precision \"reduces the execution time for the "
-              "divide from 39 clocks to 19 clocks\" (the *_single entries load a 24-bit control word first; the "
-              "P6 and K6 models ignore precision control).", "",
+              "divide from 39 clocks to 19 clocks\" (the *_single entries load a 24-bit control word first; every "
+              "family times FDIV at the precision in force).", "",
               "| CPU | sub-span (16 px) | divide overlapped | divide serial | serial, 24-bit precision | "
               "TIMESNAP overhead | L1 miss to the board cache |",
               "|---|---|---|---|---|---|---|"]

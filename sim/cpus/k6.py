@@ -55,6 +55,7 @@ from . import k6_core as core
 from .lowering import BRANCH, COMPUTE, DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE, LOAD, STA, StaticProgram, lower
 from .p6 import CoreRun, DramCost
 from . import vocabulary
+from .precision import split_by_precision
 from .presets import CpuPreset, dram_overhead, model_by_cpuid
 from .table import TABLES, InstructionTable, Match, load_table
 
@@ -349,14 +350,16 @@ class K6Model:
         for side in (self.dside, self.iside):
             side.reset()
 
-    def lower(self, records: list[InsnRecord]) -> StaticProgram:
-        return lower(records, self.table, self.l1_latency, uops_for=self.rules.uops, decoder_for=self.rules.decoder)
+    def lower(self, records: list[InsnRecord], precisions: list[int | None] | None = None) -> StaticProgram:
+        return lower(records, self.table, self.l1_latency, uops_for=self.rules.uops, decoder_for=self.rules.decoder,
+                     precisions=precisions)
 
     def run(self, trace: Trace, decoder: Decoder, segments: list[int] | None = None,
             timeline: tuple[int, int] = (0, 0), stat_first: int = 0) -> K6CoreRun:
         """Time `trace` from a cold machine (the arguments and result are those of P6Model.run)."""
         records, index = decoder.decode_trace(trace.pc)
-        program = self.lower(records)
+        records, index, precisions = split_by_precision(records, index, trace, self.table)
+        program = self.lower(records, precisions)
         k6_static = self.rules.decode_arrays(program)
         per_insn = np.bincount(trace.mem_insn, minlength=trace.instructions).astype(np.int64, copy=False)
         first_access = np.cumsum(per_insn) - per_insn

@@ -235,8 +235,11 @@ def p6_uops(rec: InsnRecord, match: Match, load_latency: int, limits: P6Limits |
 
 
 def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int = 3,
-          simple_max_len: int = 7, uops_for=None, decoder_for=None, limits: P6Limits | None = None) -> StaticProgram:
-    """The static program of `records`. A family other than the P6 passes its own rules:
+          simple_max_len: int = 7, uops_for=None, decoder_for=None, limits: P6Limits | None = None,
+          precisions: list[int | None] | None = None) -> StaticProgram:
+    """The static program of `records`; `precisions` gives each static's x87 precision index where
+    its row depends on it (sim/cpus/precision.py), else the row's 64-bit figures are used.
+    A family other than the P6 passes its own rules:
     `uops_for(rec, match, load_latency)` -> [(kind, ports, latency, unit, occupancy)] and
     `decoder_for(rec, match, uops)` -> DEC_* (the K6 model does; see sim/cpus/k6.py). The P6
     rules (:func:`p6_uops`) take the machine's `limits`."""
@@ -257,6 +260,8 @@ def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int 
         # cost; the trace holds one execution per element, so the total follows ECX.
         mnemonic = f"{rec.rep} {rec.mnemonic}" if rec.rep else rec.mnemonic
         match = table.require(mnemonic, rec.signature, f"pc {rec.pc:#010x} ({rec.mnemonic} {rec.op_str})")
+        if precisions is not None and precisions[i] is not None:
+            match = match.at_precision(precisions[i])
         matches.append(match)
         us = uops_for(rec, match, load_latency)
         s["uop0"][i], s["nuops"][i] = len(uops), len(us)

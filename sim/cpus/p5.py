@@ -12,10 +12,8 @@ instructions (the P5 has no micro-ops). Views ask the model for its vocabulary:
 Simplifications (each stated where it applies): pairing marks come from executing an instruction
 once (``first_pass_source`` in the machine file), not from the prefetch buffers' byte counts; the
 P55C's instruction FIFO is assumed full (prefix clocks 0 for 0F/66/67, as VTune's static analysis
-assumes); FDIV follows the precision control of the last FLDCW whose control word is a constant
-in the kernel's image (the trace carries addresses, not values: a word computed at run time leaves
-the precision unchanged, and the FNINIT state is 64-bit); the MMX-x87 transition cost is not
-modelled.
+assumes); FDIV/FIDIV take the clocks of the x87 precision control in force (the trace's control
+word, sim/cpus/precision.py); the MMX-x87 transition cost is not modelled.
 """
 
 from __future__ import annotations
@@ -36,6 +34,7 @@ from . import p5_core as core
 from .k6 import dram_cost as socket7_dram_cost
 from .lowering import COMPUTE, DEC_SIMPLE, GPRS, PART_MASK, StaticProgram, lower
 from .p6 import CoreRun
+from .precision import split_by_precision
 from .presets import CpuPreset, model_by_cpuid
 from .table import TABLES, InstructionTable, Match, load_table
 
@@ -116,7 +115,6 @@ class P5Rules:
 
     def static(self, program: StaticProgram) -> P5Static:
         n = len(program.records)
-        divcyc = np.zeros((n, 3), np.int64)
         z = {k: np.zeros(n, np.int64) for k in (
             "cls", "cyc", "pfx", "pfxv", "immdisp", "addr", "stack", "esp_agi", "rmask", "wmask", "rflags", "wflags",
             "jcc", "fp", "fplat", "fpnext", "fmul", "waitfpu", "mmx", "mmx_u", "mmxlat")}
@@ -128,10 +126,7 @@ class P5Rules:
                                     f"{self.m['name']} (no MMX): the CPU raises #UD")
             c = self.klass(rec, row)
             classes.append(next(k for k, v in CLASSES.items() if v == c))
-            cycles = int(row.extra["cycles"])
-            if row.extra.get("precision_cycles"):
-                divcyc[s] = row.extra["precision_cycles"]  # 24 / 53 / 64-bit, chosen by FLDCW
-                cycles = int(divcyc[s, 2])  # the FNINIT precision (64-bit) until an FLDCW
+            cycles = int(row.extra["cycles"])  # at the static's precision for FDIV (lower's precisions)
             z["cls"][s] = c
             if rec.is_x87 and rec.mnemonic != "fxch":
                 iov = int(row.extra.get("i_ov", 0))
@@ -171,32 +166,8 @@ class P5Rules:
         arrays = (program.s_len, z["cls"], z["cyc"], z["pfx"], z["pfxv"], z["immdisp"], z["addr"], z["stack"],
                   z["esp_agi"], z["rmask"], z["wmask"], z["rflags"], z["wflags"], z["jcc"], program.s_branch,
                   z["fp"], z["fplat"], z["fpnext"], z["fmul"], z["waitfpu"], z["mmx"], z["mmx_u"], z["mmxlat"],
-                  program.s_nsrc, program.s_src, program.s_ndst, program.s_dst, program.s_fpdelta, divcyc)
+                  program.s_nsrc, program.s_src, program.s_ndst, program.s_dst, program.s_fpdelta)
         return P5Static(arrays, classes)
-
-
-PRECISION = {0: 0, 2: 1, 3: 2}  # control-word bits 8-9 -> 24 / 53 / 64-bit (1 is reserved: 64-bit)
-
-
-def precision_events(records, index, acc_start, acc_count, trace: Trace, decoder: Decoder):
-    """(dynamic indices of FLDCW, precision after each) for the FLDCWs whose control word the
-    model can read: a word in the kernel's code or data sections (the decoder's view of the image,
-    a constant). A word computed at run time (on the stack, in the workload arena) is not in the
-    trace, so the precision stays as it was: see the module docstring."""
-    fetch = getattr(decoder, "_fetch", None)
-    sids = [s for s, r in enumerate(records) if r.mnemonic == "fldcw"]
-    if not sids or fetch is None:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    dyn = np.flatnonzero(np.isin(index, sids))
-    idx, prec = [], []
-    for i in dyn:
-        if acc_count[i] == 0:
-            continue
-        word = fetch(int(trace.mem_addr[acc_start[i]]), 2)
-        if len(word) == 2:
-            idx.append(int(i))
-            prec.append(PRECISION.get((int.from_bytes(word, "little") >> 8) & 3, 2))
-    return np.asarray(idx, np.int64), np.asarray(prec, np.int64)
 
 
 def _one_op(rec, match, load_latency):
@@ -303,18 +274,20 @@ class P5Model:
         self.dside.reset()
         self.iside.reset()
 
-    def lower(self, records: list[InsnRecord]) -> StaticProgram:
+    def lower(self, records: list[InsnRecord], precisions: list[int | None] | None = None) -> StaticProgram:
         for rec in records:
             if rec.rep:
                 raise RetrosimError(f"pc {rec.pc:#010x} ({rec.rep} {rec.mnemonic} {rec.op_str}): REP string "
                                     "instructions are not timed by the P5 model (no sourced per-iteration cost)")
-        return lower(records, self.table, 1, uops_for=_one_op, decoder_for=lambda rec, match, uops: DEC_SIMPLE)
+        return lower(records, self.table, 1, uops_for=_one_op, decoder_for=lambda rec, match, uops: DEC_SIMPLE,
+                     precisions=precisions)
 
     def run(self, trace: Trace, decoder: Decoder, segments: list[int] | None = None,
             timeline: tuple[int, int] = (0, 0), stat_first: int = 0) -> P5CoreRun:
         """Time `trace` from a cold machine (the arguments and result are those of P6Model.run)."""
         records, index = decoder.decode_trace(trace.pc)
-        program = self.lower(records)
+        records, index, precisions = split_by_precision(records, index, trace, self.table)
+        program = self.lower(records, precisions)
         static = self.rules.static(program)
         n = trace.instructions
         acc_count = np.bincount(trace.mem_insn, minlength=n).astype(np.int64)
@@ -328,9 +301,8 @@ class P5Model:
         rows = np.zeros((timeline[1], core.NT), np.int64)
         self.reset()
         dcounts, icounts = self.dside.new_counts(), self.iside.new_counts()
-        ev_idx, ev_pc = precision_events(records, index, acc_start, acc_count, trace, decoder)
         end = core.simulate(index, trace.pc, acc_start, acc_count, trace.mem_addr, trace.mem_size, trace.mem_write,
-                            cuts, *static.arrays, ev_idx, ev_pc, self.params, *self.dside.arrays(), dcounts, *self.iside.arrays(),
+                            cuts, *static.arrays, self.params, *self.dside.arrays(), dcounts, *self.iside.arrays(),
                             icounts, counters, per_static, stat_first, rows, timeline[0], is_rdtsc, rdtsc)
         return P5CoreRun(program, counters, per_static[:-1], rows, rdtsc, int(end), static)
 

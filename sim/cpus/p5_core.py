@@ -159,7 +159,7 @@ def _load_miss(r, lvl, now, P, bus_free, ctr):
 def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_cls, s_cyc, s_pfx, s_pfxv, s_immdisp, s_addr, s_stack, s_esp_agi, s_rmask, s_wmask, s_rflags,
              s_wflags, s_jcc, s_branch, s_fp, s_fplat, s_fpnext, s_fmul, s_waitfpu, s_mmx, s_mmx_u, s_mmxlat,
-             s_nsrc, s_src, s_ndst, s_dst, s_fpdelta, s_divcyc, ev_idx, ev_pc, P,
+             s_nsrc, s_src, s_ndst, s_dst, s_fpdelta, P,
              dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
              counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out):
     n = dyn_sid.shape[0]
@@ -184,10 +184,6 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     btb_hist = np.zeros((btb_sets, btb_ways), np.int64)
     btb_target = np.zeros((btb_sets, btb_ways), np.int64)
     pht = np.full((btb_sets, btb_ways, 1 << hist_bits), 2, np.int64)
-    # x87 precision control (FLDCW): 0 = 24-bit, 1 = 53-bit, 2 = 64-bit (the FNINIT state); a
-    # divide's clocks follow it (s_divcyc), changed after each FLDCW whose value is known (ev_*)
-    prec = 2
-    ev_pos = 0
     last_iline = -1
     iline_seen = np.full(16, -1, np.int64)  # lines fetched since the last L1I miss: still resident
     t = 0
@@ -377,9 +373,6 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                 continue
             fplat = s_fplat[s]
             fpnext = s_fpnext[s]
-            if s_divcyc[s, 0] > 0:
-                fplat = s_divcyc[s, prec]
-                fpnext = fplat + s_fpnext[s] - s_fplat[s]  # the same fp-ov at every precision
             if s_fp[s] == 1:
                 fp_free = start + fpnext
                 if s_fmul[s] == 1:
@@ -478,9 +471,6 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                 row[7] = 0 if group == 2 else reason
             counters[seg, C_INSTRUCTIONS] += 1
             counters[seg, C_UOPS] += 1
-        while ev_pos < ev_idx.shape[0] and ev_idx[ev_pos] < i + group:
-            prec = ev_pc[ev_pos]
-            ev_pos += 1
         t = end
         i += group
         while seg < seg_end.shape[0] and i >= seg_end[seg]:

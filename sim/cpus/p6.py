@@ -20,6 +20,7 @@ from ..memory.hierarchy import Hierarchy, family_policies
 from ..trace import Trace
 from . import p6_core as core
 from . import vocabulary
+from .precision import split_by_precision
 from .lowering import P6Limits, StaticProgram, lower
 from .presets import CacheSpec, CpuPreset, dram_overhead
 from .table import TABLES, InstructionTable, load_table
@@ -147,8 +148,9 @@ class P6Model:
         per-instruction sums cover instructions from `stat_first` on.
         The result carries the cycle at which each RDTSC executed."""
         records, index = decoder.decode_trace(trace.pc)
+        records, index, precisions = split_by_precision(records, index, trace, self.table)
         program = lower(records, self.table, self.l1_latency, self.machine["decode"]["simple_decoder_max_length"]["value"],
-                        limits=self.limits)
+                        limits=self.limits, precisions=precisions)
         n = trace.instructions
         seg_end = np.array(segments if segments else [n], dtype=np.int64)
         acc_count = np.bincount(trace.mem_insn, minlength=n).astype(np.int64)  # accesses per instruction

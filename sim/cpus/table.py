@@ -21,7 +21,7 @@ import functools
 import itertools
 import re
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 
@@ -39,12 +39,18 @@ _WIDER = {"r8": ("r32",), "r16": ("r32",), "m8": ("m32",), "m16": ("m32",), "i8"
 # loader refuses one it does not know, so an ignored figure cannot come back unnoticed.
 ROW_FIELDS = {"mnemonic", "signature", "uops", "decoder", "latency", "throughput", "source", "note", "estimated"}
 FAMILY_FIELDS = {
-    "p6": {"ports"},                                   # one port per uop (sim/cpus/lowering.py)
-    "k6": {"units", "models", "model_overrides"},      # RISC86 ops per unit, models, per-model values (k6.py)
+    # one port per uop (sim/cpus/lowering.py); latency and throughput by x87 precision (at_precision)
+    "p6": {"ports", "precision_latency", "precision_throughput"},
+    # RISC86 ops per unit, models, per-model values (k6.py); by x87 precision (at_precision)
+    "k6": {"units", "models", "model_overrides", "precision_latency", "precision_throughput"},
     # pairing class, clocks, x87 overlap and units, FDIV clocks by precision (p5.py)
     "p5": {"pairing", "cycles", "acc_only", "i_ov", "fp_ov", "fmul", "waits_fpu", "mmx_unit", "precision_cycles"},
 }
-OVERRIDABLE = {"latency", "throughput"}               # what a K6 model_overrides entry may replace
+OVERRIDABLE = {"latency", "throughput", "precision_throughput"}  # what a K6 model_overrides entry may replace
+# x87 precision control: a row field `precision_F = [24-bit, 53-bit, 64-bit]` gives field F at each
+# precision (the control word in force, sim/trace.py); F itself holds the 64-bit (FNINIT) figure
+PRECISION_FIELDS = ("latency", "throughput", "cycles")
+PRECISION_NAMES = ("24-bit", "53-bit", "64-bit")
 TOP_LEVEL = {"insn", "unsupported"}
 
 
@@ -70,18 +76,50 @@ class TimingRow:
     def key(self) -> str:
         return f"{self.mnemonic} {self.signature}".strip()
 
+    @property
+    def precision_dependent(self) -> bool:
+        return any(f"precision_{name}" in self.extra for name in PRECISION_FIELDS)
+
+    def at_precision(self, precision: int) -> TimingRow:
+        """The row with its figures at x87 precision index `precision` (0 = 24-bit, 1 = 53-bit,
+        2 = 64-bit), model overrides included; the row itself when nothing depends on it."""
+        if not self.precision_dependent:
+            return self
+        extra = dict(self.extra)
+        fields = {}
+        for name in PRECISION_FIELDS:
+            values = self.extra.get(f"precision_{name}")
+            if values is not None:
+                if name in ("latency", "throughput"):
+                    fields[name] = values[precision]
+                else:
+                    extra[name] = values[precision]
+        if "model_overrides" in extra:
+            extra["model_overrides"] = {
+                model: {**over, **{name: over[f"precision_{name}"][precision] for name in PRECISION_FIELDS
+                                   if f"precision_{name}" in over}}
+                for model, over in extra["model_overrides"].items()}
+        return replace(self, extra=extra, **fields)
+
 
 @dataclass(frozen=True)
 class Match:
     row: TimingRow
     asked: str  # "mnemonic signature" of the decoded instruction
+    precision: int | None = None  # x87 precision index the row's figures were taken at, if they depend on it
 
     @property
     def generalised(self) -> bool:
         return self.asked != self.row.key
 
+    def at_precision(self, precision: int) -> Match:
+        if not self.row.precision_dependent:
+            return self
+        return Match(self.row.at_precision(precision), self.asked, precision)
+
     def describe(self) -> str:
-        return self.row.key if not self.generalised else f"{self.asked} -> {self.row.key}"
+        text = self.row.key if not self.generalised else f"{self.asked} -> {self.row.key}"
+        return text if self.precision is None else f"{text} @{PRECISION_NAMES[self.precision]}"
 
 
 def family_mnemonic(mnemonic: str) -> str:
@@ -148,6 +186,7 @@ class InstructionTable:
                     extra={k: v for k, v in raw.items() if k not in known})
             except KeyError as e:
                 raise RetrosimError(f"{where}: missing field {e}") from None
+            _check_precision_fields(where, raw)
             self.rows[(row.mnemonic, row.signature)] = row
 
     @cached_property
@@ -182,6 +221,22 @@ class InstructionTable:
             raise MissingTiming(f"{where}: no timing row for '{mnemonic} {signature}'".rstrip() +
                                 f" in {self.path.name} (add one, with its source)")
         return match
+
+
+def _check_precision_fields(where: str, raw: dict) -> None:
+    """precision_F lists three numbers (24/53/64-bit) whose last is F itself (the FNINIT figure),
+    in the row and in each model override."""
+    for scope, fields in [("", raw)] + [(f"model_overrides.{m}.", o) for m, o in raw.get("model_overrides", {}).items()]:
+        for name in PRECISION_FIELDS:
+            values = fields.get(f"precision_{name}")
+            if values is None:
+                continue
+            if not (isinstance(values, list) and len(values) == 3 and all(isinstance(v, (int, float)) for v in values)):
+                raise RetrosimError(f"{where}: {scope}precision_{name} must list three numbers (24, 53, 64-bit)")
+            plain = fields.get(name, raw.get(name))
+            if plain != values[2]:
+                raise RetrosimError(f"{where}: {scope}precision_{name}[2] = {values[2]} differs from {scope}{name} = "
+                                    f"{plain} (the 64-bit figure is the FNINIT default)")
 
 
 @functools.cache
