@@ -40,7 +40,9 @@ _WIDER = {"r8": ("r32",), "r16": ("r32",), "m8": ("m32",), "m16": ("m32",), "i8"
 ROW_FIELDS = {"mnemonic", "signature", "uops", "decoder", "latency", "throughput", "source", "note", "estimated"}
 FAMILY_FIELDS = {
     "p6": {"ports"},                                   # one port per uop (sim/cpus/lowering.py)
-    "k6": {"units", "models", "model_overrides"},      # RISC86 ops per unit, models, per-model values (k6.py)
+    # RISC86 ops per unit, models, per-model values (k6.py); the measured chain where it is not the
+    # execution latency (read only by sim/conformance.py)
+    "k6": {"units", "models", "model_overrides", "measured_latency"},
     # pairing class, clocks, x87 overlap and units, FDIV clocks by precision (p5.py)
     "p5": {"pairing", "cycles", "acc_only", "i_ov", "fp_ov", "fmul", "waits_fpu", "mmx_unit", "precision_cycles"},
 }
