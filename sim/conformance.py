@@ -262,10 +262,9 @@ def _judge(res: RowResult, family: str = "") -> None:
 # Why a family's measured rates fall 8-20 % below the nominal decode/issue rate, where the family's
 # source notes establish it (docs/sources/<family>.md)
 BELOW_NOMINAL = {
-    "k6": "K6 front end: measured 8-20 % below the documented decode rate, depending on the encoded length "
-          "(at one decode per clock 3- and 5-byte forms 13/12, 2- and 4-byte forms 1); the same InstLatX64 "
-          "program measures the nominal rate on K5, P6 and WinChip; no source describes the mechanism, "
-          "not modelled (docs/sources/k6.md, 'Decode below the nominal rate')",
+    "k6": "K6 front end: measured 8-20 % below the documented decode rate by an amount that depends on the "
+          "encoded length (not InstLatX64's loop); no source gives the mechanism, not modelled "
+          "(docs/sources/k6.md, 'Decode below the nominal rate')",
 }
 
 
