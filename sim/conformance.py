@@ -268,6 +268,14 @@ BELOW_NOMINAL = {
 }
 
 
+# Rows whose measured reciprocal throughput exceeds their measured latency on a non-pipelined unit
+ABOVE_LATENCY = {
+    "k6": "measured chain faster than independent copies (x87 T = L + 1 or + 2): one non-pipelined unit busy "
+          "for T cannot give both; with zero operands T = L (FADD 2 / 2), so the extra clock depends on the "
+          "operands, not modelled (docs/sources/k6.md, 'Decode below the nominal rate')",
+}
+
+
 def _classify(res: RowResult, family: str = "") -> str:
     """The likeliest reason a row is not reproduced, from the direction of the error."""
     row = res.row
@@ -287,7 +295,8 @@ def _classify(res: RowResult, family: str = "") -> str:
     if thr_low:
         return "the row's reciprocal throughput is not enforced by the model for this unit (issue 14 part 2)"
     if lat_high and row.throughput is not None and row.latency is not None and row.throughput > row.latency:
-        return "row throughput above its latency: the unit's occupancy lengthens the modelled chain"
+        return ABOVE_LATENCY.get(family, "row throughput above its latency: the unit's occupancy lengthens the "
+                                         "modelled chain")
     if thr_high:
         return "port or decode limit in the model: slower than the measurement"
     return "latency split between the model's uops differs from the measurement"
