@@ -43,3 +43,43 @@ def test_report_counts_estimated_rows_apart():
     text = render({"k6": (results, presets)})
     est = sum(r.row.estimated for r in results)
     assert f"| k6 | 2 | 2 | {sum(r.ok for r in results if not r.row.estimated)} / {2 - est} " in text
+
+
+def test_divide_benchmark_clears_the_high_half_off_the_chain():
+    # MOV EDX,0 reads nothing; XOR EDX,EDX would wait for the previous remainder on the K6 model
+    # (IL-all: DIV r32 20 / 20, DIV r16 13 / 13, as the rows say)
+    results, _ = run_family("k6", only={"div r32", "div r16"})
+    by_key = {r.row.key: r for r in results}
+    assert by_key["div r32"].measured["k6-2-300"] == pytest.approx((20, 20), abs=0.05)
+    assert by_key["div r16"].measured["k6-233"] == pytest.approx((13, 13), abs=0.05)
+
+
+def test_a_decode_bound_chain_is_judged_against_the_measured_chain():
+    # ADD r16,imm16: execution latency 1, but the chain runs at the 2-clock decode rate of 0x66 + imm16
+    # (IL-all L 2.0 T 2.00): the row's measured_latency is what the chain is compared with
+    results, presets = run_family("k6", only={"add r16,i16"})
+    res = results[0]
+    assert res.row.latency == 1 and res.ok
+    assert all(res.expected[p][0] == 2.0 and res.measured[p][0] == pytest.approx(2.0, abs=0.05) for p in presets)
+
+
+def test_rows_below_the_k6_decode_rate_are_listed_with_the_reason_and_counted():
+    # ADD r32,imm8: IL-all T 0.56, the model's two short decodes per clock give 0.50
+    results, presets = run_family("k6", only={"add r32,i8", "add r32,r32"})
+    by_key = {r.row.key: r for r in results}
+    assert by_key["add r32,r32"].ok and not by_key["add r32,i8"].ok
+    assert "encoded length" in by_key["add r32,i8"].reason
+    text = render({"k6": (results, presets)})
+    line = next(ln for ln in text.splitlines() if ln.startswith("| K6 front end"))
+    assert line.endswith("| 1 | 0 |")
+
+
+def test_measured_latency_is_a_k6_field_only(tmp_path):
+    from sim.cpus.table import InstructionTable
+    from sim.errors import RetrosimError
+    path = tmp_path / "p6.toml"
+    path.write_text('[[insn]]\nmnemonic = "add"\nsignature = "r16,i16"\nuops = 1\nlatency = 1\n'
+                    'measured_latency = 2.0\nsource = "x"\n')
+    with pytest.raises(RetrosimError, match="unknown field 'measured_latency'"):
+        InstructionTable(path)
+    assert InstructionTable(path, family="k6").rows[("add", "r16,i16")].extra["measured_latency"] == 2.0

@@ -41,8 +41,9 @@ ROW_FIELDS = {"mnemonic", "signature", "uops", "decoder", "latency", "throughput
 FAMILY_FIELDS = {
     # one port per uop (sim/cpus/lowering.py); latency and throughput by x87 precision (at_precision)
     "p6": {"ports", "precision_latency", "precision_throughput"},
-    # RISC86 ops per unit, models, per-model values (k6.py); by x87 precision (at_precision)
-    "k6": {"units", "models", "model_overrides", "precision_latency", "precision_throughput"},
+    # RISC86 ops per unit, models, per-model values (k6.py); by x87 precision (at_precision); the
+    # measured chain where it is not the execution latency (read only by sim/conformance.py)
+    "k6": {"units", "models", "model_overrides", "precision_latency", "precision_throughput", "measured_latency"},
     # pairing class, clocks, x87 overlap and units, FDIV clocks by precision (p5.py)
     "p5": {"pairing", "cycles", "acc_only", "i_ov", "fp_ov", "fmul", "waits_fpu", "mmx_unit", "precision_cycles"},
 }
