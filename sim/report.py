@@ -265,8 +265,13 @@ def summary_tables(results: list[SceneResult]) -> list:
     from rich.markup import escape
     from rich.table import Table
 
+    from .scene import kind_module
+
     out = []
     for r in results:
+        if r.scene.kind != "zbuffer":
+            out += kind_module(r.scene.kind).summary_tables(r)
+            continue
         claims, unchecked = checked_claims(r)
         held = sum(1 for c in claims if c["verdict"] == "reproduced")
         t = Table(title=f"{escape(r.scene.name)}: cycles per pixel, last frame", title_justify="left",
@@ -403,6 +408,10 @@ def _precision_md(precision: dict) -> str:
 def write_reports(result: SceneResult, out_dir: Path,
                   formats: tuple[str, ...] = ("md", "png", "json", "csv", "html")) -> list[Path]:
     out_dir = Path(out_dir)
+    if result.scene.kind != "zbuffer":
+        from .scene import kind_module
+
+        return kind_module(result.scene.kind).write_reports(result, out_dir, formats)
     name = result.scene.name
     has_plot = any(a.visibility for a in result.accuracy.values())
     png = work_precision_png(result) if has_plot and ("png" in formats or "html" in formats) else None

@@ -131,6 +131,10 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
     the same for any `jobs`."""
     from .parallel import SharedPool
 
+    if scene.kind != "zbuffer":  # another kind of scene runs in its own module (sim.scene.KINDS)
+        from .scene import kind_module
+
+        return kind_module(scene.kind).run_scene(scene, cpus, progress, robustness, jobs)
     say = progress or (lambda msg: None)
     geometry = scene.build_geometry()
     w, h = scene.width, scene.height

@@ -89,7 +89,7 @@ DEFAULT_MAX_VISITS = 48_000_000
 VISIT_BYTES = 220
 
 # key -> (kind, required) per table; kinds: int, number, str, strlist, range, tables
-_SCENE_KEYS = {"name": ("str", True), "description": ("str", False), "width": ("int", True), "height": ("int", True)}
+_SCENE_KEYS = {"kind": ("str", False), "name": ("str", True), "description": ("str", False), "width": ("int", True), "height": ("int", True)}
 _GENERATOR_KEYS = {
     "random": {"seed": ("int", True), "triangles": ("int", True), "depth_complexity": ("number", True),
                "z_range": ("range", False)},
@@ -115,6 +115,18 @@ _KIND_NAMES = {"int": "an integer", "number": "a number", "str": "a string", "st
 
 class SceneError(RetrosimError):
     """A scene file is malformed; the message is `file[:line]: field: problem`."""
+
+
+# [scene].kind -> the module that loads, runs and reports that kind of scene: load(path, text, doc),
+# run_scene(scene, cpus, progress, robustness, jobs), write_reports(result, out_dir, formats),
+# summary_tables(result) and baseline_entries(result). "zbuffer" (the default) is this module's format.
+KINDS = {"zbuffer": None, "texture": "sim.texture_scene"}
+
+
+def kind_module(kind: str):
+    import importlib
+
+    return importlib.import_module(KINDS[kind])
 
 
 def _toml_type(value) -> str:
@@ -296,6 +308,7 @@ class Scene:
     run: RunSpec
     span_bound: int  # at most this many spans per frame (rows crossed inside the screen)
     claims: tuple[Claim, ...] = ()
+    kind = "zbuffer"
 
     # short names for what the runner and reports read
     @property
@@ -523,6 +536,11 @@ def load_scene(path: str | Path) -> Scene:
         raise SceneError(f"{path}: TOML syntax error: {msg}") from None
 
     v = _Validator(path, text)
+    kind = doc["scene"].get("kind", "zbuffer") if isinstance(doc.get("scene"), dict) else "zbuffer"
+    if kind not in KINDS:
+        v.fail("scene.kind", f"unknown kind {_show(kind)} (known: {', '.join(KINDS)})", "scene", "kind")
+    if kind != "zbuffer":
+        return kind_module(kind).load(path, text, doc)
     for key in doc:
         if key not in ("scene", "geometry", "run", "claims"):
             v.fail(key, "unknown table (allowed: scene, geometry, run, claims)", key if isinstance(doc[key], dict) else None,
