@@ -401,8 +401,9 @@ def measure_probes(cpu: str, memory: str, first_span: F.SpanParams) -> dict:
     out = {"ftol_call": per["ftol"]["cycles"] - per["none"]["cycles"],
            "fistp": per["fistp"]["cycles"] - per["none"]["cycles"]}
     out["ftol_per_subspan"] = 2 * out["ftol_call"]
-    explain = {"ftol_call": {k: round(per["ftol"][k] - per["none"][k], 2) for k in per["none"]
-                             if k != "cycles" and abs(per["ftol"][k] - per["none"][k]) >= 0.5}}
+    names = ("instructions",) + EXPLAIN[_family(cpu)]
+    explain = {"ftol_call": {k: round(per["ftol"][k] - per["none"][k], 2) for k in names
+                             if k in per["none"] and abs(per["ftol"][k] - per["none"][k]) >= 0.5}}
 
     # FDIV in a 16-pixel sub-span (kernels/texture/fdiv.S), per sub-span over the loop without it
     fd = {}
@@ -559,6 +560,11 @@ def explanation(result: TextureResult, claim: TextureClaim, key: str) -> dict:
         return dict(p["explain"]["ftol_call"])
     if claim.quantity == "span_setup_saving":
         return {"set-up b": round(p["span_setup_b"], 1), "set-up c": round(p["span_setup_c"], 1)}
+    if claim.quantity == "timesnap_overhead":  # the RDTSC row the model charges
+        from .cpus.table import load_table
+
+        row = load_table(fam).lookup("rdtsc", "").row
+        return {"RDTSC uops": row.uops, **({"RDTSC clocks": row.extra["cycles"]} if "cycles" in row.extra else {})}
     if claim.quantity.startswith("fdiv"):
         return {"serial": round(p["fdiv_serial"], 1), "serial 24-bit": round(p["fdiv_serial_24"], 1),
                 "overlapped": round(p["fdiv_overlapped"], 1)}
