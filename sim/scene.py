@@ -3,6 +3,8 @@
 Format::
 
     [scene]
+    kind = "zbuffer"                # optional (the default); another kind is loaded, run and
+                                    #   reported by its own module (KINDS: "texture")
     name = "zbuffer-article"        # required; must equal the file stem
     description = "..."             # optional
     width = 640                     # required, pixels
