@@ -151,3 +151,8 @@ def test_reports_and_baselines_through_the_generic_entry_points(small, tmp_path)
     assert all(isinstance(x, int) for case in cases.values() for x in case.values())
     assert baseline.compare({"tex-small": cases}, [small]) == []
     assert report.summary_tables([small])  # the terminal summary renders
+
+
+def test_same_report_for_any_number_of_worker_processes(small, tmp_path):
+    again = run_scene(small.scene, jobs=2)
+    assert T.to_json(again) == T.to_json(small) and T.to_csv(again) == T.to_csv(small)
