@@ -138,9 +138,10 @@ def span_params(geometry: TexturedGeometry, width: int, height: int) -> SpanPara
     y = spans.y + 0.5 - geometry.xy[spans.tri, 0, 1]
     start = planes[:, :, 0] + planes[:, :, 1] * x[:, None] + planes[:, :, 2] * y[:, None]
     step = SUBSPAN * planes[:, :, 1]
-    single = lambda v: v.astype(np.float32).astype(np.float64)  # noqa: E731 - the set-up stores floats
+    # the set-up stores its values as floats
+    start, step = (x.astype(np.float32).astype(np.float64) for x in (start, step))
     return SpanParams(spans.y.astype(np.int64), spans.x0.astype(np.int64), spans.count.astype(np.int64),
-                      spans.tri.astype(np.int64), single(start), single(step))
+                      spans.tri.astype(np.int64), start, step)
 
 
 def span_records(params: SpanParams, fbuf: int, width: int) -> np.ndarray:

@@ -55,7 +55,7 @@ import numpy as np
 from . import texture_frame as F
 from .errors import RetrosimError
 from .kernels import kernels_root
-from .scene import FAMILIES, CpuChoice, SceneError, _show, _Validator
+from .scene import FAMILIES, CpuChoice, _show, _Validator
 
 QUANTITIES = {
     "cycles_per_pixel": "cycles per pixel of a variant's frame",
@@ -613,7 +613,7 @@ def baseline_entries(result: TextureResult) -> dict[str, dict[str, int]]:
     figures (cycles, rounded to whole clocks x 100 so the integer comparison keeps fractions)."""
     out = {f"{v}@{key}": {c: int(t[c]) for c in COUNTERS if c in t} for (v, key), t in result.timings.items()}
     for key, p in result.probes.items():
-        out[f"probes@{key}"] = {q: int(round(100 * float(p[q]))) for q in sorted(p) if q != "explain"}
+        out[f"probes@{key}"] = {q: round(100 * float(p[q])) for q in sorted(p) if q != "explain"}
     return out
 
 

@@ -36,7 +36,7 @@ def machine():
 
 @pytest.mark.parametrize("variant", F.VARIANTS)
 def test_each_variant_draws_its_model_bit_for_bit(machine, variant):
-    g, p = _frame()
+    _, p = _frame()
     tex = F.texture()
     got = _draw(machine, variant, p, tex)
     px = F.variant_pixels(variant, p)
@@ -61,7 +61,7 @@ def test_error_within_what_the_approximations_allow(variant):
     k, i = off // 16, off % 16
     xs = p.x0[span] + 16 * k + 0.5 - g.xy[p.tri[span], 0, 0]
     ys = p.y[span] + 0.5 - g.xy[p.tri[span], 0, 1]
-    at = lambda dx, j: (planes[:, j, 0] + planes[:, j, 1] * (xs + dx) + planes[:, j, 2] * ys)  # noqa: E731
+    at = lambda dx, j: (planes[:, j, 0] + planes[:, j, 1] * (xs + dx) + planes[:, j, 2] * ys)
     u0, u1 = at(0, 0) / at(0, 2), at(16, 0) / at(16, 2)
     affine_u = u0 + (u1 - u0) * i / 16
     px = F.variant_pixels(variant, p)

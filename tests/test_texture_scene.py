@@ -6,7 +6,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
 import pytest
 
 from sim import baseline, report
@@ -110,7 +109,7 @@ def small(tmp_path_factory):
 def test_small_run_times_every_variant_on_every_machine(small):
     assert small.pixels == 160 * 120 and 0 < small.timed_pixels < small.pixels
     assert set(small.timings) == {(v, k) for v in ("a", "c", "e") for k in small.keys}
-    for (v, k), t in small.timings.items():
+    for t in small.timings.values():
         assert t["cycles"] > 0 and t["instructions"] > small.timed_pixels  # more than one per pixel
     # the 24.8 loop reads coarser coordinates than 16.16 (the article's distortion)
     assert small.accuracy["e"]["mean_coordinate_error"] > small.accuracy["c"]["mean_coordinate_error"]
