@@ -41,6 +41,10 @@ class Drift:
 
 
 def entries(result: SceneResult) -> dict[str, dict[str, int]]:
+    if result.scene.kind != "zbuffer":
+        from .scene import kind_module
+
+        return kind_module(result.scene.kind).baseline_entries(result)
     return {f"{t.variant}@{t.key}": {c: int(t.counters[c]) for c in COUNTERS} for t in result.timings}
 
 

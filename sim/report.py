@@ -269,8 +269,8 @@ def summary_tables(results: list[SceneResult]) -> list:
 
     out = []
     for r in results:
-        if kind_module(r.scene) is not None:  # a scene of another kind prints its own table
-            out += kind_module(r.scene).summary_tables([r])
+        if r.scene.kind != "zbuffer":
+            out += kind_module(r.scene.kind).summary_tables(r)
             continue
         claims, unchecked = checked_claims(r)
         held = sum(1 for c in claims if c["verdict"] == "reproduced")
@@ -407,11 +407,11 @@ def _precision_md(precision: dict) -> str:
 
 def write_reports(result: SceneResult, out_dir: Path,
                   formats: tuple[str, ...] = ("md", "png", "json", "csv", "html")) -> list[Path]:
-    from .scene import kind_module
-
-    if kind_module(result.scene) is not None:  # a scene of another kind writes its own reports
-        return kind_module(result.scene).write_reports(result, out_dir, formats)
     out_dir = Path(out_dir)
+    if result.scene.kind != "zbuffer":  # a scene of another kind writes its own reports
+        from .scene import kind_module
+
+        return kind_module(result.scene.kind).write_reports(result, out_dir, formats)
     name = result.scene.name
     has_plot = any(a.visibility for a in result.accuracy.values())
     png = work_precision_png(result) if has_plot and ("png" in formats or "html" in formats) else None

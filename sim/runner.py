@@ -130,11 +130,11 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
     sharing the trace (sim.parallel), while this process emulates the next variant; the result is
     the same for any `jobs`."""
     from .parallel import SharedPool
-    from .scene import kind_module
 
-    other = kind_module(scene)
-    if other is not None:  # a scene of another kind runs in its own module
-        return other.run_scene(scene, cpus, progress, robustness, jobs)
+    if scene.kind != "zbuffer":  # another kind of scene runs in its own module (sim.scene.KINDS)
+        from .scene import kind_module
+
+        return kind_module(scene.kind).run_scene(scene, cpus, progress, robustness, jobs)
     say = progress or (lambda msg: None)
     geometry = scene.build_geometry()
     w, h = scene.width, scene.height

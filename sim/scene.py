@@ -3,9 +3,9 @@
 Format::
 
     [scene]
+    kind = "zbuffer"                # optional (the default); another kind is loaded, run and
+                                    #   reported by its own module (KINDS: "texture", "snap")
     name = "zbuffer-article"        # required; must equal the file stem
-    kind = "zbuffer"                # optional (default "zbuffer"): other kinds have their own
-                                    #   format, loader, runner and report (SCENE_KINDS)
     description = "..."             # optional
     width = 640                     # required, pixels
     height = 480                    # required, pixels
@@ -91,19 +91,7 @@ DEFAULT_MAX_VISITS = 48_000_000
 VISIT_BYTES = 220
 
 # key -> (kind, required) per table; kinds: int, number, str, strlist, range, tables
-_SCENE_KEYS = {"name": ("str", True), "kind": ("str", False), "description": ("str", False), "width": ("int", True),
-               "height": ("int", True)}
-# [scene] kind -> the module that loads, runs and reports it (load_scene, run_scene, write_reports,
-# summary_tables); None: this module's Z-buffer scenes
-SCENE_KINDS = {"zbuffer": None, "snap": "sim.snapscene"}
-
-
-def kind_module(scene):
-    """The module of a scene's kind, or None for a Z-buffer scene."""
-    import importlib
-
-    name = SCENE_KINDS.get(getattr(scene, "kind", "zbuffer"))
-    return importlib.import_module(name) if name else None
+_SCENE_KEYS = {"kind": ("str", False), "name": ("str", True), "description": ("str", False), "width": ("int", True), "height": ("int", True)}
 _GENERATOR_KEYS = {
     "random": {"seed": ("int", True), "triangles": ("int", True), "depth_complexity": ("number", True),
                "z_range": ("range", False)},
@@ -129,6 +117,18 @@ _KIND_NAMES = {"int": "an integer", "number": "a number", "str": "a string", "st
 
 class SceneError(RetrosimError):
     """A scene file is malformed; the message is `file[:line]: field: problem`."""
+
+
+# [scene].kind -> the module that loads, runs and reports that kind of scene: load(path, text, doc),
+# run_scene(scene, cpus, progress, robustness, jobs), write_reports(result, out_dir, formats),
+# summary_tables(result) and baseline_entries(result). "zbuffer" (the default) is this module's format.
+KINDS = {"zbuffer": None, "texture": "sim.texture_scene", "snap": "sim.snapscene"}
+
+
+def kind_module(kind: str):
+    import importlib
+
+    return importlib.import_module(KINDS[kind])
 
 
 def _toml_type(value) -> str:
@@ -538,13 +538,11 @@ def load_scene(path: str | Path) -> Scene:
         raise SceneError(f"{path}: TOML syntax error: {msg}") from None
 
     v = _Validator(path, text)
-    kind = doc.get("scene", {}).get("kind", "zbuffer") if isinstance(doc.get("scene"), dict) else "zbuffer"
-    if not isinstance(kind, str) or kind not in SCENE_KINDS:
-        v.fail("scene.kind", f"unknown kind {_show(kind)} (known: {', '.join(SCENE_KINDS)})", "scene", "kind")
-    if SCENE_KINDS[kind]:
-        import importlib
-
-        return importlib.import_module(SCENE_KINDS[kind]).load_scene(path, text, doc)
+    kind = doc["scene"].get("kind", "zbuffer") if isinstance(doc.get("scene"), dict) else "zbuffer"
+    if kind not in KINDS:
+        v.fail("scene.kind", f"unknown kind {_show(kind)} (known: {', '.join(KINDS)})", "scene", "kind")
+    if kind != "zbuffer":
+        return kind_module(kind).load(path, text, doc)
     for key in doc:
         if key not in ("scene", "geometry", "run", "claims"):
             v.fail(key, "unknown table (allowed: scene, geometry, run, claims)", key if isinstance(doc[key], dict) else None,

@@ -103,7 +103,7 @@ class SnapScene:
                 "workloads": list(self.workloads), "cpus": list(dict.fromkeys(m.preset for m in self.machines))}
 
 
-def load_scene(path: Path, text: str, doc: dict) -> SnapScene:
+def load(path: Path, text: str, doc: dict) -> SnapScene:
     """Validate a parsed kind = "snap" scene (sim.scene.load_scene reads the file and dispatches)."""
     from .cpus import machine_label, make_model, memory_presets, presets, split_label
     from .errors import RetrosimError
@@ -573,7 +573,14 @@ def write_reports(result: SnapResult, out_dir: Path, formats: tuple[str, ...] = 
     return written
 
 
-def summary_tables(results: list[SnapResult]) -> list:
+def baseline_entries(result: SnapResult) -> dict[str, dict[str, int]]:
+    """The recorded cycle counts: one case per variant and machine, the Z-buffer scenes' counters."""
+    from .baseline import COUNTERS
+
+    return {f"{t.variant}@{t.key}": {c: int(t.counters[c]) for c in COUNTERS} for t in result.timings}
+
+
+def summary_tables(result: SnapResult) -> list:
     """The terminal summary: cycles per vertex with the CPUs as rows, the share of wrong coordinates
     below 2^18 per variant, and how many claims held."""
     from rich import box
@@ -583,7 +590,7 @@ def summary_tables(results: list[SnapResult]) -> list:
     from rich.text import Text
 
     out = []
-    for r in results:
+    for r in [result]:
         s = r.scene
         t = Table(title=f"{escape(s.name)}: cycles per vertex", title_justify="left", box=box.SIMPLE_HEAD,
                   pad_edge=False)

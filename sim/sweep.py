@@ -158,6 +158,8 @@ def load_spec(path: str | Path) -> Spec:
         if not p.is_file():
             fail(f"sweep.scenes[{i}]", f"no scene '{name}'")
         scene = load_scene(p)
+        if scene.kind != "zbuffer":
+            fail(f"sweep.scenes[{i}]", f"scene '{name}' is a {scene.kind} scene; sweeps take Z-buffer scenes")
         chosen = [v for v in scene.variants if not variants_wanted or v in variants_wanted]
         if not chosen:
             fail("sweep.variants", f"none of {variants_wanted} is a variant of scene '{scene.name}'")
