@@ -209,8 +209,8 @@ def test_a_cpu_restricted_run_does_not_replace_the_committed_reports(tmp_path, m
     committed, partial = tmp_path / "reports", tmp_path / "build" / "reports"
     committed.mkdir()
     (committed / "tiny-test.md").write_text("committed report")
-    monkeypatch.setattr(cli, "REPORTS_DIR", committed)
-    monkeypatch.setattr(cli, "PARTIAL_DIR", partial)
+    monkeypatch.setattr(cli.scene_cmds, "REPORTS_DIR", committed)
+    monkeypatch.setattr(cli.scene_cmds, "PARTIAL_DIR", partial)
     scene = write_scene(tmp_path, metrics="[]")
     r = CliRunner().invoke(cli.main, ["report", str(scene.path), "--cpu", "k6-233"], catch_exceptions=False)
     assert r.exit_code == 0, r.output

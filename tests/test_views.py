@@ -20,7 +20,8 @@ def shown(monkeypatch):
 
     def run(width, *args):
         console = Console(width=width, file=io.StringIO(), color_system=None)
-        monkeypatch.setattr(cli, "console", console)
+        for module in (cli.kernel_cmds, cli.scene_cmds, cli.model_cmds):  # each command module prints through it
+            monkeypatch.setattr(module, "console", console)
         r = CliRunner().invoke(cli.main, list(args), catch_exceptions=False)
         assert r.exit_code == 0, r.output
         return console.file.getvalue()
