@@ -12,6 +12,12 @@ The base set of every modelled family is i586 (CPUID, CMPXCHG8B, RDTSC; Intel SD
 - ``mmx``    MMX (Pentium MMX, Pentium II and later, every K6)
 - ``sse``    SSE with its MMX-register additions, PREFETCHh, SFENCE, MOVNTQ, MASKMOVQ (Pentium III)
 - ``3dnow``  3DNow!, FEMMS, PREFETCH/PREFETCHW (AMD "3DNow! Technology Manual" 21928; K6-2, K6-III)
+- ``fxsr``   FXSAVE/FXRSTOR (CPUID.01H:EDX bit 24 FXSR: set on the Pentium II model 5 and later P6
+             cores, clear on the Pentium Pro, the Pentium II model 3 and every K6 and P5; InstLatX64
+             CPUID dumps GenuineIntel0000617, 0633, 0651, 0660, AuthenticAMD0000562)
+
+PAUSE (F3 90) needs nothing: it is REP NOP, which every IA-32 processor before the Pentium 4
+executes as a NOP (Intel SDM vol. 2, PAUSE), although capstone files it under SSE2.
 
 Privileged and system instructions (HLT, CLI/STI, IN/OUT, LGDT, ...) are never part of a user
 kernel: they fault at CPL 3, so no user-mode timing exists for them.
@@ -22,7 +28,7 @@ from __future__ import annotations
 from .decode import InsnRecord
 from .errors import RetrosimError
 
-EXTENSIONS = ("cmov", "fcmov", "mmx", "sse", "3dnow")
+EXTENSIONS = ("cmov", "fcmov", "mmx", "sse", "3dnow", "fxsr")
 
 # MMX-register instructions that came with SSE (Intel SDM vol. 1, "SSE 64-bit SIMD integer
 # instructions") and the SSE cacheability instructions; capstone files the former under 'mmx'.
@@ -30,6 +36,8 @@ _SSE_MMX = frozenset("pavgb pavgw pextrw pinsrw pmaxsw pmaxub pminsw pminub pmov
                      "pshufw maskmovq movntq sfence prefetchnta prefetcht0 prefetcht1 prefetcht2".split())
 _3DNOW = frozenset({"femms", "prefetch", "prefetchw"})
 _FCMOV = frozenset({"fcomi", "fcompi", "fucomi", "fucompi"})
+_FXSR = frozenset({"fxsave", "fxrstor"})
+_NO_EXTENSION = frozenset({"pause"})  # REP NOP: a NOP before the Pentium 4 (module docstring)
 
 # System instructions that capstone does not put in its 'privilege' group but that a user-mode
 # kernel may not run: port I/O (IOPL 0 under every OS of the period), software interrupts and
@@ -45,6 +53,7 @@ _WHY = {
     "mmx": "has no MMX",
     "sse": "has no SSE",
     "3dnow": "has no 3DNow!",
+    "fxsr": "has no FXSAVE/FXRSTOR (CPUID FXSR)",
 }
 _FAMILY_NAME = {"p6": "the P6 family", "k6": "the K6 family", "p5": "the P5 family"}
 
@@ -55,6 +64,10 @@ class IsaError(RetrosimError):
 
 def required_extension(mnemonic: str, groups: frozenset[str] | set[str]) -> str | None:
     """The extension an instruction needs beyond i586, or None."""
+    if mnemonic in _NO_EXTENSION:
+        return None
+    if mnemonic in _FXSR:
+        return "fxsr"
     if mnemonic in _SSE_MMX or any(g.startswith("sse") for g in groups):
         return "sse"
     if mnemonic in _3DNOW or "3dnow" in groups:
@@ -75,13 +88,17 @@ def mnemonic_extension(name: str) -> str | None:
     """The extension a mnemonic belongs to, from its name alone (for assembler messages, where
     there is no decoded instruction): the families' naming conventions."""
     name = name.lower()
+    if name in _NO_EXTENSION:
+        return None
     if name.startswith("fcmov") or name in _FCMOV:
         return "fcmov"
     if name.startswith("cmov"):
         return "cmov"
     if name in _3DNOW or name in _3DNOW_NAMES or name.startswith(("pf", "pi2f")):
         return "3dnow"
-    if name in _SSE_MMX or name.endswith(("ps", "ss")) or name in ("ldmxcsr", "stmxcsr", "fxsave", "fxrstor"):
+    if name in _FXSR:
+        return "fxsr"
+    if name in _SSE_MMX or name.endswith(("ps", "ss")) or name in ("ldmxcsr", "stmxcsr"):
         return "sse"
     if name in ("emms", "movd", "movq") or name.startswith("p"):
         return "mmx"
@@ -106,7 +123,8 @@ def march(preset, assembler: str) -> str:
 
 
 # Extensions no CPU of a family has (the refusal then names the family, not the preset).
-_FAMILY_LACKS = {"k6": {"cmov", "fcmov", "sse"}, "p6": {"3dnow"}, "p5": {"cmov", "fcmov", "sse", "3dnow"}}
+_FAMILY_LACKS = {"k6": {"cmov", "fcmov", "sse", "fxsr"}, "p6": {"3dnow"},
+                 "p5": {"cmov", "fcmov", "sse", "3dnow", "fxsr"}}
 
 
 def why_missing(preset, ext: str) -> str:
