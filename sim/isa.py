@@ -38,6 +38,7 @@ EXTENSIONS = ("cmov", "fcmov", "mmx", "sse", "3dnow", "fxsr", "sse2", "nopl")
 # instructions") and the SSE cacheability instructions; capstone files the former under 'mmx'.
 _SSE_MMX = frozenset("pavgb pavgw pextrw pinsrw pmaxsw pmaxub pminsw pminub pmovmskb pmulhuw psadbw "
                      "pshufw maskmovq movntq sfence prefetchnta prefetcht0 prefetcht1 prefetcht2".split())
+_SSE_UNGROUPED = frozenset({"cvtss2si"})  # SSE instructions capstone 5 puts in no group
 _3DNOW = frozenset({"femms", "prefetch", "prefetchw"})
 _FCMOV = frozenset({"fcomi", "fcompi", "fucomi", "fucompi"})
 _FXSR = frozenset({"fxsave", "fxrstor"})
@@ -78,7 +79,7 @@ def required_extension(mnemonic: str, groups: frozenset[str] | set[str]) -> str 
         return "fxsr"
     if mnemonic in _SSE3_X87 or groups & _SSE2_GROUPS:
         return "sse2"
-    if mnemonic in _SSE_MMX or any(g.startswith("sse") for g in groups):
+    if mnemonic in _SSE_MMX or mnemonic in _SSE_UNGROUPED or any(g.startswith("sse") for g in groups):
         return "sse"
     if mnemonic in _3DNOW or "3dnow" in groups:
         return "3dnow"

@@ -1,4 +1,4 @@
-"""Test data: the user-mode instruction forms of the base IA-32 set and the x87 (Intel syntax,
+"""Test data: the user-mode instruction forms of the base IA-32 set, the x87, MMX, SSE and 3DNow! (Intel syntax,
 memory operands at [esi]), one instruction per line, for tests/test_isa_forms.py.
 
 Every operand kind is here at 8, 16 and 32 bits where the instruction has it: register,
@@ -109,5 +109,49 @@ def x87_forms() -> list[str]:
     return out
 
 
+MMX = ("packssdw packsswb packuswb paddb paddd paddsb paddsw paddusb paddusw paddw pand pandn pcmpeqb pcmpeqd "
+       "pcmpeqw pcmpgtb pcmpgtd pcmpgtw pmaddwd pmulhw pmullw por psllw pslld psllq psraw psrad psrlw psrld psrlq "
+       "psubb psubd psubsb psubsw psubusb psubusw psubw punpckhbw punpckhdq punpckhwd punpcklbw punpckldq "
+       "punpcklwd pxor").split()
+SSE_MMX = "pavgb pavgw pmaxsw pmaxub pminsw pminub pmulhuw psadbw".split()  # MMX-register forms added by SSE
+SSE = ("addps addss andnps andps divps divss maxps maxss minps minss mulps mulss orps rcpps rcpss rsqrtps rsqrtss "
+       "sqrtps sqrtss subps subss unpckhps unpcklps xorps comiss ucomiss").split()
+NOW3 = ("pavgusb pf2id pfacc pfadd pfcmpeq pfcmpge pfcmpgt pfmax pfmin pfmul pfrcp pfrcpit1 pfrcpit2 pfrsqit1 "
+        "pfrsqrt pfsub pfsubr pi2fd pmulhrw").split()
+
+
+def simd_forms() -> list[str]:
+    """MMX (with its memory and shift-by-immediate forms), the SSE set of the Pentium III (with its
+    MMX-register additions and cacheability instructions) and 3DNow! of the K6-2."""
+    out = []
+    for m in MMX:
+        out += [f"{m} mm0, mm1", f"{m} mm0, qword ptr [esi]"] + ([f"{m} mm0, 3"] if m[:3] in ("psl", "psr") else [])
+    out += ["movd mm0, eax", "movd eax, mm0", "movd mm0, dword ptr [esi]", "movd dword ptr [esi], mm0",
+            "movq mm0, mm1", "movq mm0, qword ptr [esi]", "movq qword ptr [esi], mm0", "emms"]
+    for m in SSE_MMX:
+        out += [f"{m} mm0, mm1", f"{m} mm0, qword ptr [esi]"]
+    out += ["pshufw mm0, mm1, 3", "pshufw mm0, qword ptr [esi], 3", "pextrw eax, mm0, 1", "pinsrw mm0, eax, 1",
+            "pinsrw mm0, word ptr [esi], 1", "pmovmskb eax, mm0", "maskmovq mm0, mm1", "movntq qword ptr [esi], mm0",
+            "prefetcht0 byte ptr [esi]", "prefetcht1 byte ptr [esi]", "prefetcht2 byte ptr [esi]"]
+    for m in SSE:
+        out += [f"{m} xmm0, xmm1", f"{m} xmm0, {'dword' if m.endswith('ss') else 'xmmword'} ptr [esi]"]
+    out += ["cmpps xmm0, xmm1, 1", "cmpps xmm0, xmmword ptr [esi], 1", "cmpss xmm0, xmm1, 1",
+            "cmpss xmm0, dword ptr [esi], 1", "cmpeqps xmm0, xmm1", "cmpltss xmm0, xmm1",
+            "shufps xmm0, xmm1, 3", "shufps xmm0, xmmword ptr [esi], 3", "movaps xmm0, xmm1",
+            "movaps xmm0, xmmword ptr [esi]", "movaps xmmword ptr [esi], xmm0", "movups xmm0, xmm1",
+            "movups xmm0, xmmword ptr [esi]", "movups xmmword ptr [esi], xmm0", "movss xmm0, xmm1",
+            "movss xmm0, dword ptr [esi]", "movss dword ptr [esi], xmm0", "movhps xmm0, qword ptr [esi]",
+            "movhps qword ptr [esi], xmm0", "movlps xmm0, qword ptr [esi]", "movlps qword ptr [esi], xmm0",
+            "movhlps xmm0, xmm1", "movlhps xmm0, xmm1", "movmskps eax, xmm0", "movntps xmmword ptr [esi], xmm0",
+            "cvtpi2ps xmm0, mm0", "cvtpi2ps xmm0, qword ptr [esi]", "cvtps2pi mm0, xmm0",
+            "cvtps2pi mm0, qword ptr [esi]", "cvttps2pi mm0, xmm0", "cvttps2pi mm0, qword ptr [esi]",
+            "cvtsi2ss xmm0, eax", "cvtsi2ss xmm0, dword ptr [esi]", "cvtss2si eax, xmm0",
+            "cvtss2si eax, dword ptr [esi]", "cvttss2si eax, xmm0", "cvttss2si eax, dword ptr [esi]"]
+    for m in NOW3:
+        out += [f"{m} mm0, mm1", f"{m} mm0, qword ptr [esi]"]
+    out += ["femms", "prefetchw byte ptr [esi]"]
+    return out
+
+
 def forms() -> list[str]:
-    return integer_forms() + x87_forms()
+    return integer_forms() + x87_forms() + simd_forms()

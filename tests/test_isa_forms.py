@@ -55,9 +55,14 @@ def assemble_each(lines: list[str], march: str | None, tmp_path) -> dict[str, li
     with open(tmp_path / "f.o", "rb") as f:
         elf = ELFFile(f)
         text = elf.get_section_by_name(".text").data()
-        at = {s.name: s["st_value"] for s in elf.get_section_by_name(".symtab").iter_symbols()}
+        symbols = list(elf.get_section_by_name(".symtab").iter_symbols())
+    at = {s.name: s["st_value"] for s in symbols}
+    # a register name GNU as does not know for this CPU becomes an undefined symbol (-march=pentiumpro:
+    # 'movd mm0, eax' is MOV [mm0], EAX): such a line is not the form it names, so it counts as refused
+    undefined = {s.name for s in symbols if s.name and s["st_shndx"] == "SHN_UNDEF"}
     offs = [at[f"L{i}"] for i in range(len(lines) + 1)]
-    return {line: list(iter_decode(text[offs[i]:offs[i + 1]], 0x400000 + offs[i])) for i, line in enumerate(lines)}
+    return {line: list(iter_decode(text[offs[i]:offs[i + 1]], 0x400000 + offs[i])) for i, line in enumerate(lines)
+            if not undefined & set(re.findall(r"\w+", line))}
 
 
 def classify(records, preset, table) -> str:
