@@ -32,7 +32,8 @@ no explicit operands:
 
 ==========================  ===================================================
 ``r8 r16 r32``              general register (by operand width)
-``cl``                      CL as the count of a shift/rotate/SHLD/SHRD
+``cl``                      CL as the count of a shift/rotate/SHLD/SHRD (not CL as
+                            their destination: ROL CL,1 is ``r8,1``)
 ``dx``                      DX as the port of IN/OUT/INS/OUTS
 ``ax``                      AX as the destination of FNSTSW
 ``sreg cr dr``              segment / control / debug register
@@ -261,7 +262,7 @@ class InsnRecord:
     prefixes: tuple[int, ...]  # legacy prefix bytes in encoding order
     opsize_prefix: bool
     addrsize_prefix: bool
-    rep: str | None  # 'rep' (F3; REPE for CMPS/SCAS) | 'repne' (F2); string ops only
+    rep: str | None  # 'rep' (F3) | 'repe' (F3 on CMPS/SCAS) | 'repne' (F2); string ops only
     opcode: bytes  # after prefixes, incl. 0F escape; 3DNow! = 0F 0F + suffix byte
     escape_0f: bool
     modrm: int | None
@@ -698,7 +699,9 @@ def _generic_operands(
             ref = reg_ref(insn.reg_name(op.reg))
             if ref.kind == "gpr":
                 token = _GPR_TOKEN.get(op.size, "r32")
-                if ref.name == "cl" and mnemonic in _SHIFTS:
+                # only the COUNT of a shift/rotate/SHLD/SHRD is 'cl' (its last operand); CL as the
+                # destination of ROL CL,1 or SHL CL,CL is an ordinary 8-bit register
+                if ref.name == "cl" and mnemonic in _SHIFTS and 0 < pos == len(insn.operands) - 1:
                     token = "cl"
                 elif ref.name == "dx" and mnemonic in _PORT_IO:
                     token = "dx"
@@ -834,6 +837,8 @@ def decode_one(code: bytes, pc: int) -> InsnRecord:
     if mnemonic in _STRING_OPS:
         last = next((p for p in reversed(prefixes) if p in (0xF2, 0xF3)), None)
         rep = {0xF3: "rep", 0xF2: "repne", None: None}[last]
+        if rep == "rep" and mnemonic[:4] in ("cmps", "scas"):
+            rep = "repe"  # F3 on CMPS/SCAS repeats while equal (Intel SDM vol. 2, REP/REPE/REPZ)
 
     return InsnRecord(
         pc=pc,

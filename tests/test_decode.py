@@ -423,6 +423,22 @@ def test_repne_scasb_and_plain(one):
     assert rep_ret.mnemonic == "ret" and rep_ret.rep is None
 
 
+@pytest.mark.parametrize("src, rep, mnemonic", [
+    ("repe cmpsb", "repe", "cmpsb"), ("repe scasd", "repe", "scasd"),     # F3 on CMPS/SCAS repeats while equal
+    ("repne cmpsw", "repne", "cmpsw"), ("repne scasb", "repne", "scasb"),
+    ("rep stosd", "rep", "stosd"), ("rep lodsb", "rep", "lodsb"),         # F3 on the others just repeats
+])
+def test_rep_prefix_names_the_repeat_condition(one, src, rep, mnemonic):
+    rec = one(src)
+    assert (rec.rep, rec.mnemonic) == (rep, mnemonic)
+
+
+def test_cl_as_shift_destination_is_read_and_written(one):
+    rec = one("shl cl, cl")
+    assert [op.access for op in rec.operands] == ["rw", "r"]
+    assert rec.regs_read == (reg("cl"),) and rec.regs_written == (reg("cl"),)
+
+
 def test_lock_and_segment_prefix_order(one):
     # a stand-alone `lock` line makes gas emit F0 before the FS override
     rec = one("lock\nadd dword ptr fs:[eax], 1")
@@ -461,6 +477,17 @@ def test_lock_and_segment_prefix_order(one):
         ("fchs", ""),
         ("cdq", ""),
         ("les eax, [ebx]", "r32,m48"),
+        # CL is 'cl' only as the COUNT of a shift or rotate; as the destination it is a byte register
+        ("rol cl, 1", "r8,1"),
+        ("shl cl, cl", "r8,cl"),
+        ("sar cl, 3", "r8,i8"),
+        ("rcr byte ptr [eax], cl", "m8,cl"),
+        ("shld cx, ax, cl", "r16,r16,cl"),
+        ("fldenv [esi]", "m28byte"),
+        ("fnstenv [esi]", "m28byte"),
+        ("fnstsw word ptr [esi]", "m16"),
+        ("fnstsw ax", "ax"),
+        ("ldmxcsr dword ptr [esi]", "m32"),
     ],
 )
 def test_signatures(one, src, sig):

@@ -43,7 +43,9 @@ from ..decode import InsnRecord
 from ..errors import RetrosimError
 from .table import InstructionTable, Match
 
-MAX_OPS = 8
+# FNSAVE reads the eight x87 registers, the control and status words and up to three address
+# registers (13); FRSTOR writes ten; PUSHAD reads eight: 16 covers every instruction.
+MAX_OPS = 16
 
 # uop kinds (SIDE: a compute uop beside the instruction's chain, e.g. POP's stack-pointer adder)
 COMPUTE, LOAD, STA, STD, BRANCH, SIDE = range(6)
