@@ -42,7 +42,9 @@ def test_run_of_two_uop_instructions_decodes_one_per_cycle():
     # 4-1-1: a 2-uop instruction only goes to decoder 0 (Pentium II Developer's Manual fig. 2-8)
     run, r1 = per_iteration("two_uop_run")
     inter, r2 = per_iteration("two_uop_interleaved")
-    assert 13.9 <= run <= 14.2           # 14 instructions, one decode group each
+    # 12 ADDs, one decode group each (DEC and JNZ join the last ADD's group in decoders 1 and 2:
+    # IFETCH blocks start at an instruction boundary), plus the 1-cycle taken-branch bubble
+    assert 12.9 <= run <= 13.2
     assert r1.last["decoder1"] + r1.last["decoder2"] <= 2 * N + 10  # only DEC/JNZ pair up
     assert inter <= 0.55 * run           # interleaving 1-uop instructions restores throughput
     # decoders 1 and 2 are busy (less than 4 per iteration where a group meets a 16-byte block end)
