@@ -490,13 +490,22 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
             if kind == BRANCH:
                 branch_done = complete
             # destinations
-            for j in range(s_ndst[sid]):
+            swap = u_ports[u] == 0 and s_ndst[sid] >= 2 and s_dst[sid, 0, 0] == REG_ST0 and s_dst[sid, 1, 0] == REG_ST0
+            for j in range(2 if swap else 0, s_ndst[sid]):
                 if s_dst[sid, j, 2] != k:
                     continue
                 rid = s_dst[sid, j, 0]
                 if rid == REG_ST0:
                     rid = REG_ST0 + ((top_after + s_dst[sid, j, 3]) & 7)
                 reg_ready[rid] = complete
+            if swap:
+                # FXCH: done in the register renamer (AF29n note f), it swaps which stack slot holds
+                # which value without waiting for either: each value keeps its own ready time
+                ra = REG_ST0 + ((top_after + s_dst[sid, 0, 3]) & 7)
+                rb = REG_ST0 + ((top_after + s_dst[sid, 1, 3]) & 7)
+                ta = reg_ready[ra]
+                reg_ready[ra] = max(reg_ready[rb], alloc)
+                reg_ready[rb] = max(ta, alloc)
             # retire in order, retire_w per cycle
             rt = complete + 1
             if rt < ret_cycle:
