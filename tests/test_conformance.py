@@ -43,3 +43,16 @@ def test_report_counts_estimated_rows_apart():
     text = render({"k6": (results, presets)})
     est = sum(r.row.estimated for r in results)
     assert f"| k6 | 2 | 2 | {sum(r.ok for r in results if not r.row.estimated)} / {2 - est} " in text
+
+
+def test_benchmarks_follow_the_published_methods():
+    # 6-byte ADD r32,imm32 (IFETCH blocks from an instruction boundary); DIV r32 "(full)" chain
+    # L 39 with the divider's 1/37 for independent copies (AF29, InstLat-PII); XCHG copies on
+    # disjoint registers (T 1.5 = 3 uops on two ALU ports); FSQRT copies alternated with FXCH (T 68);
+    # ADD r16,imm16 chain no faster than the length-changing-prefix decode (InstLat L 2.2 T 2.17)
+    keys = {"add r32,i32", "div r32", "div r8", "xchg r32,r32", "fsqrt", "add r16,i16"}
+    results, _ = run_family("p6", only=keys)
+    assert {r.row.key for r in results if r.ok} == keys
+    by_key = {r.row.key: r for r in results}
+    assert by_key["div r32"].measured["pentium2-233"] == pytest.approx((39, 37), abs=0.05)
+    assert by_key["fsqrt"].measured["pentium2-233"] == pytest.approx((69, 68), abs=0.05)
