@@ -149,6 +149,10 @@ def _source(rows: list[TimingRow]) -> tuple[str, dict[int, tuple[str, str]]]:
             # an x87 instruction on ST(0) alone: independent copies alternate between two stack
             # values with FXCH (done at rename, no execution port: AF29n note f)
             thr = [f"{row.mnemonic}\n    fxch st(1)"] * (2 * COPIES)
+        if row.mnemonic in ("rcl", "rcr"):
+            # rotates through carry read the CF the previous copy wrote: each copy starts from CLC
+            # (1 uop, writes CF only) so the copies are independent
+            thr = [f"clc\n    {t}" for t in thr]
         if row.mnemonic == "bswap":
             thr = [f"bswap {_REGS['r32'][k % 5]}" for k in range(2 * COPIES)]
         # each benchmark at COPIES and 2*COPIES per iteration: the difference is COPIES*ITERATIONS
@@ -277,6 +281,8 @@ def _judge(res: RowResult) -> None:
 def _classify(res: RowResult) -> str:
     """The likeliest reason a row is not reproduced, from the direction of the error."""
     row = res.row
+    if row.extra.get("unreproduced"):
+        return row.extra["unreproduced"]  # the table's own, sourced explanation
     pairs = list(zip(res.measured.values(), res.expected.values()))
     lat_low = any(e[0] is not None and m[0] < e[0] - TOLERANCE for m, e in pairs)
     lat_high = any(e[0] is not None and m[0] > e[0] + TOLERANCE for m, e in pairs)

@@ -39,7 +39,9 @@ _WIDER = {"r8": ("r32",), "r16": ("r32",), "m8": ("m32",), "m16": ("m32",), "i8"
 # loader refuses one it does not know, so an ignored figure cannot come back unnoticed.
 ROW_FIELDS = {"mnemonic", "signature", "uops", "decoder", "latency", "throughput", "source", "note", "estimated"}
 FAMILY_FIELDS = {
-    "p6": {"ports"},                                   # one port per uop (sim/cpus/lowering.py)
+    # one port per uop (sim/cpus/lowering.py); why the model does not reproduce the row's figures,
+    # with its source (sim/conformance.py reports it in place of its own guess)
+    "p6": {"ports", "unreproduced"},
     "k6": {"units", "models", "model_overrides"},      # RISC86 ops per unit, models, per-model values (k6.py)
     # pairing class, clocks, x87 overlap and units, FDIV clocks by precision (p5.py)
     "p5": {"pairing", "cycles", "acc_only", "i_ov", "fp_ov", "fmul", "waits_fpu", "mmx_unit", "precision_cycles"},
