@@ -4,8 +4,11 @@ throughput, the way InstLatX64 measures -- is run through the full model on each
 family, and the modelled figures are compared with the row's sourced ones (within 0.05 cycles).
 
 `retrosim conformance` writes reports/conformance.md. Benchmarks exist for register, immediate and
-operand-free forms; memory, stack, branch, string and system forms are listed as "not generated"
-(their cost depends on addresses and on what surrounds them, not on a chain of copies).
+operand-free forms, and for integer, MMX and SSE memory forms (independent copies over 8 lines of an
+L1-resident buffer: throughput only, since InstLatX64 chains them through the address register, which
+adds a partial-register stall for 8/16-bit forms); x87 memory, stack, branch, string and system forms
+are listed as "not generated" (their cost depends on addresses and on what surrounds them, not on a
+chain of copies).
 """
 
 from __future__ import annotations
@@ -43,6 +46,8 @@ _IMM = {"i8": "3", "i16": "0x1234", "i32": "0x12345", "1": "1", "cl": "cl"}
 # XCHG EAX,EAX is 0x90): those read another register, whose value the chain then does not need.
 _OTHER_SOURCE = frozenset("xor sub sbb xchg pxor psubb psubw psubd psubsb psubsw psubusb psubusw pcmpeqb "
                           "pcmpeqw pcmpeqd pcmpgtb pcmpgtw pcmpgtd pandn xorps andnps pfsub pfsubr cmpxchg".split())
+_BUF = "conformance_buffer"  # 512 bytes of dwords = 3, 32-byte aligned
+_PTR = {"m8": "byte", "m16": "word", "m32": "dword", "m64": "qword", "m128": "xmmword"}
 _WRITES_BOTH = frozenset({"xchg", "xadd"})  # register forms write both operands
 _SKIP_MNEMONICS = {"push", "pop", "call", "ret", "jmp", "jcc", "loop", "jecxz", "enter", "leave", "pushal", "popal",
                    "pushfd", "popfd", "pushaw", "popaw", "pushf", "popf", "rdtsc", "cpuid", "nop", "setcc",
@@ -68,11 +73,17 @@ def _is_mem(token: str) -> bool:
 def _operands(row: TimingRow, k: int, chain: bool) -> str | None:
     """Operand text for copy k (chain: every copy reads what the previous wrote)."""
     toks = row.signature.split(",") if row.signature else []
-    if any(_is_mem(t) or t.startswith("rel") for t in toks):
+    if any(t.startswith("rel") or (_is_mem(t) and t not in _PTR) for t in toks):
         return None
+    sized = any(t in _REGS for t in toks) and row.mnemonic not in ("movzx", "movsx")
     out = []
     for pos, t in enumerate(toks):
-        if t in _REGS:
+        if _is_mem(t):
+            # copies spread over 8 lines of the buffer (a store or read-modify-write to one address
+            # would chain the copies through memory); memory forms are checked for throughput only
+            where = f"[{_BUF} + {32 * (k % 8)}]"
+            out.append(where if sized else f"{_PTR[t]} ptr {where}")
+        elif t in _REGS:
             regs = _REGS[t]
             if pos == 0:
                 out.append(regs[0] if chain else regs[k % (len(regs) - 1)])
@@ -99,6 +110,10 @@ def _operands(row: TimingRow, k: int, chain: bool) -> str | None:
     return ", ".join(out)
 
 
+def _has_mem(row: TimingRow) -> bool:
+    return any(_is_mem(t) for t in (row.signature.split(",") if row.signature else []))
+
+
 def _why_not(row: TimingRow) -> str:
     if row.mnemonic.split()[-1] in _STRING_OPS:
         return "string instruction (cost per element, measured as bandwidth)"
@@ -106,7 +121,9 @@ def _why_not(row: TimingRow) -> str:
             (row.mnemonic.startswith("f") and row.mnemonic.endswith("p")):  # popping x87 forms empty the stack
         return "stack, branch, flag-chain or x87 stack form"
     toks = row.signature.split(",") if row.signature else []
-    if any(_is_mem(t) for t in toks):
+    if any(_is_mem(t) for t in toks) and row.mnemonic.startswith("f"):
+        return "x87 memory form (every copy reads and writes ST(0): no independent copies)"
+    if any(_is_mem(t) and t not in _PTR for t in toks):
         return "memory operand"
     if row.mnemonic in ("div", "idiv", "mul", "imul") and len(toks) == 1:
         return ""
@@ -128,13 +145,15 @@ def _source(rows: list[TimingRow]) -> tuple[str, dict[int, tuple[str, str]]]:
         lat = [f"{row.mnemonic} {_operands(row, k, True)}".strip() for k in range(2 * COPIES)]
         thr = [f"{row.mnemonic} {_operands(row, k, False)}".strip() for k in range(2 * COPIES)]
         setup: tuple[str, ...] = ()
+        if _has_mem(row):
+            lat = thr  # no chain is generated through memory forms: throughput only
         if row.mnemonic in ("div", "idiv"):
             # As InstLatX64 measures DIV/IDIV "(full)": the chain divides its own result, quotient
             # and remainder (AX = AH:AL for r8; EDX:EAX), by CL/CX/ECX = 3. The dividend starts at 0
             # and stays 0, so neither form overflows; clearing the high half inside the chain would
             # add an instruction to it (XOR EDX,EDX still reads EDX on P6) or a partial-register
             # write (MOV AH,0). Independent copies load a fresh dividend with MOVs, which read nothing.
-            reg = {"r32": "ecx", "r16": "cx", "r8": "cl"}[row.signature]
+            reg = {"r32": "ecx", "r16": "cx", "r8": "cl", "m32": f"dword ptr [{_BUF}]"}[row.signature]
             fresh = "mov eax, 0\n    " if row.signature == "r8" else "mov eax, 0\n    mov edx, 0\n    "
             setup = ("mov eax, 0", "mov edx, 0")
             lat = [f"{row.mnemonic} {reg}"] * (2 * COPIES)
@@ -161,14 +180,20 @@ def _source(rows: list[TimingRow]) -> tuple[str, dict[int, tuple[str, str]]]:
             body(f"{kind}{i}a", insns[:COPIES], setup)
             body(f"{kind}{i}b", insns, setup)
         entries[i] = ((f"lat{i}a", f"lat{i}b"), (f"thr{i}a", f"thr{i}b"))
+    lines += [".data", ".p2align 5", f"{_BUF}:", "    .fill 128, 4, 3"]
     return "\n".join(lines) + "\n", entries
+
+
+# rows whose signature names no operand form the assembler takes (LDMXCSR/STMXCSR read and write
+# 32 bits; MASKMOVQ stores through [EDI])
+_NO_FORM = {("ldmxcsr", "m8"), ("stmxcsr", "m8"), ("maskmovq", "mm,m64")}
 
 
 def _benchable(row: TimingRow) -> str:
     why = _why_not(row)
     if why:
         return why
-    if _operands(row, 0, True) is None:
+    if (row.mnemonic, row.signature) in _NO_FORM or _operands(row, 0, True) is None:
         return "operand form without a generated benchmark"
     return ""
 
@@ -263,7 +288,7 @@ def _judge(res: RowResult) -> None:
     bad = []
     for p, (lat, thr) in res.measured.items():
         el, et = res.expected[p]
-        if res.row.mnemonic in NO_CHAIN:
+        if res.row.mnemonic in NO_CHAIN or _has_mem(res.row):
             el = None
         elif el is not None and et is not None and et > el:
             # a dependency chain of copies cannot run faster than independent copies: InstLatX64
@@ -312,7 +337,8 @@ def render(family_results: dict[str, tuple[list[RowResult], list[str]]]) -> str:
            f"{COPIES} more per loop iteration than a second copy of the loop ({ITERATIONS} iterations, warm second call: the",
            "difference cancels the loop and the call), run through the",
            "full model on each preset of the family. A row is reproduced when every figure the row states is met within",
-           f"{TOLERANCE} cycles on every preset. Rows marked `estimated` are counted apart.", ""]
+           f"{TOLERANCE} cycles on every preset; memory forms are checked for throughput only (copies over 8 lines",
+           "of an L1-resident buffer). Rows marked `estimated` are counted apart.", ""]
     out += ["| family | rows | benchmarked | reproduced (sourced) | estimated rows benchmarked | estimated reproduced | not generated |",
             "|---|---|---|---|---|---|---|"]
     for fam, (results, _) in family_results.items():

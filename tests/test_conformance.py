@@ -56,3 +56,13 @@ def test_benchmarks_follow_the_published_methods():
     by_key = {r.row.key: r for r in results}
     assert by_key["div r32"].measured["pentium2-233"] == pytest.approx((39, 37), abs=0.05)
     assert by_key["fsqrt"].measured["pentium2-233"] == pytest.approx((69, 68), abs=0.05)
+
+
+def test_memory_forms_are_benchmarked_for_throughput():
+    # InstLat-PII: ADD r32,[m32] T 1.00; ADD [m32],r32 T 1.75; MOV [m32],r32 T 1.00 (one store per clock)
+    keys = {"add r32,m32", "add m32,r32", "mov m32,r32"}
+    results, _ = run_family("p6", only=keys | {"fadd m32fp"})
+    by_key = {r.row.key: r for r in results}
+    assert all(by_key[k].checked for k in keys) and not by_key["fadd m32fp"].checked
+    assert {k for k in keys if by_key[k].ok} == keys
+    assert by_key["add m32,r32"].measured["pentium2-233"][1] == pytest.approx(1.75, abs=0.05)
