@@ -28,6 +28,7 @@ TOLERANCE = 0.05
 COPIES = 48       # instructions per loop iteration
 ITERATIONS = 24   # loop iterations per call
 BUDGET = 100_000  # instructions per call: a benchmark is ~2,500
+STRING_ELEMENTS = 32  # elements of a REP string benchmark (and twice as many): 256 bytes of dwords
 FAMILY_ISA = {"p6": "pentium3-500", "k6": "k6-2-300"}  # the preset whose instruction set has every row
 
 # register names per operand token: the chain writes the first; throughput rotates the destination
@@ -46,7 +47,7 @@ _IMM = {"i8": "3", "i16": "0x1234", "i32": "0x12345", "1": "1", "cl": "cl"}
 # XCHG EAX,EAX is 0x90): those read another register, whose value the chain then does not need.
 _OTHER_SOURCE = frozenset("xor sub sbb xchg pxor psubb psubw psubd psubsb psubsw psubusb psubusw pcmpeqb "
                           "pcmpeqw pcmpeqd pcmpgtb pcmpgtw pcmpgtd pandn xorps andnps pfsub pfsubr cmpxchg".split())
-_BUF = "conformance_buffer"  # 512 bytes of dwords = 3, 32-byte aligned
+_BUF = "conformance_buffer"  # 2 KB of dwords = 3, 32-byte aligned; benchmarks write only the first 512 bytes
 _PTR = {"m8": "byte", "m16": "word", "m32": "dword", "m64": "qword", "m128": "xmmword"}
 _WRITES_BOTH = frozenset({"xchg", "xadd"})  # register forms write both operands
 _SKIP_MNEMONICS = {"push", "pop", "call", "ret", "jmp", "jcc", "loop", "jecxz", "enter", "leave", "pushal", "popal",
@@ -114,15 +115,17 @@ def _has_mem(row: TimingRow) -> bool:
     return any(_is_mem(t) for t in (row.signature.split(",") if row.signature else []))
 
 
+def _is_string(row: TimingRow) -> bool:
+    return row.mnemonic.split()[-1] in _STRING_OPS
+
+
 def _why_not(row: TimingRow) -> str:
-    if row.mnemonic.split()[-1] in _STRING_OPS:
-        return "string instruction (cost per element, measured as bandwidth)"
     if row.mnemonic in _SKIP_MNEMONICS or row.mnemonic.startswith(("j", "set", "cmov", "fcmov", "prefetch")) or \
             (row.mnemonic.startswith("f") and row.mnemonic.endswith("p")):  # popping x87 forms empty the stack
         return "stack, branch, flag-chain or x87 stack form"
     toks = row.signature.split(",") if row.signature else []
     if any(_is_mem(t) for t in toks) and row.mnemonic.startswith("f"):
-        return "x87 memory form (every copy reads and writes ST(0): no independent copies)"
+        return "x87 memory form (every copy reads and writes ST(0), so no independent copies)"
     if any(_is_mem(t) and t not in _PTR for t in toks):
         return "memory operand"
     if row.mnemonic in ("div", "idiv", "mul", "imul") and len(toks) == 1:
@@ -153,7 +156,7 @@ def _source(rows: list[TimingRow]) -> tuple[str, dict[int, tuple[str, str]]]:
             # and stays 0, so neither form overflows; clearing the high half inside the chain would
             # add an instruction to it (XOR EDX,EDX still reads EDX on P6) or a partial-register
             # write (MOV AH,0). Independent copies load a fresh dividend with MOVs, which read nothing.
-            reg = {"r32": "ecx", "r16": "cx", "r8": "cl", "m32": f"dword ptr [{_BUF}]"}[row.signature]
+            reg = {"r32": "ecx", "r16": "cx", "r8": "cl", "m32": f"dword ptr [{_BUF} + 1536]"}[row.signature]
             fresh = "mov eax, 0\n    " if row.signature == "r8" else "mov eax, 0\n    mov edx, 0\n    "
             setup = ("mov eax, 0", "mov edx, 0")
             lat = [f"{row.mnemonic} {reg}"] * (2 * COPIES)
@@ -176,11 +179,30 @@ def _source(rows: list[TimingRow]) -> tuple[str, dict[int, tuple[str, str]]]:
             thr = [f"bswap {_REGS['r32'][k % 5]}" for k in range(2 * COPIES)]
         # each benchmark at COPIES and 2*COPIES per iteration: the difference is COPIES*ITERATIONS
         # instructions with the loop overhead and the call cancelled out
-        for kind, insns in (("lat", lat), ("thr", thr)):
-            body(f"{kind}{i}a", insns[:COPIES], setup)
-            body(f"{kind}{i}b", insns, setup)
-        entries[i] = ((f"lat{i}a", f"lat{i}b"), (f"thr{i}a", f"thr{i}b"))
-    lines += [".data", ".p2align 5", f"{_BUF}:", "    .fill 128, 4, 3"]
+        n = COPIES
+        pairs_ = [(lat[:COPIES], lat), (thr[:COPIES], thr)]
+        if _is_string(row):
+            # string instructions walk ESI/EDI through the buffer from its start each iteration
+            # (DF = 0; SCAS compares with EAX = 7, which the buffer of 3s never holds, so REPNE runs
+            # ECX elements, and the two halves are equal, so REPE CMPS does too). A REP form runs
+            # STRING_ELEMENTS and twice as many elements per iteration: the difference is the
+            # per-element cost the row states, without the start-up.
+            # stores go to the buffer's first 512 bytes; SCAS and CMPS read only the rest, which no
+            # benchmark writes
+            dst = 1024 if row.mnemonic[-5:-1] in ("scas", "cmps") else 0
+            reset = f"lea esi, [{_BUF} + 512]\n    lea edi, [{_BUF} + {dst}]\n    "
+            if " " in row.mnemonic:
+                n = STRING_ELEMENTS
+                pair = ([f"{reset}mov ecx, {n}\n    {row.mnemonic}"], [f"{reset}mov ecx, {2 * n}\n    {row.mnemonic}"])
+            else:
+                copies = [f"{reset}{row.mnemonic}"] + [row.mnemonic] * (2 * COPIES - 1)
+                pair = (copies[:COPIES], copies)
+            pairs_ = [pair, pair]
+        for kind, (a, b) in zip(("lat", "thr"), pairs_):
+            body(f"{kind}{i}a", a, setup)
+            body(f"{kind}{i}b", b, setup)
+        entries[i] = ((f"lat{i}a", f"lat{i}b"), (f"thr{i}a", f"thr{i}b"), n * ITERATIONS)
+    lines += [".data", ".p2align 5", f"{_BUF}:", "    .fill 512, 4, 3"]
     return "\n".join(lines) + "\n", entries
 
 
@@ -235,7 +257,6 @@ def run_family(family: str, progress=None, only: set[str] | None = None) -> tupl
     source, entries = _source([res.row for res in todo])
     models = {p: make_model(p) for p in fam_presets}
     isa_cpu = FAMILY_ISA[family]
-    n = COPIES * ITERATIONS
     with tempfile.TemporaryDirectory() as tmp:
         src = Path(tmp) / f"conformance_{family}.S"
         src.write_text(source)
@@ -246,7 +267,8 @@ def run_family(family: str, progress=None, only: set[str] | None = None) -> tupl
         for i, res in enumerate(todo):
             row = res.row
             try:
-                emus = [[_emulation(machine, src, e, isa_cpu) for e in pair] for pair in entries[i]]
+                *pairs, n = entries[i]
+                emus = [[_emulation(machine, src, e, isa_cpu) for e in pair] for pair in pairs]
             except RetrosimError as e:
                 res.why_not = f"benchmark failed to run: {e}"
                 continue
@@ -288,7 +310,7 @@ def _judge(res: RowResult) -> None:
     bad = []
     for p, (lat, thr) in res.measured.items():
         el, et = res.expected[p]
-        if res.row.mnemonic in NO_CHAIN or _has_mem(res.row):
+        if res.row.mnemonic in NO_CHAIN or _has_mem(res.row) or _is_string(res.row):
             el = None
         elif el is not None and et is not None and et > el:
             # a dependency chain of copies cannot run faster than independent copies: InstLatX64
@@ -308,6 +330,9 @@ def _classify(res: RowResult) -> str:
     row = res.row
     if row.extra.get("unreproduced"):
         return row.extra["unreproduced"]  # the table's own, sourced explanation
+    if _is_string(row) and " " in row.mnemonic:
+        return ("REP string instruction: the model issues the row's uops for every element (the trace holds one "
+                "execution per element); the measured per-element rate, fast strings included, is not enforced")
     pairs = list(zip(res.measured.values(), res.expected.values()))
     lat_low = any(e[0] is not None and m[0] < e[0] - TOLERANCE for m, e in pairs)
     lat_high = any(e[0] is not None and m[0] > e[0] + TOLERANCE for m, e in pairs)
