@@ -55,6 +55,10 @@ _SKIP_MNEMONICS = {"push", "pop", "call", "ret", "jmp", "jcc", "loop", "jecxz", 
                    "femms", "emms", "fldcw", "fnstcw", "fnstsw", "fld1", "fldz", "fld", "fst", "fstp", "fxch",
                    "fincstp", "fdecstp", "fnop", "fcompp", "fcomp", "fucomp", "std", "cld"}
 
+# these load a segment register or raise #BR/#OF by design: one of them in the shared benchmark machine
+# would break every later benchmark
+_SEGMENT_OR_TRAP = {"lds", "les", "lfs", "lgs", "lss", "bound", "into"}
+
 
 @dataclass
 class RowResult:
@@ -123,6 +127,8 @@ def _why_not(row: TimingRow) -> str:
     if row.mnemonic in _SKIP_MNEMONICS or row.mnemonic.startswith(("j", "set", "cmov", "fcmov", "prefetch")) or \
             (row.mnemonic.startswith("f") and row.mnemonic.endswith("p")):  # popping x87 forms empty the stack
         return "stack, branch, flag-chain or x87 stack form"
+    if row.mnemonic in _SEGMENT_OR_TRAP:
+        return "segment-register load or bounds check (would fault or leave the flat guest's segments changed)"
     toks = row.signature.split(",") if row.signature else []
     if any(_is_mem(t) for t in toks) and row.mnemonic.startswith("f"):
         return "x87 memory form (every copy reads and writes ST(0), so no independent copies)"
