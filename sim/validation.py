@@ -304,7 +304,7 @@ def markdown(results: list[FamilyResult], command: str = "retrosim validate") ->
                     + (f" ({il} of them because a table row cites InstLatX64 dumps of a sibling core: the "
                        "measurements come from a chip whose dump no row cites, so no figure was fitted to them, "
                        "but agreement there confirms the harness more than the model)" if il else "")
-                    + f"; {len(fr.independent)} are independent."]
+                    + f"; {len(fr.independent)} {'is' if len(fr.independent) == 1 else 'are'} independent."]
     for fr in results:
         fam = fr.family
         out += ["", f"## {fam.family.upper()} on {fam.cpu}", "", fam.cpu_note, "", "Sources:", ""]
