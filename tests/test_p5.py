@@ -323,8 +323,11 @@ def test_rep_string_elements_that_miss_wait_for_memory(tmp_path):
     src = tmp_path / "fill.S"
     src.write_text(HEAD + "# @entry f(p, n)\n.globl f\nf:\n    push edi\n    mov edi, [esp+8]\n    mov ecx, [esp+12]\n"
                    "    xor eax, eax\n    cld\n    rep stosd\n    pop edi\n    ret\n")
-    run = lambda n: time_kernel(src, "f", lambda m: [m.arena.put(np.zeros(4096, np.uint8), align=4096), n],  # noqa: E731
-                                cpu="pentium-133", repeat=2).last
+
+    def run(n):
+        return time_kernel(src, "f", lambda m: [m.arena.put(np.zeros(4096, np.uint8), align=4096), n],
+                           cpu="pentium-133", repeat=2).last
+
     small, big = run(10), run(110)
     assert big["bus_writes"] - small["bus_writes"] == 100
     assert big["cycles"] - small["cycles"] > 100 * REP_COSTS["rep stosd"][2]
