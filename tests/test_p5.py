@@ -251,16 +251,87 @@ def test_mispredicted_branch_in_v_costs_4_clocks_on_the_p54c(tmp_path):
     assert alternating == (taken + never) / 2 + 4 / 2
 
 
-def test_rep_string_is_refused_with_one_clear_error(tmp_path):
-    from sim.errors import RetrosimError
+# ICG (docs/sources/p5.md), the Pentium's REP string timings: (clocks with ECX = 0, start-up, clocks per
+# element), n elements costing start-up + n x per element ("REP MOVS 6, 13+n", "REP STOS 6, 9+3n", ...)
+REP_COSTS = {"rep movsd": (6, 13, 1), "rep stosd": (6, 9, 3), "rep lodsd": (7, 7, 3), "repe cmpsd": (7, 9, 4),
+             "repe scasd": (7, 9, 4), "repne cmpsd": (7, 8, 4), "repne scasd": (7, 9, 4)}
 
-    src = tmp_path / "s.S"
-    src.write_text(HEAD + "# @entry s(p)\n.globl s\ns:\n    push edi\n    mov edi, [esp+8]\n    mov ecx, 4\n"
-                   "    xor eax, eax\n    rep stosd\n    pop edi\n    ret\n")
+
+def rep_kernel(tmp_path, op: str, dst_offset: int = 512, cpu: str = "pentium-133"):
+    """cycles(n) of one call running `op` over n dwords of a zeroed, L1-resident buffer: every call
+    first reads the whole buffer (the P5 allocates lines on reads only), so no element misses.
+    REPE runs on equal zeros; REPNE SCASD looks for EAX = 1, REPNE CMPSD compares zeros with ones."""
     import numpy as np
 
-    with pytest.raises(RetrosimError, match="REP string"):
-        time_kernel(src, "s", lambda m: [m.arena.put(np.zeros(16, np.uint32))], cpu="pentium-133", repeat=1)
+    src = tmp_path / f"rep{dst_offset}.S"
+    src.write_text(HEAD + f"""# @entry r(p, n)
+.globl r
+r:
+    push esi
+    push edi
+    mov esi, [esp+12]
+    xor edx, edx
+1:
+    mov eax, [esi+edx]
+    add edx, 32
+    cmp edx, 2048
+    jne 1b
+    mov ecx, [esp+16]
+    lea edi, [esi+{dst_offset}]
+    mov eax, {1 if op == "repne scasd" else 0}
+    cld
+    {op}
+    pop edi
+    pop esi
+    ret
+""")
+    buf = np.zeros(2048, np.uint8)
+    if op == "repne cmpsd":
+        buf[dst_offset:dst_offset + 1024] = 1
+    return lambda n: time_kernel(src, "r", lambda m: [m.arena.put(buf, align=4096), n], cpu=cpu,
+                                 repeat=2).last["cycles"]
+
+
+@pytest.mark.parametrize("op", sorted(REP_COSTS))
+@pytest.mark.parametrize("cpu", ["pentium-133", "pentium-mmx-233"])
+def test_rep_string_cost_is_start_up_plus_n_elements(tmp_path, op, cpu):
+    # the same kernel with ECX = 0, 1, 2, 10, 100: everything but the REP instruction is the same, so the
+    # differences are the source's figures (the trace holds one execution per element)
+    zero, startup, per = REP_COSTS[op]
+    cycles = rep_kernel(tmp_path, op, cpu=cpu)
+    c = {n: cycles(n) for n in (0, 1, 2, 10, 100)}
+    assert c[1] - c[0] == startup + per - zero
+    assert [c[n] - c[1] for n in (2, 10, 100)] == [(n - 1) * per for n in (2, 10, 100)]
+
+
+def test_rep_movs_bank_conflict_costs_a_clock_per_element_on_the_p54c(tmp_path):
+    # AF 26.3: REP MOVS reads the next element while it writes this one; when ESI + 4 - EDI is a
+    # multiple of 32 the two hit one bank (bits 2-4) and each element takes a clock more (P54C)
+    apart = rep_kernel(tmp_path, "rep movsd", dst_offset=512)
+    clash = rep_kernel(tmp_path, "rep movsd", dst_offset=36)
+    per = REP_COSTS["rep movsd"][2]
+    assert apart(50) - apart(10) == 40 * per
+    assert clash(50) - clash(10) == 40 * (per + 1)
+
+
+def test_rep_string_elements_that_miss_wait_for_memory(tmp_path):
+    # each element's accesses go through the memory model: REP STOSD to lines not in L1 (the P5 does
+    # not allocate on a write miss) takes write buffers and the bus, so it costs more than the
+    # source's per-element clocks once the two write buffers are full
+    import numpy as np
+
+    src = tmp_path / "fill.S"
+    src.write_text(HEAD + "# @entry f(p, n)\n.globl f\nf:\n    push edi\n    mov edi, [esp+8]\n    mov ecx, [esp+12]\n"
+                   "    xor eax, eax\n    cld\n    rep stosd\n    pop edi\n    ret\n")
+
+    def run(n):
+        return time_kernel(src, "f", lambda m: [m.arena.put(np.zeros(4096, np.uint8), align=4096), n],
+                           cpu="pentium-133", repeat=2).last
+
+    small, big = run(10), run(110)
+    assert big["bus_writes"] - small["bus_writes"] == 100
+    assert big["cycles"] - small["cycles"] > 100 * REP_COSTS["rep stosd"][2]
+    assert big["stall_write_buffer"] > small["stall_write_buffer"]
 
 
 def test_fadd_issues_every_clock_fmul_every_other(tmp_path):

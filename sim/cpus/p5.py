@@ -13,7 +13,9 @@ Simplifications (each stated where it applies): pairing marks come from executin
 once (``first_pass_source`` in the machine file), not from the prefetch buffers' byte counts; the
 P55C's instruction FIFO is assumed full (prefix clocks 0 for 0F/66/67, as VTune's static analysis
 assumes); FDIV/FIDIV take the clocks of the x87 precision control in force (the trace's control
-word, sim/cpus/precision.py); the MMX-x87 transition cost is not modelled.
+word, sim/cpus/precision.py); the MMX-x87 transition cost is not modelled. A REP string instruction
+is one trace entry per element: its row gives the start-up (charged on the first element), the
+per-element and the ECX = 0 clocks (p5_core.simulate).
 """
 
 from __future__ import annotations
@@ -117,7 +119,7 @@ class P5Rules:
         n = len(program.records)
         z = {k: np.zeros(n, np.int64) for k in (
             "cls", "cyc", "pfx", "pfxv", "immdisp", "addr", "stack", "esp_agi", "rmask", "wmask", "rflags", "wflags",
-            "jcc", "fp", "fplat", "fpnext", "fmul", "waitfpu", "mmx", "mmx_u", "mmxlat")}
+            "jcc", "fp", "fplat", "fpnext", "fmul", "waitfpu", "mmx", "mmx_u", "mmxlat", "rep", "repstart", "rep0")}
         classes = []
         for s, (rec, match) in enumerate(zip(program.records, program.matches)):
             row = match.row
@@ -163,10 +165,14 @@ class P5Rules:
             z["rflags"][s] = int(bool(rec.flags_read))
             z["wflags"][s] = int(bool(rec.flags_written))
             z["jcc"][s] = int(rec.is_conditional_branch)
+            if rec.rep:  # REP string: start-up on the first element, ECX = 0 figure (p5_core REP_*)
+                z["rep"][s] = core.REP_MOVS if rec.mnemonic.startswith("movs") else core.REP_OTHER
+                z["repstart"][s] = int(row.extra["rep_startup"])
+                z["rep0"][s] = int(row.extra["rep_ecx0"])
         arrays = (program.s_len, z["cls"], z["cyc"], z["pfx"], z["pfxv"], z["immdisp"], z["addr"], z["stack"],
                   z["esp_agi"], z["rmask"], z["wmask"], z["rflags"], z["wflags"], z["jcc"], program.s_branch,
                   z["fp"], z["fplat"], z["fpnext"], z["fmul"], z["waitfpu"], z["mmx"], z["mmx_u"], z["mmxlat"],
-                  program.s_nsrc, program.s_src, program.s_ndst, program.s_dst, program.s_fpdelta)
+                  z["rep"], z["repstart"], z["rep0"], program.s_nsrc, program.s_src, program.s_ndst, program.s_dst, program.s_fpdelta)
         return P5Static(arrays, classes)
 
 
@@ -275,10 +281,6 @@ class P5Model:
         self.iside.reset()
 
     def lower(self, records: list[InsnRecord], precisions: list[int | None] | None = None) -> StaticProgram:
-        for rec in records:
-            if rec.rep:
-                raise RetrosimError(f"pc {rec.pc:#010x} ({rec.rep} {rec.mnemonic} {rec.op_str}): REP string "
-                                    "instructions are not timed by the P5 model (no sourced per-iteration cost)")
         return lower(records, self.table, 1, uops_for=_one_op, decoder_for=lambda rec, match, uops: DEC_SIMPLE,
                      precisions=precisions)
 

@@ -25,6 +25,13 @@ and those stalls are the counters. Per group:
   accesses hit the same 4-byte bank of different dwords costs one clock (P54C); a write that misses
   L1 (no allocation) takes a write buffer, which drains to the bus in WRITE_BUS clocks; the pipe
   stalls only when every buffer is busy;
+- REP strings (not pairable): one trace entry per element; the first element takes the row's
+  start-up clocks besides its per-element clocks, and alone the prefix decode and any AGI (the later
+  elements repeat inside the instruction: no decode, their ESI/EDI updates raise no AGI); an entry
+  with no memory access is the ECX = 0 case when it comes first (the row's ECX = 0 clocks) and the
+  closing count check otherwise (no clocks), so n elements cost start-up + n x per-element; every
+  element's accesses go through the memory model like any other; on the P54C a REP MOVS element
+  whose read hits the bank of the previous element's write (another dword) costs one clock;
 - branches: a BTB of BTB_SETS x BTB_WAYS entries with 2-bit counters indexed by HIST_BITS of local
   history (0 on the P54C); a mispredicted or BTB-missing taken branch costs MISP_U or MISP_V
   clocks by the pipe it ran in.
@@ -50,6 +57,8 @@ NP, UV, PU, PV, FX, FXCH, MMX = range(7)
 CLASS_NAMES = ("NP", "UV", "PU", "PV", "FX", "FXCH", "MMX")
 # MMX units
 MX_NONE, MX_ALU, MX_SHIFT, MX_MUL = range(4)
+# REP string kinds (REP MOVS reads the next element while it writes this one: bank conflicts)
+REP_NONE, REP_OTHER, REP_MOVS = range(3)
 
 # why an instruction ran alone (it could not take the next one into the V pipe)
 REASONS = ("paired", "not pairable (NP)", "V-pipe-only class in U", "next not pairable in V (class)",
@@ -159,7 +168,7 @@ def _load_miss(r, lvl, now, P, bus_free, ctr):
 def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_cls, s_cyc, s_pfx, s_pfxv, s_immdisp, s_addr, s_stack, s_esp_agi, s_rmask, s_wmask, s_rflags,
              s_wflags, s_jcc, s_branch, s_fp, s_fplat, s_fpnext, s_fmul, s_waitfpu, s_mmx, s_mmx_u, s_mmxlat,
-             s_nsrc, s_src, s_ndst, s_dst, s_fpdelta, P,
+             s_rep, s_repstart, s_rep0, s_nsrc, s_src, s_ndst, s_dst, s_fpdelta, P,
              dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
              counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out):
     n = dyn_sid.shape[0]
@@ -184,6 +193,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     btb_hist = np.zeros((btb_sets, btb_ways), np.int64)
     btb_target = np.zeros((btb_sets, btb_ways), np.int64)
     pht = np.full((btb_sets, btb_ways, 1 << hist_bits), 2, np.int64)
+    rep_prev_store = np.int64(-1)         # the previous REP MOVS element's store address
     last_iline = -1
     iline_seen = np.full(16, -1, np.int64)  # lines fetched since the last L1I miss: still resident
     t = 0
@@ -194,6 +204,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     while i < n:
         a = dyn_sid[i]
         pa = a if i >= stat_first else nstatic
+        # a later element of a REP string instruction: the same PC again
+        rep_later = s_rep[a] != REP_NONE and i > 0 and np.int64(dyn_pc[i - 1]) == np.int64(dyn_pc[i])
         # ---- pairing ----------------------------------------------------------------------
         reason = R_BRANCH
         rreg = -1
@@ -237,7 +249,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         start += stall_fetch
         counters[seg, C_FETCH] += stall_fetch
         # ---- decode: prefixes --------------------------------------------------------------
-        pfx = s_pfx[a]
+        pfx = 0 if rep_later else s_pfx[a]
         if group == 2:
             pfx += s_pfx[dyn_sid[i + 1]]
         start += pfx
@@ -245,7 +257,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         per_static[pa, S_PREFIX] += pfx
         # ---- AGI: an address register written in the preceding clock ------------------------
         agi = 0
-        for k in range(group):
+        for k in range(0 if rep_later else group):
             s = dyn_sid[i + k]
             m = s_addr[s]
             r = 0
@@ -290,6 +302,13 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         dur = s_cyc[a]
         if group == 2 and s_cyc[dyn_sid[i + 1]] > dur:
             dur = s_cyc[dyn_sid[i + 1]]
+        if s_rep[a] != REP_NONE:
+            if acc_count[i] == 0:
+                dur = 0 if rep_later else s_rep0[a]  # closing count check / ECX = 0 on entry
+            elif not rep_later:
+                dur += s_repstart[a]
+        rep_load = np.int64(-1)
+        rep_store = np.int64(-1)
         mem = 0
         mis = 0
         bank = 0
@@ -313,6 +332,11 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                         first_dword = addr >> 2
                     elif k == 1 and first_bank >= 0 and bk == first_bank and (addr >> 2) != first_dword:
                         bank = 1
+                if s_rep[s] == REP_MOVS:
+                    if mem_write[q]:
+                        rep_store = addr
+                    else:
+                        rep_load = addr
                 now = start + mem + mis
                 if mem_write[q]:
                     r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, addr, sz, True)
@@ -339,6 +363,11 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                         extra, bus_free = _load_miss(r, lvl, now, P, bus_free, counters[seg])
                         mem += extra
                         per_static[ps, S_MEMORY] += extra
+        if s_rep[a] == REP_MOVS:
+            if P[P_BANK] == 1 and rep_later and rep_load >= 0 and rep_prev_store >= 0 and \
+                    ((rep_load >> 2) & 7) == ((rep_prev_store >> 2) & 7) and (rep_load >> 2) != (rep_prev_store >> 2):
+                bank = 1  # AF 26.3: this element's read meets the previous element's write in one bank
+            rep_prev_store = rep_store
         counters[seg, C_MEMORY] += mem
         counters[seg, C_MISALIGNED] += mis
         counters[seg, C_BANK] += bank
@@ -349,7 +378,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         # ---- results --------------------------------------------------------------------------
         for k in range(group):
             s = dyn_sid[i + k]
-            done = start + s_cyc[s] + mem + mis
+            done = start + (dur if group == 1 else s_cyc[s]) + mem + mis
             w = s_wmask[s]
             r = 0
             while w != 0:

@@ -45,8 +45,10 @@ FAMILY_FIELDS = {
     # RISC86 ops per unit, models, per-model values (k6.py); by x87 precision (at_precision); the
     # measured chain where it is not the execution latency (read only by sim/conformance.py)
     "k6": {"units", "models", "model_overrides", "precision_latency", "precision_throughput", "measured_latency"},
-    # pairing class, clocks, x87 overlap and units, FDIV clocks by precision (p5.py)
-    "p5": {"pairing", "cycles", "acc_only", "i_ov", "fp_ov", "fmul", "waits_fpu", "mmx_unit", "precision_cycles"},
+    # pairing class, clocks, x87 overlap and units, FDIV clocks by precision, REP string start-up and
+    # ECX = 0 clocks (p5.py)
+    "p5": {"pairing", "cycles", "acc_only", "i_ov", "fp_ov", "fmul", "waits_fpu", "mmx_unit", "precision_cycles",
+           "rep_startup", "rep_ecx0"},
 }
 OVERRIDABLE = {"latency", "throughput", "precision_throughput"}  # what a K6 model_overrides entry may replace
 # x87 precision control: a row field `precision_F = [24-bit, 53-bit, 64-bit]` gives field F at each
