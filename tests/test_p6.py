@@ -247,3 +247,24 @@ def test_pushad_popad_are_split_into_their_stores_and_loads(tmp_path):
     c = r.last
     assert c["port2"] >= 8 * 100 and c["port3"] >= 8 * 100 and c["port4"] >= 8 * 100
     assert 28 * 100 <= c["uops"] - 2 * 100 <= 28 * 100 + 30  # DEC, JNZ: 1 uop each; the call's own few
+
+
+# -- partial flags stalls (Agner Fog, PPro/PII/PIII "partial flags stalls") ----------------------------
+def _flag_stalls(tmp_path, body: str) -> int:
+    from sim.timing import time_kernel
+
+    src = tmp_path / "flags.S"
+    src.write_text(".intel_syntax noprefix\n.text\n.globl k\nk:\n    push edi\n    mov edi, esp\n    sub edi, 64\n"
+                   "    cld\n" + body * 8 + "    pop edi\n    ret\n")
+    return time_kernel(src, "k", cpu="pentium2-233", repeat=2).last["stall_partial_flags"]
+
+
+def test_reading_only_df_after_a_full_status_write_does_not_stall(tmp_path):
+    # NEG writes all six status flags: Agner lists NEG followed by PUSHF(D) (which reads DF too) as no stall
+    assert _flag_stalls(tmp_path, "    neg eax\n    stosd\n    sub edi, 4\n") == 0
+
+
+def test_reading_unmodified_flags_after_a_partial_write_stalls(tmp_path):
+    # Agner: CMP / INC / JC stalls (JC reads CF, which INC leaves); CLD / SETZ stalls as well
+    assert _flag_stalls(tmp_path, "    cmp eax, ebx\n    inc ecx\n    setc al\n") > 0
+    assert _flag_stalls(tmp_path, "    cmp eax, ebx\n    cld\n    setz al\n") > 0

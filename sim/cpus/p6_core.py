@@ -190,7 +190,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     reg_pmask = np.full(NREGS, 15, np.int64)    # bytes written by the last (partial) writer
     reg_pretire = np.zeros(NREGS, np.int64)     # its retire cycle
     reg_zeroed = np.zeros(NREGS, np.int64)      # upper bytes known zero (XOR/SUB idiom): no partial stall
-    flags_mask = 0x3F
+    flags_mask = 0x1FF
     flags_retire = 0
     fp_top = 0
 
@@ -555,7 +555,10 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                     reg_pmask[rid] = mask
                     reg_pretire[rid] = inst_retire
             elif rid == REG_FLAGS:
-                flags_mask = mask
+                # a writer of all six status flags leaves nothing to merge, control flags included:
+                # Agner Fog (PPro/PII/PIII partial flags stalls) lists NEG, ADD, CMP ... followed
+                # by PUSHF(D), which reads DF/IF/TF too, as no stall; CLD / SETZ does stall
+                flags_mask = mask | 0x1C0 if (mask & 0x3F) == 0x3F else mask
                 flags_retire = inst_retire
         fp_top = top_after
         if is_store:
