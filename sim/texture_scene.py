@@ -896,5 +896,5 @@ def summary_tables(result: TextureResult) -> list:
                 n[0] += e["holds"]
                 n[1] += 1
             per = ", ".join(f"{f.upper()} {a}/{b}" for f, (a, b) in sorted(counts.items()))
-            out.append(Padding(Text(f"- {c['text'][:50]}: {per}"), (0, 0, 0, 3)))
+            out.append(Padding(Text(f"- {per}: {c['text']}"), (0, 0, 0, 3)))  # counts first: the text wraps
     return out
