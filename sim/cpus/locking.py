@@ -16,11 +16,13 @@ CPU here has a measurement of another locked form.
   data sheet 20695H, LOCK#). The cost is a number of bus clocks, charged in core clocks at the
   preset's bus ratio.
 
-A locked instruction takes its unlocked row (uops, units, pairing) with the lock's latency and
-reciprocal throughput where they exceed the row's; XCHG takes the family's XCHG figure. What the model
+A LOCK-prefixed instruction takes its unlocked row (uops, units, latency) with the lock's reciprocal
+throughput where it exceeds the row's; XCHG with memory takes the family's XCHG latency and throughput. What the model
 assumes: the operand is cached (P6) and within one line; a line split (a bus lock on the P6 too), a
 locked access that misses the cache, and the lock's hold on neighbouring memory accesses (the P6
-drains its store buffer) are not modelled.
+drains its store buffer) are not modelled; on the P6 the hold is per mnemonic (lowering.p6_uops), so
+two different locked instructions do not wait for each other. The K6 holds its decoder (vector
+decode) and the P5 its pipes for the whole cost, so there every later instruction waits.
 """
 
 from __future__ import annotations
@@ -81,7 +83,10 @@ def locked_match(rec: InsnRecord, match: Match, cost: LockCost, family: str) -> 
     row = match.row
     lat, thr = cost.latency[kind], cost.throughput[kind]
     if kind == "lock":
-        lat, thr = max(lat, row.latency or 0), max(thr, row.throughput or 0)
+        # the lock holds the machine for the measured reciprocal throughput; a register or flags
+        # result is ready when the unlocked row says (InstLatX64's LOCK ADD chain through memory, L,
+        # equals its T: the chain waits for the lock, not for a longer result)
+        lat, thr = row.latency, max(thr, row.throughput or 0)
     name = row.mnemonic if kind == "xchg" else f"lock {row.mnemonic}"
     extra = dict(row.extra)
     fields = {"latency": lat, "throughput": thr}
