@@ -45,8 +45,8 @@ def test_report_counts_estimated_rows_apart():
     assert f"| k6 | 2 | 2 | {sum(r.ok for r in results if not r.row.estimated)} / {2 - est} " in text
 
 
-def test_divide_benchmark_clears_the_high_half_off_the_chain():
-    # MOV EDX,0 reads nothing; XOR EDX,EDX would wait for the previous remainder on the K6 model
+def test_k6_divide_benchmarks_reproduce_the_rows():
+    # the chain divides its own result and copies reload the dividend with MOVs, which read nothing
     # (IL-all: DIV r32 20 / 20, DIV r16 13 / 13, as the rows say)
     results, _ = run_family("k6", only={"div r32", "div r16"})
     by_key = {r.row.key: r for r in results}
@@ -83,3 +83,26 @@ def test_measured_latency_is_a_k6_field_only(tmp_path):
     with pytest.raises(RetrosimError, match="unknown field 'measured_latency'"):
         InstructionTable(path)
     assert InstructionTable(path, family="k6").rows[("add", "r16,i16")].extra["measured_latency"] == 2.0
+
+
+def test_benchmarks_follow_the_published_methods():
+    # 6-byte ADD r32,imm32 (IFETCH blocks from an instruction boundary); DIV r32 "(full)" chain
+    # L 39 with the divider's 1/37 for independent copies (AF29, InstLat-PII); XCHG copies on
+    # disjoint registers (T 1.5 = 3 uops on two ALU ports); FSQRT copies alternated with FXCH (T 68);
+    # ADD r16,imm16 chain no faster than the length-changing-prefix decode (InstLat L 2.2 T 2.17)
+    keys = {"add r32,i32", "div r32", "div r8", "xchg r32,r32", "fsqrt", "add r16,i16"}
+    results, _ = run_family("p6", only=keys)
+    assert {r.row.key for r in results if r.ok} == keys
+    by_key = {r.row.key: r for r in results}
+    assert by_key["div r32"].measured["pentium2-233"] == pytest.approx((39, 37), abs=0.05)
+    assert by_key["fsqrt"].measured["pentium2-233"] == pytest.approx((69, 68), abs=0.05)
+
+
+def test_memory_forms_are_benchmarked_for_throughput():
+    # InstLat-PII: ADD r32,[m32] T 1.00; ADD [m32],r32 T 1.75; MOV [m32],r32 T 1.00 (one store per clock)
+    keys = {"add r32,m32", "add m32,r32", "mov m32,r32"}
+    results, _ = run_family("p6", only=keys | {"fadd m32fp"})
+    by_key = {r.row.key: r for r in results}
+    assert all(by_key[k].checked for k in keys) and not by_key["fadd m32fp"].checked
+    assert {k for k in keys if by_key[k].ok} == keys
+    assert by_key["add m32,r32"].measured["pentium2-233"][1] == pytest.approx(1.75, abs=0.05)

@@ -4,8 +4,9 @@ Each uop gets five times: decode, allocate (rename into ROB and RS), dispatch (t
 complete, retire. Every time is the maximum of the constraints that apply to it, so the reason a
 uop waited is the constraint that set its time; those reasons are the stall counters.
 
-Front end: 16-byte fetch blocks, three decoders with the 4-1-1 rule (decoder 0 takes 1-4 uops,
-decoders 1 and 2 only 1-uop instructions, in order), microcode sequencer for longer instructions
+Front end: 16-byte IFETCH blocks that start at an instruction boundary (at the aligned chunk after
+a fetch restart), three decoders with the 4-1-1 rule (decoder 0 takes 1-4 uops, decoders 1 and 2
+only 1-uop instructions, in order), microcode sequencer for longer instructions
 (alone, MSROM_RATE uops per cycle), a decode group ends at a taken branch (plus a fetch bubble) and
 at a length-changing prefix (plus a penalty); a decoded-uop queue of QUEUE uops.
 Back end: RENAME uops per cycle into a ROB of ROB entries and an RS of RS entries; ports 0-4
@@ -232,7 +233,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
 
     dec_cycle = 0
     dec_pos = 3       # slots used in the current decode group (3 = start a new group)
-    dec_block = -1
+    dec_limit = -1    # end (exclusive) of the current IFETCH block
+    fetch_restart = True  # fetch (re)starts at an aligned 16-byte chunk: program start, taken branch
     fe_ready = 0
     last_iline = -1
     iline_seen = np.full(16, -1, np.int64)
@@ -276,8 +278,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         last_iline = iline
         d = dec_cycle
         new_group = dec_pos >= 3 or (dec != DEC_SIMPLE and dec_pos > 0) or s_lcp[sid] == 1
-        if block > 0 and (pc + length - 1) // block != dec_block:
-            new_group = True
+        if block > 0 and pc + length > dec_limit:
+            new_group = True  # the instruction does not end inside the current IFETCH block
         if new_group:
             d = dec_cycle + 1 if dec_pos > 0 else dec_cycle
         # uop queue: uop u0 enters only when uop u0 - queue_n has left it (been allocated)
@@ -295,7 +297,14 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
             counters[seg, C_LCP_STALLS] += P[P_LCP]
         if new_group:
             dec_pos = 0
-            dec_block = pc // block if block > 0 else 0
+            # IFETCH blocks (Agner Fog, microarchitecture manual, PPro/PII/PIII "Instruction fetch";
+            # PIIDM IFU2/IFU3: the pre-decoded double buffer is rotated to align instructions to the
+            # decoders): 16 bytes from an instruction boundary, the group's first instruction. Right
+            # after fetch restarts only the aligned chunk holding the target is there (IA32-OPT: a
+            # branch target at offset 14 yields 2 useful bytes in the first cycle).
+            if block > 0:
+                dec_limit = (pc // block + 1) * block if fetch_restart else pc + block
+            fetch_restart = False
             counters[seg, C_DECODE_GROUPS] += 1
         slot = dec_pos
         if dec == DEC_MSROM:
@@ -481,13 +490,22 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
             if kind == BRANCH:
                 branch_done = complete
             # destinations
-            for j in range(s_ndst[sid]):
+            swap = u_ports[u] == 0 and s_ndst[sid] >= 2 and s_dst[sid, 0, 0] == REG_ST0 and s_dst[sid, 1, 0] == REG_ST0
+            for j in range(2 if swap else 0, s_ndst[sid]):
                 if s_dst[sid, j, 2] != k:
                     continue
                 rid = s_dst[sid, j, 0]
                 if rid == REG_ST0:
                     rid = REG_ST0 + ((top_after + s_dst[sid, j, 3]) & 7)
                 reg_ready[rid] = complete
+            if swap:
+                # FXCH: done in the register renamer (AF29n note f), it swaps which stack slot holds
+                # which value without waiting for either: each value keeps its own ready time
+                ra = REG_ST0 + ((top_after + s_dst[sid, 0, 3]) & 7)
+                rb = REG_ST0 + ((top_after + s_dst[sid, 1, 3]) & 7)
+                ta = reg_ready[ra]
+                reg_ready[ra] = max(reg_ready[rb], alloc)
+                reg_ready[rb] = max(ta, alloc)
             # retire in order, retire_w per cycle
             rt = complete + 1
             if rt < ret_cycle:
@@ -619,11 +637,13 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                 if restart > fe_ready:
                     fe_ready = restart
                 dec_pos = 3
+                fetch_restart = True
             elif taken:
                 bubble = P[P_STATIC_REDIRECT] if redirect else P[P_TAKEN_BUBBLE]
                 if decode_time + 1 + bubble > fe_ready:
                     fe_ready = decode_time + 1 + bubble
                 dec_pos = 3
+                fetch_restart = True
 
         # ---- RDTSC values, timeline, per-static sums ------------------------------------------
         if nrdtsc < rdtsc_out.shape[0] and rdtsc_sid[sid] == 1:

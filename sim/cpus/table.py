@@ -39,8 +39,9 @@ _WIDER = {"r8": ("r32",), "r16": ("r32",), "m8": ("m32",), "m16": ("m32",), "i8"
 # loader refuses one it does not know, so an ignored figure cannot come back unnoticed.
 ROW_FIELDS = {"mnemonic", "signature", "uops", "decoder", "latency", "throughput", "source", "note", "estimated"}
 FAMILY_FIELDS = {
-    # one port per uop (sim/cpus/lowering.py); latency and throughput by x87 precision (at_precision)
-    "p6": {"ports", "precision_latency", "precision_throughput"},
+    # one port per uop (sim/cpus/lowering.py); latency and throughput by x87 precision (at_precision);
+    # why the model does not reproduce the row's figures, with its source (sim/conformance.py reports it)
+    "p6": {"ports", "precision_latency", "precision_throughput", "unreproduced"},
     # RISC86 ops per unit, models, per-model values (k6.py); by x87 precision (at_precision); the
     # measured chain where it is not the execution latency (read only by sim/conformance.py)
     "k6": {"units", "models", "model_overrides", "precision_latency", "precision_throughput", "measured_latency"},
