@@ -54,7 +54,7 @@ class LockCost:
 
 
 def _whole(x: float) -> int:
-    return int(math.floor(x + 0.5))
+    return math.floor(x + 0.5)
 
 
 def lock_cost(section: dict, where: str, model: str | None = None, ratio: Fraction | None = None) -> LockCost:
@@ -96,7 +96,8 @@ def locked_match(rec: InsnRecord, match: Match, cost: LockCost, family: str) -> 
         extra.pop("model_overrides", None)
         fields["decoder"] = "vector"
     elif family == "p5":
-        extra["cycles"] = _whole(thr)
+        cycles = _whole(thr)
+        extra["cycles"] = cycles if kind == "xchg" else max(cycles, int(row.extra.get("cycles", 0)))
         extra["pairing"] = "NP"  # XCHG is NP; a LOCK prefix already keeps it out of the V pipe
     locked = replace(row, mnemonic=name, source=f"{cost.source} (locked); unlocked row: {row.source}",
                      note=f"Locked: the machine table's [lock] rule replaces the row's timing. {row.note}".strip(),
