@@ -52,6 +52,7 @@ from ..memory.dram import DramTiming, bus_ratio, core_clocks, line_costs
 from ..memory.hierarchy import Hierarchy
 from ..trace import Trace
 from . import k6_core as core
+from .locking import lock_cost, locked_match
 from .lowering import BRANCH, COMPUTE, DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE, LOAD, STA, StaticProgram, lower
 from .p6 import CoreRun, DramCost
 from . import vocabulary
@@ -295,6 +296,7 @@ class K6Model:
         self.rules = K6Rules(self.key, self.machine)
         self.dram = dram_cost(memory, preset)
         self.ratio = bus_ratio(preset.core_mhz, preset.fsb_mhz)
+        self.lock = lock_cost(self.machine["lock"], "k6_machine.toml", self.key, self.ratio)
         self.l1_latency = int(preset.l1d.latency_cycles or self.machine["units"]["load"]["l1_hit_latency"])
         try:
             self.dside = Hierarchy.from_preset(preset)
@@ -352,7 +354,11 @@ class K6Model:
 
     def lower(self, records: list[InsnRecord], precisions: list[int | None] | None = None) -> StaticProgram:
         return lower(records, self.table, self.l1_latency, uops_for=self.rules.uops, decoder_for=self.rules.decoder,
-                     precisions=precisions)
+                     precisions=precisions, adjust=self.locked)
+
+    def locked(self, rec, match):
+        """A locked instruction's row with the lock's cost at this preset's bus ratio (sim/cpus/locking.py)."""
+        return locked_match(rec, match, self.lock, "k6")
 
     def run(self, trace: Trace, decoder: Decoder, segments: list[int] | None = None,
             timeline: tuple[int, int] = (0, 0), stat_first: int = 0) -> K6CoreRun:

@@ -238,13 +238,14 @@ def p6_uops(rec: InsnRecord, match: Match, load_latency: int, limits: P6Limits |
 
 def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int = 3,
           simple_max_len: int = 7, uops_for=None, decoder_for=None, limits: P6Limits | None = None,
-          precisions: list[int | None] | None = None) -> StaticProgram:
+          precisions: list[int | None] | None = None, adjust=None) -> StaticProgram:
     """The static program of `records`; `precisions` gives each static's x87 precision index where
     its row depends on it (sim/cpus/precision.py), else the row's 64-bit figures are used.
     A family other than the P6 passes its own rules:
     `uops_for(rec, match, load_latency)` -> [(kind, ports, latency, unit, occupancy)] and
     `decoder_for(rec, match, uops)` -> DEC_* (the K6 model does; see sim/cpus/k6.py). The P6
-    rules (:func:`p6_uops`) take the machine's `limits`."""
+    rules (:func:`p6_uops`) take the machine's `limits`. `adjust(rec, match)` -> match lets the
+    family replace a row's timing for this instruction (a locked access: sim/cpus/locking.py)."""
     if uops_for is None:
         units: dict = {}
 
@@ -264,6 +265,8 @@ def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int 
         match = table.require(mnemonic, rec.signature, f"pc {rec.pc:#010x} ({rec.mnemonic} {rec.op_str})")
         if precisions is not None and precisions[i] is not None:
             match = match.at_precision(precisions[i])
+        if adjust is not None:
+            match = adjust(rec, match)
         matches.append(match)
         us = uops_for(rec, match, load_latency)
         s["uop0"][i], s["nuops"][i] = len(uops), len(us)

@@ -34,6 +34,7 @@ from ..memory.hierarchy import Hierarchy, family_policies
 from ..trace import Trace
 from . import p5_core as core
 from .k6 import dram_cost as socket7_dram_cost
+from .locking import lock_cost, locked_match
 from .lowering import COMPUTE, DEC_SIMPLE, GPRS, PART_MASK, StaticProgram, lower
 from .p6 import CoreRun
 from .precision import split_by_precision
@@ -234,6 +235,7 @@ class P5Model:
         self.rules = P5Rules(self.key, self.machine)
         self.dram = socket7_dram_cost(memory, preset)
         self.ratio = bus_ratio(preset.core_mhz, preset.fsb_mhz)
+        self.lock = lock_cost(self.machine["lock"], "p5_machine.toml", self.key, self.ratio)
         pol = family_policies()["p5"]["l1d"]
         d = preset.l1d
         levels = [CacheGeometry("L1D", d.size_bytes, d.ways, d.line_bytes, replacement=pol["replacement"],
@@ -282,7 +284,11 @@ class P5Model:
 
     def lower(self, records: list[InsnRecord], precisions: list[int | None] | None = None) -> StaticProgram:
         return lower(records, self.table, 1, uops_for=_one_op, decoder_for=lambda rec, match, uops: DEC_SIMPLE,
-                     precisions=precisions)
+                     precisions=precisions, adjust=self.locked)
+
+    def locked(self, rec, match):
+        """A locked instruction's clocks at this preset's bus ratio (sim/cpus/locking.py)."""
+        return locked_match(rec, match, self.lock, "p5")
 
     def run(self, trace: Trace, decoder: Decoder, segments: list[int] | None = None,
             timeline: tuple[int, int] = (0, 0), stat_first: int = 0) -> P5CoreRun:

@@ -21,6 +21,7 @@ from ..trace import Trace
 from . import p6_core as core
 from . import vocabulary
 from .precision import split_by_precision
+from .locking import lock_cost, locked_match
 from .lowering import P6Limits, StaticProgram, lower
 from .presets import CacheSpec, CpuPreset, dram_overhead
 from .table import TABLES, InstructionTable, load_table
@@ -98,10 +99,15 @@ class P6Model:
         # hundred bytes, so code never competes with data for the L2 in practice.
         self.iside = Hierarchy([_geometry("L1I", preset.l1i, {**policies["l1d"], "write_allocate": False})])
         self.params = self._params()
+        self.lock = lock_cost(self.machine["lock"], "p6_machine.toml")
         P = self.params
         # what the machine charges without a held resource (lowering.natural_throughput)
         self.limits = P6Limits(width=int(min(P[core.P_RENAME], P[core.P_RETIRE])), msrom_rate=int(P[core.P_MSROM_RATE]),
                                taken_cycles=1 + int(P[core.P_TAKEN_BUBBLE]), lcp_cycles=1 + int(P[core.P_LCP]))
+
+    def locked(self, rec, match):
+        """A locked instruction's row with the lock's cost (sim/cpus/locking.py)."""
+        return locked_match(rec, match, self.lock, "p6")
 
     def _params(self) -> np.ndarray:
         m, p = self.machine, self.preset
@@ -150,7 +156,7 @@ class P6Model:
         records, index = decoder.decode_trace(trace.pc)
         records, index, precisions = split_by_precision(records, index, trace, self.table)
         program = lower(records, self.table, self.l1_latency, self.machine["decode"]["simple_decoder_max_length"]["value"],
-                        limits=self.limits, precisions=precisions)
+                        limits=self.limits, precisions=precisions, adjust=self.locked)
         n = trace.instructions
         seg_end = np.array(segments if segments else [n], dtype=np.int64)
         acc_count = np.bincount(trace.mem_insn, minlength=n).astype(np.int64)  # accesses per instruction
