@@ -343,3 +343,44 @@ def test_fadd_issues_every_clock_fmul_every_other(tmp_path):
     fmul = loop_kernel(tmp_path, "    fmul st(1), st\n    fmul st(2), st\n    fmul st(3), st", pre=pre, name="fmul")
     assert fadd == 3 + 1
     assert fmul == 2 * 3  # the DEC/JNZ pair fits in the gap after the last FMUL
+
+
+@pytest.mark.parametrize("cpu", ("pentium-133", "pentium-mmx-233"))
+def test_a_pair_touching_one_dword_is_imperfect(tmp_path, cpu):
+    # AF97-PAIR sec. 10.2 (PPlain and PMMX): the two instructions of a pair cannot access the same
+    # DWORD at the same time: MOV AL,[ESI] / MOV BL,[ESI+1] takes 2 clocks, MOV AL,[ESI+3] /
+    # MOV BL,[ESI+4] (either side of a dword boundary) 1; the rule names no direction, so two byte
+    # stores into one dword too (the line is loaded first: the P5 does not allocate on a write miss)
+    global CPU
+    CPU = cpu
+    assert loop_kernel(tmp_path, "    mov al, [esi]\n    mov bl, [esi+1]", name="same") == 2 + 1
+    assert loop_kernel(tmp_path, "    mov al, [esi+3]\n    mov bl, [esi+4]", name="across") == 1 + 1
+    pre = "    mov edx, [esi]"
+    assert loop_kernel(tmp_path, "    mov [esi], al\n    mov [esi+1], bl", pre=pre, name="wsame") == 2 + 1
+    assert loop_kernel(tmp_path, "    mov [esi+3], al\n    mov [esi+4], bl", pre=pre, name="wacross") == 1 + 1
+
+
+@pytest.mark.parametrize("body, clocks", [
+    ("    add [esi], eax\n    add [esi+8], ebx", 5),   # read/modify/write, read/modify/write (sec. 11)
+    ("    add [esi], eax\n    add ebx, [esi+8]", 4),   # read/modify/write, read/modify
+    ("    add ebx, [esi+8]\n    add [esi], eax", 3),   # read/modify, read/modify/write: no extra clock
+    ("    add [esi], eax\n    mov ebx, [esi+8]", 3),   # read/modify/write, MOV: no extra clock
+    ("    add ebx, [esi+8]\n    add edx, [esi+16]", 2),  # read/modify, read/modify: no extra clock
+])
+def test_read_modify_write_pairs_take_agners_table(tmp_path, body, clocks):
+    # AF97-PAIR sec. 10.4: a read/modify/write instruction paired with a read/modify or
+    # read/modify/write one is an imperfect pair; the pair's clocks by the kinds of the first and
+    # second instruction (accesses in different dwords and banks here); plus the DEC/JNZ pair
+    assert loop_kernel(tmp_path, body, name="rmw") == clocks + 1
+
+
+def test_fst_to_memory_needs_its_value_a_clock_early(tmp_path):
+    # AF97-FP sec. 15: FST(P) m takes 2 clocks but needs its operand one clock before, so right after
+    # the FLD that loads it (1 clock) it stalls a clock, which an instruction in between hides; an FSTP
+    # to a register is not a store and does not wait (AF28.2: FLD and FSTP st(i) 1 clock each)
+    direct = loop_kernel(tmp_path, "    fld dword ptr [esi]\n    fstp dword ptr [esi+8]", name="fstm")
+    hidden = loop_kernel(tmp_path, "    fld dword ptr [esi]\n    nop\n    fstp dword ptr [esi+8]", name="fstnop")
+    register = loop_kernel(tmp_path, "    fld dword ptr [esi]\n    fstp st(1)", pre="    fldz", name="fstr")
+    assert direct == 1 + 1 + 2 + 1
+    assert hidden == direct
+    assert register == 1 + 1 + 1

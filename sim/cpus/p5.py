@@ -120,7 +120,8 @@ class P5Rules:
         n = len(program.records)
         z = {k: np.zeros(n, np.int64) for k in (
             "cls", "cyc", "pfx", "pfxv", "immdisp", "addr", "stack", "esp_agi", "rmask", "wmask", "rflags", "wflags",
-            "jcc", "fp", "fplat", "fpnext", "fmul", "waitfpu", "mmx", "mmx_u", "mmxlat", "rep", "repstart", "rep0")}
+            "jcc", "fp", "fplat", "fpnext", "fmul", "waitfpu", "mmx", "mmx_u", "mmxlat", "rep", "repstart", "rep0",
+            "memkind", "fstore")}
         classes = []
         for s, (rec, match) in enumerate(zip(program.records, program.matches)):
             row = match.row
@@ -149,6 +150,8 @@ class P5Rules:
                 z["mmx_u"][s] = int(bool(rec.mem_operands) or touches_gpr)
             z["pfx"][s], z["pfxv"][s] = self.prefix_bytes(rec)
             z["immdisp"][s] = int(rec.imm_size > 0 and rec.disp_size > 0)
+            z["memkind"][s] = memory_kind(rec, c)
+            z["fstore"][s] = int(rec.mnemonic in ("fst", "fstp") and bool(rec.mem_operands))
             addr = 0
             for op in rec.mem_operands:
                 for r in (op.mem.base, op.mem.index):
@@ -173,8 +176,23 @@ class P5Rules:
         arrays = (program.s_len, z["cls"], z["cyc"], z["pfx"], z["pfxv"], z["immdisp"], z["addr"], z["stack"],
                   z["esp_agi"], z["rmask"], z["wmask"], z["rflags"], z["wflags"], z["jcc"], program.s_branch,
                   z["fp"], z["fplat"], z["fpnext"], z["fmul"], z["waitfpu"], z["mmx"], z["mmx_u"], z["mmxlat"],
-                  z["rep"], z["repstart"], z["rep0"], program.s_nsrc, program.s_src, program.s_ndst, program.s_dst, program.s_fpdelta)
+                  z["rep"], z["repstart"], z["rep0"], program.s_nsrc, program.s_src, program.s_ndst, program.s_dst, program.s_fpdelta,
+                  z["memkind"], z["fstore"])
         return P5Static(arrays, classes)
+
+
+def memory_kind(rec: InsnRecord, klass: int) -> int:
+    """AF97-PAIR sec. 10.4's kind of a pairable integer instruction: MK_RMW when it reads and writes a
+    memory operand (ADD [mem],EAX), MK_READ_MODIFY when it reads one and computes (ADD EBX,[mem],
+    CMP [mem],0), MK_PLAIN for MOV and register-only instructions (and anything not integer-pairable)."""
+    if klass not in (core.UV, core.PU, core.PV):
+        return core.MK_PLAIN
+    access = {op.access for op in rec.operands if op.kind == "mem" and op.mem is not None and op.mem.size}
+    if "rw" in access:
+        return core.MK_RMW
+    if "r" in access and rec.mnemonic != "mov":
+        return core.MK_READ_MODIFY
+    return core.MK_PLAIN
 
 
 def _one_op(rec, match, load_latency):
@@ -276,6 +294,16 @@ class P5Model:
         P[core.P_FMUL_SPACING] = mm["x87"]["fmul_spacing"]
         P[core.P_IMMDISP_MODE] = {"never": 0, "u-only": 1}[m["imm_disp_pairs"]]
         P[core.P_PFX_V] = int(bool(m["prefixed_pairs_in_v"]))
+        pipe = mm["pipeline"]
+        P[core.P_SAME_DWORD] = pipe["same_dword_penalty"]
+        table = pipe["pair_clocks"]
+        if len(table) != 3 or any(len(row) != 3 for row in table):
+            raise RetrosimError("p5_machine.toml [pipeline] pair_clocks: expected 3 rows of 3 clocks "
+                                "(first instruction: MOV or register only, read/modify, read/modify/write)")
+        for u, row in enumerate(table):
+            for v, clocks in enumerate(row):
+                P[core.P_PAIR_CLOCKS + 3 * u + v] = int(clocks)
+        P[core.P_FST_EARLY] = mm["x87"]["store_operand_early"]
         return P
 
     def reset(self) -> None:

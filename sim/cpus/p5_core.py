@@ -19,10 +19,15 @@ and those stalls are the counters. Per group:
   one's non-overlapped clocks, FMUL spacing) and its stack operands are ready; it holds the integer
   pipe only for its non-overlapped clocks (FDIV runs beside integer code); FNSTSW/FLDCW wait for
   the x87 to finish;
-- group duration: the longer instruction's clocks (ALU reg,mem 2, ALU mem,reg 3, MUL 10, ...);
+- x87 stores: FST(P) m needs its operand FST_EARLY clocks before its execute stage (AF97-FP);
+- group duration: the longer instruction's clocks (ALU reg,mem 2, ALU mem,reg 3, MUL 10, ...), or
+  more for a read/modify/write in U with a read/modify(/write) in V: PAIR_CLOCKS by the two
+  instructions' memory kinds (AF97-PAIR sec. 10.4: ADD [m],EAX / ADD [m2],EBX takes 5);
 - memory (data side of sim.memory): a load miss stalls the pipe for the board cache or DRAM
   latency, with the bus busy for the line; a misaligned access costs MISALIGNED; a U/V pair whose
-  accesses hit the same 4-byte bank of different dwords costs one clock (P54C); a write that misses
+  accesses touch one dword costs SAME_DWORD (both models, reads and writes, AF97-PAIR sec. 10.2),
+  one whose accesses hit the same 4-byte bank of different dwords one clock (P54C); both are counted
+  as stall_bank (Agner's rule 10.3 extends 10.2 to the bank); a write that misses
   L1 (no allocation) takes a write buffer, which drains to the bus in WRITE_BUS clocks; the pipe
   stalls only when every buffer is busy;
 - REP strings (not pairable): one trace entry per element; the first element takes the row's
@@ -49,8 +54,11 @@ from .p6_core import _btb_alloc  # shared BTB victim choice (LRU by last use)
 # parameter vector indices
 (P_PFX_0F, P_AGI, P_MISALIGNED, P_BANK, P_NWB, P_WRITE_BUS, P_MISP_U, P_MISP_V, P_BTB_SETS, P_BTB_WAYS,
  P_HIST_BITS, P_L2_LAT, P_L2_BUSY, P_DRAM_LAT, P_DRAM_LINE, P_DRAM_WB, P_FMUL_SPACING, P_FIRST_PASS,
- P_IMMDISP_MODE, P_PFX_V) = range(20)
-NPARAMS = 24
+ P_IMMDISP_MODE, P_PFX_V, P_SAME_DWORD, P_FST_EARLY) = range(22)
+P_PAIR_CLOCKS = 22   # 3 x 3 clocks of a pair by the memory kinds of its U and V instructions (MK_*)
+NPARAMS = 32
+# memory kinds of a pairable integer instruction (AF97-PAIR sec. 10.4's table)
+MK_PLAIN, MK_READ_MODIFY, MK_RMW = range(3)
 
 # pairing classes
 NP, UV, PU, PV, FX, FXCH, MMX = range(7)
@@ -168,7 +176,7 @@ def _load_miss(r, lvl, now, P, bus_free, ctr):
 def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_cls, s_cyc, s_pfx, s_pfxv, s_immdisp, s_addr, s_stack, s_esp_agi, s_rmask, s_wmask, s_rflags,
              s_wflags, s_jcc, s_branch, s_fp, s_fplat, s_fpnext, s_fmul, s_waitfpu, s_mmx, s_mmx_u, s_mmxlat,
-             s_rep, s_repstart, s_rep0, s_nsrc, s_src, s_ndst, s_dst, s_fpdelta, P,
+             s_rep, s_repstart, s_rep0, s_nsrc, s_src, s_ndst, s_dst, s_fpdelta, s_memkind, s_fstore, P,
              dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
              counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out):
     n = dyn_sid.shape[0]
@@ -292,7 +300,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                 if rid == REG_ST0:
                     rid = REG_ST0 + ((fp_top + s_src[s, j, 3]) & 7)
                 if rid >= REG_ST0 and rid < 40:
-                    ready = max(ready, ext_ready[rid])
+                    # FST(P) m takes its operand a clock before its execute stage (AF97-FP)
+                    ready = max(ready, ext_ready[rid] + (P[P_FST_EARLY] if s_fstore[s] == 1 else 0))
             if ready - start > fp_wait:
                 fp_wait = ready - start
         start += fp_wait
@@ -300,8 +309,15 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         per_static[pa, S_FPU] += fp_wait
         # ---- execute: duration, memory --------------------------------------------------------
         dur = s_cyc[a]
-        if group == 2 and s_cyc[dyn_sid[i + 1]] > dur:
-            dur = s_cyc[dyn_sid[i + 1]]
+        if group == 2:
+            b = dyn_sid[i + 1]
+            if s_cyc[b] > dur:
+                dur = s_cyc[b]
+            # a read/modify/write in U with a read/modify or read/modify/write in V overlaps it
+            # only in part (AF97-PAIR sec. 10.4's table of the pair's clocks)
+            pc2 = P[P_PAIR_CLOCKS + 3 * s_memkind[a] + s_memkind[b]]
+            if pc2 > dur:
+                dur = pc2
         if s_rep[a] != REP_NONE:
             if acc_count[i] == 0:
                 dur = 0 if rep_later else s_rep0[a]  # closing count check / ECX = 0 on entry
@@ -313,8 +329,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         mis = 0
         bank = 0
         wbw = 0
-        first_bank = -1
-        first_dword = -1
+        u_lo = np.int64(-1)   # dword range of the U instruction's accesses
+        u_hi = np.int64(-2)
         for k in range(group):
             s = dyn_sid[i + k]
             ps = s if i + k >= stat_first else nstatic
@@ -325,13 +341,19 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                 if (addr % span) + sz > span:
                     mis += P[P_MISALIGNED]
                     per_static[ps, S_MISALIGNED] += P[P_MISALIGNED]
-                if P[P_BANK] == 1:
-                    bk = (addr >> 2) & 7
-                    if k == 0 and first_bank < 0:
-                        first_bank = bk
-                        first_dword = addr >> 2
-                    elif k == 1 and first_bank >= 0 and bk == first_bank and (addr >> 2) != first_dword:
-                        bank = 1
+                lo = addr >> 2
+                hi = (addr + sz - 1) >> 2
+                if k == 0:
+                    if u_hi < u_lo:
+                        u_lo, u_hi = lo, hi
+                    else:
+                        u_lo, u_hi = min(u_lo, lo), max(u_hi, hi)
+                elif u_hi >= u_lo:
+                    if lo <= u_hi and hi >= u_lo:
+                        # both pipes in one dword: the accesses cannot go together (AF97-PAIR 10.2)
+                        bank = max(bank, P[P_SAME_DWORD])
+                    elif P[P_BANK] == 1 and (lo & 7) == (u_lo & 7):
+                        bank = 1  # different dwords, one cache bank (P54C)
                 if s_rep[s] == REP_MOVS:
                     if mem_write[q]:
                         rep_store = addr
