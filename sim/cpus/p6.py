@@ -151,8 +151,6 @@ class P6Model:
                         limits=self.limits)
         n = trace.instructions
         seg_end = np.array(segments if segments else [n], dtype=np.int64)
-        acc_count = np.bincount(trace.mem_insn, minlength=n).astype(np.int64)  # accesses per instruction
-        acc_start = np.cumsum(acc_count) - acc_count
         counters = np.zeros((seg_end.size, core.NC), np.int64)
         per_static = np.zeros((len(records) + 1, core.NS), np.int64)
         tl = np.zeros((timeline[1], core.NT), np.int64)
@@ -163,7 +161,7 @@ class P6Model:
         dstats, istats = self.dside.new_counts(), self.iside.new_counts()
         dt, ds, dd, dc, dclk = self.dside.arrays()
         it, is_, id_, ic, iclk = self.iside.arrays()
-        total = core.simulate(index, trace.pc, acc_start, acc_count,
+        total = core.simulate(index, trace.pc, trace.mem_insn,
                               trace.mem_addr, trace.mem_size, trace.mem_write, seg_end, *program.arrays(),
                               self.params, dt, ds, dd, dc, dclk, dstats, it, is_, id_, ic, iclk, istats,
                               counters, per_static, stat_first, tl, timeline[0], rdtsc_sid, rdtsc_out)

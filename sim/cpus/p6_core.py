@@ -172,7 +172,7 @@ def _book_port(book, ports, c):
 
 
 @njit(cache=True, nogil=True)
-def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_write, seg_end,
+def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
              s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ,
              P, dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
@@ -184,6 +184,18 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     l2_lat = P[P_L2_LAT]
     mshr_n, sb_n = P[P_MSHR], P[P_SB]
     d_levels = dconfig.shape[0]
+    n_acc = mem_insn.shape[0]
+    acc_next = 0  # the first access of instruction i (accesses are in program order: mem_insn sorted)
+    # per static instruction, what would otherwise be a division per dynamic one: the fetch blocks
+    # of its first and last byte, and its BTB set
+    s_block0 = np.zeros(nstatic, np.int64)
+    s_block1 = np.zeros(nstatic, np.int64)
+    s_bset = np.zeros(nstatic, np.int64)
+    for s in range(nstatic):
+        if block > 0:
+            s_block0[s] = s_pc[s] // block
+            s_block1[s] = (s_pc[s] + s_len[s] - 1) // block
+        s_bset[s] = s_pc[s] % P[P_BTB_SETS]
 
     reg_ready = np.zeros(NREGS, np.int64)
     reg_pmask = np.full(NREGS, 15, np.int64)    # bytes written by the last (partial) writer
@@ -208,6 +220,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     unit_free = np.zeros(nunits, np.int64)  # per resource: when it is free, in hundredths of a cycle
     sb_ring = np.zeros(sb_n, np.int64)
     nstores = 0
+    sb_pos = 0  # nstores % sb_n, kept incrementally
     last_commit = 0
     last_sta_done = 0
     mshr = np.zeros(mshr_n, np.int64)
@@ -276,7 +289,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         last_iline = iline
         d = dec_cycle
         new_group = dec_pos >= 3 or (dec != DEC_SIMPLE and dec_pos > 0) or s_lcp[sid] == 1
-        if block > 0 and (pc + length - 1) // block != dec_block:
+        if block > 0 and s_block1[sid] != dec_block:
             new_group = True
         if new_group:
             d = dec_cycle + 1 if dec_pos > 0 else dec_cycle
@@ -295,7 +308,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
             counters[seg, C_LCP_STALLS] += P[P_LCP]
         if new_group:
             dec_pos = 0
-            dec_block = pc // block if block > 0 else 0
+            dec_block = s_block0[sid]
             counters[seg, C_DECODE_GROUPS] += 1
         slot = dec_pos
         if dec == DEC_MSROM:
@@ -345,8 +358,11 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         top_after = (fp_top - s_fpdelta[sid]) & 7
 
         # ---- per uop ----------------------------------------------------------------------------
-        acc = acc_start[i]
-        acc_end = acc + acc_count[i]
+        acc = acc_next
+        acc_end = acc
+        while acc_end < n_acc and mem_insn[acc_end] == i:
+            acc_end += 1
+        acc_next = acc_end
         inst_complete = 0
         inst_retire = 0
         first_alloc = 0
@@ -390,9 +406,9 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                 t = w
                 cause_alloc = max(cause_alloc, 2)
             # a store needs a store-buffer entry
-            if kind == STA and nstores >= sb_n and sb_ring[nstores % sb_n] > t:
-                counters[seg, C_STALL_STORE_BUFFER] += sb_ring[nstores % sb_n] - t
-                t = sb_ring[nstores % sb_n]
+            if kind == STA and nstores >= sb_n and sb_ring[sb_pos] > t:
+                counters[seg, C_STALL_STORE_BUFFER] += sb_ring[sb_pos] - t
+                t = sb_ring[sb_pos]
                 cause_alloc = max(cause_alloc, 2)
             if t > ren_cycle:
                 ren_cycle = t
@@ -559,7 +575,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                     w, bus_free, l2bus_free = _miss_latency(r, lvl, d_levels, commit, P, mshr, bus_free, l2bus_free, counters[seg])
                     commit += w
                 fw_n = _remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_std, commit)
-            sb_ring[nstores % sb_n] = commit
+            sb_ring[sb_pos] = commit
+            sb_pos = sb_pos + 1 if sb_pos + 1 < sb_n else 0
             nstores += 1
             last_commit = commit
         br = s_branch[sid]
@@ -569,7 +586,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
             taken = nxt != pc + length
             mispredicted = False
             redirect = False
-            bset = (pc >> 0) % btb_sets
+            bset = s_bset[sid]
             way = -1
             for w in range(btb_ways):
                 if btb_tag[bset, w] == pc:
