@@ -358,8 +358,6 @@ class K6Model:
         records, index = decoder.decode_trace(trace.pc)
         program = self.lower(records)
         k6_static = self.rules.decode_arrays(program)
-        per_insn = np.bincount(trace.mem_insn, minlength=trace.instructions).astype(np.int64, copy=False)
-        first_access = np.cumsum(per_insn) - per_insn
         cuts = np.asarray(segments or [trace.instructions], dtype=np.int64)
         is_rdtsc = np.array([r.mnemonic == "rdtsc" for r in records], np.int64)
         executed = np.flatnonzero(is_rdtsc)
@@ -369,7 +367,7 @@ class K6Model:
         rows = np.zeros((timeline[1], core.NT), np.int64)
         self.reset()
         data_counts, code_counts = self.dside.new_counts(), self.iside.new_counts()
-        end = core.simulate(index, trace.pc, first_access, per_insn, trace.mem_addr, trace.mem_size,
+        end = core.simulate(index, trace.pc, trace.mem_insn, trace.mem_addr, trace.mem_size,
                             trace.mem_write, cuts, *program.arrays(), *k6_static, self.params,
                             *self.dside.arrays(), data_counts, *self.iside.arrays(), code_counts,
                             counters, per_static, stat_first, rows, timeline[0], is_rdtsc, rdtsc)

@@ -179,7 +179,7 @@ def _k6_miss(r, lvl, start, P, bus, wb1, wb2, ctr):
 
 
 @njit(cache=True, nogil=True)
-def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_write, seg_end,
+def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
              s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ, s_cyc, s_first, s_pfx,
              P, dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
@@ -188,6 +188,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     nstatic = s_len.shape[0]
     quads, sq_n = P[P_QUADS], P[P_SQ]
     d_levels = dconfig.shape[0]
+    n_acc = mem_insn.shape[0]
+    acc_next = 0  # the first access of instruction i (accesses are in program order: mem_insn sorted)
 
     reg_ready = np.zeros(NREGS, np.int64)
     reg_pmask = np.full(NREGS, 15, np.int64)  # bytes written by the last writer (15 = whole register)
@@ -205,6 +207,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     prev_entry = -1
     sq_ring = np.zeros(sq_n, np.int64)         # commit cycle of the last sq_n stores
     nstores = 0
+    sq_pos = 0  # nstores % sq_n, kept incrementally
     last_commit = 0
     bus = np.zeros(2, np.int64)
     fw_addr = np.full(FW, -1, np.int64)
@@ -242,6 +245,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     last_seg = counters.shape[0] - 1
     seg_start = 0
     nrdtsc = 0
+    ctr = counters[min(seg, last_seg)]  # this segment's counters (changes only at a segment end)
 
     for i in range(n):
         sid = dyn_sid[i]
@@ -250,7 +254,6 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         u0 = s_uop0[sid]
         cyc = s_cyc[sid]
         psid = sid if i >= stat_first else nstatic
-        ctr = counters[min(seg, last_seg)]
 
         # ---- fetch: the L1I ----------------------------------------------------------------------
         # Only code fills the L1I, so a line that hit stays resident until the next miss: `known`
@@ -327,8 +330,11 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         # ---- ops: issue, execute ---------------------------------------------------------------
         top_before = fp_top
         top_after = (fp_top - s_fpdelta[sid]) & 7
-        acc = acc_start[i]
-        acc_end = acc + acc_count[i]
+        acc = acc_next
+        acc_end = acc
+        while acc_end < n_acc and mem_insn[acc_end] == i:
+            acc_end += 1
+        acc_next = acc_end
         intra = 0           # latest result of this instruction's earlier ops (the op chain)
         inst_complete = entry
         first_dispatch = entry
@@ -354,8 +360,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
             if kind != LOAD and intra > ready:
                 ready = intra  # the instruction's own earlier ops (load -> ALU -> store)
             dep_wait = ready - (entry + 1)
-            if kind == STA and nstores >= sq_n and sq_ring[nstores % sq_n] > ready:
-                w = sq_ring[nstores % sq_n]
+            if kind == STA and nstores >= sq_n and sq_ring[sq_pos] > ready:
+                w = sq_ring[sq_pos]
                 ctr[C_STALL_STORE_BUFFER] += w - ready
                 ready = w
             unit = u_unit[u]
@@ -478,7 +484,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                     if lvl == d_levels:
                         per_static[psid, S_L2_MISSES] += 1
                 fw_n = _remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_ready, commit)
-            sq_ring[nstores % sq_n] = commit
+            sq_ring[sq_pos] = commit
+            sq_pos = sq_pos + 1 if sq_pos + 1 < sq_n else 0
             nstores += 1
             last_commit = commit
 
@@ -557,4 +564,5 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
             ctr[C_CYCLES] = last_retire - seg_start
             seg_start = last_retire
             seg += 1
+            ctr = counters[min(seg, last_seg)]
     return last_retire
