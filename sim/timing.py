@@ -76,13 +76,18 @@ class Emulation:
     trace: Trace = field(repr=False)
     bounds: list[int]
     isa_cpu: str | None = None  # the CPU preset the kernel was assembled for (None: plain i686)
+    # one decoder per emulation: its records and its trace index are computed once however many
+    # machines (and claim re-timings) time the trace
+    _decoder: Decoder | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def last_call(self) -> int:
         return self.bounds[-2] if len(self.bounds) > 1 else 0
 
     def decoder(self) -> Decoder:
-        return Decoder(self.machine.image.fetch)
+        if self._decoder is None:
+            self._decoder = Decoder(self.machine.image.fetch)
+        return self._decoder
 
     def replay(self, rdtsc_values: list[int]) -> Emulation:
         return emulate(self.source, self.entry, self.setup, self.repeat, self.budget, self.assembler, rdtsc_values,
