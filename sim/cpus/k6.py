@@ -50,6 +50,7 @@ from ..errors import RetrosimError
 from ..memory.cache import CacheGeometry
 from ..memory.dram import DramTiming, bus_ratio, core_clocks, line_costs
 from ..memory.hierarchy import Hierarchy
+from ..memory.replay import NO_LOG, AccessLogs
 from ..trace import Trace
 from . import k6_core as core
 from .lowering import BRANCH, COMPUTE, DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE, LOAD, STA, StaticProgram, lower
@@ -353,7 +354,7 @@ class K6Model:
         return lower(records, self.table, self.l1_latency, uops_for=self.rules.uops, decoder_for=self.rules.decoder)
 
     def run(self, trace: Trace, decoder: Decoder, segments: list[int] | None = None,
-            timeline: tuple[int, int] = (0, 0), stat_first: int = 0) -> K6CoreRun:
+            timeline: tuple[int, int] = (0, 0), stat_first: int = 0, access_logs: AccessLogs | None = None) -> K6CoreRun:
         """Time `trace` from a cold machine (the arguments and result are those of P6Model.run)."""
         records, index = decoder.decode_trace(trace.pc)
         program = self.lower(records)
@@ -367,8 +368,12 @@ class K6Model:
         rows = np.zeros((timeline[1], core.NT), np.int64)
         self.reset()
         data_counts, code_counts = self.dside.new_counts(), self.iside.new_counts()
+        darrays = self.dside.arrays()
+        dlog = access_logs.start(self.family, trace, program, darrays[3]) if access_logs is not None else NO_LOG
         end = core.simulate(index, trace.pc, trace.mem_insn, trace.mem_addr, trace.mem_size,
                             trace.mem_write, cuts, *program.arrays(), *k6_static, self.params,
-                            *self.dside.arrays(), data_counts, *self.iside.arrays(), code_counts,
-                            counters, per_static, stat_first, rows, timeline[0], is_rdtsc, rdtsc)
+                            *darrays, data_counts, *self.iside.arrays(), code_counts,
+                            counters, per_static, stat_first, rows, timeline[0], is_rdtsc, rdtsc, dlog)
+        if access_logs is not None:
+            access_logs.finish(dlog)
         return K6CoreRun(program, counters, per_static[:-1], rows, rdtsc, int(end))

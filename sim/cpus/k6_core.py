@@ -45,6 +45,7 @@ import numpy as np
 from numba import njit
 
 from ..memory.hierarchy import S_FILLS, S_WRITEBACKS, memory_fills, memory_writebacks, served_level, service
+from ..memory.replay import logged_service
 from .lowering import BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, LOAD, NREGS, REG_ST0, STA
 from .p6_core import (C_BRANCHES, C_DECODE_GROUPS, C_DECODER0, C_DRAM_BUS_CYCLES, C_DRAM_FILLS, C_DRAM_WRITEBACKS,
                       C_INSTRUCTIONS, C_L1D_LOAD_MISSES, C_L1D_LOADS, C_L1D_STORE_MISSES, C_L1D_STORES,
@@ -183,7 +184,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
              s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ, s_cyc, s_first, s_pfx,
              P, dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
-             counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out):
+             counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out, dlog):
     n = dyn_sid.shape[0]
     nstatic = s_len.shape[0]
     quads, sq_n = P[P_QUADS], P[P_SQ]
@@ -392,7 +393,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                         fwd_wait = max(0, fw_ready[e] - disp)
                         ctr[C_STALL_STORE_FORWARD] += fwd_wait
                         per_static[psid, S_STALL_STORE_FORWARD] += fwd_wait
-                    r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False)
+                    r = logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False)
                     lvl = served_level(r)
                     ctr[C_L1D_LOADS] += 1
                     if lvl > 0:
@@ -464,7 +465,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             j = _access_of(mem_write, acc, acc_end, True)
             if j >= 0:
                 a, sz = np.int64(mem_addr[j]), np.int64(mem_size[j])
-                r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True)
+                r = logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True)
                 lvl = served_level(r)
                 ctr[C_L1D_STORES] += 1
                 if lvl > 0 or dstats[0, S_FILLS] != l1_fill_seen:

@@ -32,6 +32,7 @@ import numpy as np
 from numba import njit
 
 from ..memory.hierarchy import memory_fills, memory_writebacks, served_level, service
+from ..memory.replay import logged_service
 from .lowering import (BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM,
                        DEC_SIMPLE, LOAD, NREGS, OCC_SCALE, REG_FLAGS, REG_ST0, SIDE, STA, STD)
 
@@ -176,7 +177,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
              s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ,
              P, dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
-             counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out):
+             counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out, dlog):
     n = dyn_sid.shape[0]
     nstatic = s_len.shape[0]
     rob_n, rs_n, rename_w, retire_w = P[P_ROB], P[P_RS], P[P_RENAME], P[P_RETIRE]
@@ -462,7 +463,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                     acc += 1
                     # store forwarding: newest older store still in the store buffer that overlaps
                     fwd = _queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
-                    r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False)
+                    r = logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False)
                     lvl = served_level(r)
                     counters[seg, C_L1D_LOADS] += 1
                     if fwd >= 0:
@@ -564,7 +565,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             if acc < acc_end:
                 a = np.int64(mem_addr[acc])
                 sz = np.int64(mem_size[acc])
-                r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True)
+                r = logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True)
                 lvl = served_level(r)
                 counters[seg, C_L1D_STORES] += 1
                 if lvl > 0:
