@@ -108,15 +108,17 @@ def exercised(param: Param, counters: dict) -> bool:
     return name is None or counters.get(name, 1) != 0
 
 
-def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, say=lambda m: None) -> dict:
+def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, say=lambda m: None, logs=None) -> dict:
     """{(param key, value): counters of the last call} with each parameter at each end of its range;
-    parameters whose mechanism does not fire reuse the nominal counters (their timing cannot move)."""
+    parameters whose mechanism does not fire reuse the nominal counters (their timing cannot move).
+    `logs`: the sim.memory.replay.AccessLogs the nominal timing recorded into, if it did."""
     from .cpus import make_model
     from .memory.replay import AccessLogs
     from .timing import time_emulation
 
     out = {}
-    logs = AccessLogs()  # no parameter here changes the data caches: one walk of them serves every run
+    # no parameter here changes the data caches: one walk of them serves every run
+    logs = AccessLogs() if logs is None else logs
     for p in parameters(cpu):
         for value in (p.low, p.high):
             if value == p.nominal or not exercised(p, nominal):
@@ -124,8 +126,7 @@ def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, say=lambd
                 continue
             say(f"{cpu}:{memory} with {p.key} = {_n(value)}")
             model = make_model(cpu, memory, {p.key: value})
-            reuse = logs if model.family in ("p6", "k6") else None  # the cores that can replay cache results
-            out[(p.key, value)] = time_emulation(emulation, model, access_logs=reuse).last
+            out[(p.key, value)] = time_emulation(emulation, model, access_logs=logs).last
     return out
 
 

@@ -112,11 +112,13 @@ def _time_task(shared, i: int, key: str, robust: bool) -> tuple[dict, dict | Non
     """Counters of the last call of the shared emulation on machine `i`, and the claims' robustness
     re-timings when `robust` (a pure function of its arguments: the same in any process)."""
     from . import claims as claim_checks
+    from .memory.replay import AccessLogs
 
     emulation, models = shared
-    timed = time_emulation(emulation, models[i])
+    logs = AccessLogs() if robust else None  # the re-timings replay this timing's cache results
+    timed = time_emulation(emulation, models[i], access_logs=logs)
     cpu, memory = key.split(":")
-    sens = claim_checks.perturbed_timings(emulation, cpu, memory, timed.last) if robust else None
+    sens = claim_checks.perturbed_timings(emulation, cpu, memory, timed.last, logs=logs) if robust else None
     return timed.last, sens
 
 

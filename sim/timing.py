@@ -151,7 +151,8 @@ def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None
     timeline = hot_loop_window(emu.trace.pc, emu.last_call, timeline_iterations)
     decoder = emu.decoder()
     check_isa(emu, decoder, model.preset)
-    logs = {} if access_logs is None else {"access_logs": access_logs}
+    # the P6 and K6 cores can replay recorded cache results
+    logs = {"access_logs": access_logs} if access_logs is not None and model.family in ("p6", "k6") else {}
     run = model.run(emu.trace, decoder, emu.bounds, timeline, emu.last_call, **logs)
     if run.rdtsc.size:
         replay = emu.replay([int(c) for c in run.rdtsc])
