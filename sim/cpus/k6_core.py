@@ -45,7 +45,7 @@ import numpy as np
 from numba import njit
 
 from ..memory.hierarchy import S_FILLS, S_WRITEBACKS, memory_fills, memory_writebacks, served_level, service
-from ..memory.replay import logged_service
+from ..memory.replay import LOG_OFF, logged_service
 from .lowering import BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, LOAD, NREGS, REG_ST0, STA
 from .p6_core import (C_BRANCHES, C_DECODE_GROUPS, C_DECODER0, C_DRAM_BUS_CYCLES, C_DRAM_FILLS, C_DRAM_WRITEBACKS,
                       C_INSTRUCTIONS, C_L1D_LOAD_MISSES, C_L1D_LOADS, C_L1D_STORE_MISSES, C_L1D_STORES,
@@ -246,7 +246,6 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
     last_seg = counters.shape[0] - 1
     seg_start = 0
     nrdtsc = 0
-    ctr = counters[min(seg, last_seg)]  # this segment's counters (changes only at a segment end)
 
     for i in range(n):
         sid = dyn_sid[i]
@@ -255,6 +254,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
         u0 = s_uop0[sid]
         cyc = s_cyc[sid]
         psid = sid if i >= stat_first else nstatic
+        ctr = counters[min(seg, last_seg)]
 
         # ---- fetch: the L1I ----------------------------------------------------------------------
         # Only code fills the L1I, so a line that hit stays resident until the next miss: `known`
@@ -393,7 +393,8 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                         fwd_wait = max(0, fw_ready[e] - disp)
                         ctr[C_STALL_STORE_FORWARD] += fwd_wait
                         per_static[psid, S_STALL_STORE_FORWARD] += fwd_wait
-                    r = logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False)
+                    r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False) if dlog[0] == LOG_OFF else
+                         logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False))
                     lvl = served_level(r)
                     ctr[C_L1D_LOADS] += 1
                     if lvl > 0:
@@ -465,7 +466,8 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             j = _access_of(mem_write, acc, acc_end, True)
             if j >= 0:
                 a, sz = np.int64(mem_addr[j]), np.int64(mem_size[j])
-                r = logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True)
+                r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True) if dlog[0] == LOG_OFF else
+                     logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True))
                 lvl = served_level(r)
                 ctr[C_L1D_STORES] += 1
                 if lvl > 0 or dstats[0, S_FILLS] != l1_fill_seen:
@@ -565,5 +567,4 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             ctr[C_CYCLES] = last_retire - seg_start
             seg_start = last_retire
             seg += 1
-            ctr = counters[min(seg, last_seg)]
     return last_retire

@@ -32,7 +32,7 @@ import numpy as np
 from numba import njit
 
 from ..memory.hierarchy import memory_fills, memory_writebacks, served_level, service
-from ..memory.replay import logged_service
+from ..memory.replay import LOG_OFF, logged_service
 from .lowering import (BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM,
                        DEC_SIMPLE, LOAD, NREGS, OCC_SCALE, REG_FLAGS, REG_ST0, SIDE, STA, STD)
 
@@ -463,7 +463,8 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                     acc += 1
                     # store forwarding: newest older store still in the store buffer that overlaps
                     fwd = _queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
-                    r = logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False)
+                    r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False) if dlog[0] == LOG_OFF else
+                         logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False))
                     lvl = served_level(r)
                     counters[seg, C_L1D_LOADS] += 1
                     if fwd >= 0:
@@ -565,7 +566,8 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             if acc < acc_end:
                 a = np.int64(mem_addr[acc])
                 sz = np.int64(mem_size[acc])
-                r = logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True)
+                r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True) if dlog[0] == LOG_OFF else
+                     logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True))
                 lvl = served_level(r)
                 counters[seg, C_L1D_STORES] += 1
                 if lvl > 0:
