@@ -9,7 +9,8 @@ Robustness. Some model parameters have no sourced figure: the ``ESTIMATES`` of t
 DRAM overhead (``[memory] overhead_bus_clocks``, calibrated on one measured system or carried over
 from another). :data:`PLAUSIBLE` states a range for each. While a variant's emulation is alive the
 runner re-times the same trace (no re-emulation) with each parameter set to either end of its range,
-one at a time (:func:`perturbed_timings`). A parameter whose mechanism never fires in a variant (no
+one at a time (:func:`perturbed_timings`); no such parameter changes the data caches, so the re-timings
+after the first read the caches' results back instead of walking them (sim/memory/replay.py). A parameter whose mechanism never fires in a variant (no
 store forward, no MSROM uop, no DRAM fill, ...) cannot change its timing and is not re-run. A claim
 whose verdict on a machine differs at either end of a range from the nominal verdict is reported as
 "depends on <parameter>", never as reproduced. Only the ends are timed: between them the verdict is
@@ -107,13 +108,17 @@ def exercised(param: Param, counters: dict) -> bool:
     return name is None or counters.get(name, 1) != 0
 
 
-def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, say=lambda m: None) -> dict:
+def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, say=lambda m: None, logs=None) -> dict:
     """{(param key, value): counters of the last call} with each parameter at each end of its range;
-    parameters whose mechanism does not fire reuse the nominal counters (their timing cannot move)."""
+    parameters whose mechanism does not fire reuse the nominal counters (their timing cannot move).
+    `logs`: the sim.memory.replay.AccessLogs the nominal timing recorded into, if it did."""
     from .cpus import make_model
+    from .memory.replay import AccessLogs
     from .timing import time_emulation
 
     out = {}
+    # no parameter here changes the data caches: one walk of them serves every run
+    logs = AccessLogs() if logs is None else logs
     for p in parameters(cpu):
         for value in (p.low, p.high):
             if value == p.nominal or not exercised(p, nominal):
@@ -121,7 +126,7 @@ def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, say=lambd
                 continue
             say(f"{cpu}:{memory} with {p.key} = {_n(value)}")
             model = make_model(cpu, memory, {p.key: value})
-            out[(p.key, value)] = time_emulation(emulation, model).last
+            out[(p.key, value)] = time_emulation(emulation, model, access_logs=logs).last
     return out
 
 

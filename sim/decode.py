@@ -976,6 +976,7 @@ class Decoder:
     def __init__(self, fetch: Callable[[int, int], bytes]):
         self._fetch = fetch
         self._cache: dict[int, InsnRecord] = {}
+        self._last_trace: tuple | None = None  # (pcs, records, index) of the last decode_trace
 
     def __len__(self) -> int:
         return len(self._cache)
@@ -993,6 +994,7 @@ class Decoder:
 
     def invalidate(self, start: int | None = None, end: int | None = None) -> None:
         """Forget records overlapping [start, end) (everything by default)."""
+        self._last_trace = None
         if start is None:
             self._cache.clear()
             return
@@ -1007,7 +1009,17 @@ class Decoder:
         Returns ``(records, index)``: one record per distinct PC in order of
         first appearance, and an int32 array with ``records[index[i]].pc ==
         pcs[i]``.  Vectorised: Python only loops over the distinct PCs.
+        Asked again for the same array (a trace is never modified), it returns
+        the same index: callers must not write to it.
         """
+        last = self._last_trace
+        if last is not None and last[0] is pcs:
+            return list(last[1]), last[2]
+        records, index = self._decode_trace(pcs)
+        self._last_trace = (pcs, records, index)
+        return list(records), index
+
+    def _decode_trace(self, pcs) -> tuple[list[InsnRecord], np.ndarray]:
         pcs = np.asarray(pcs)
         if pcs.ndim != 1:
             raise ValueError(f"pcs must be 1-D, got shape {pcs.shape}")

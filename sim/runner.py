@@ -108,15 +108,28 @@ def _claim_machines(scene: Scene, models: dict) -> dict[str, set]:
 _WARM: set = set()  # families whose compiled core this process has run (see sim.parallel)
 
 
+def _warm(model) -> None:
+    """Load the family's compiled core into this process (before a pool forks: see sim.parallel) by
+    timing an empty trace: the same argument types as a real run, so the same compiled function."""
+    from .decode import Decoder
+    from .trace import Trace
+
+    if model.family not in _WARM:
+        model.run(Trace.empty(), Decoder(lambda address, n: b""), [0], (0, 0), 0)
+        _WARM.add(model.family)
+
+
 def _time_task(shared, i: int, key: str, robust: bool) -> tuple[dict, dict | None]:
     """Counters of the last call of the shared emulation on machine `i`, and the claims' robustness
     re-timings when `robust` (a pure function of its arguments: the same in any process)."""
     from . import claims as claim_checks
+    from .memory.replay import AccessLogs
 
     emulation, models = shared
-    timed = time_emulation(emulation, models[i])
+    logs = AccessLogs() if robust else None  # the re-timings replay this timing's cache results
+    timed = time_emulation(emulation, models[i], access_logs=logs)
     cpu, memory = key.split(":")
-    sens = claim_checks.perturbed_timings(emulation, cpu, memory, timed.last) if robust else None
+    sens = claim_checks.perturbed_timings(emulation, cpu, memory, timed.last, logs=logs) if robust else None
     return timed.last, sens
 
 
@@ -183,20 +196,19 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
             result.accuracy[variant] = Accuracy(variant, same, vis, depth, fight)
             del expect_z, expect_f
             shared = (run.emulation, list(models.values()))
-            futures, local = [], SharedPool(shared, 1)
+            futures = []
             for i, ((cpu, _), model) in enumerate(models.items()):
                 key = f"{cpu}:{model.dram.name}"
                 futures.append([cpu, model.dram.name, (i, key, key in robust.get(variant, ()))])
-                if jobs > 1 and model.family not in _WARM:
-                    # time it here: the compiled core is then loaded before the pool forks
-                    _WARM.add(model.family)
-                    futures[-1][2] = local.submit(_time_task, *futures[-1][2])
+                if jobs > 1:
+                    # the compiled core loaded here, before the pool forks (timing a whole machine
+                    # here instead would leave the other cores idle meanwhile)
+                    _warm(model)
             while pending:  # the previous variant's timings ran while this one was emulated
                 collect(pending.pop(0))
             pool = SharedPool(shared, jobs)
             for f in futures:
-                if isinstance(f[2], tuple):
-                    f[2] = pool.submit(_time_task, *f[2])
+                f[2] = pool.submit(_time_task, *f[2])
             pool.release()  # only the workers keep this variant's trace now
             pending.append((variant, run.pixels, pool, futures))
             del run, shared

@@ -76,13 +76,18 @@ class Emulation:
     trace: Trace = field(repr=False)
     bounds: list[int]
     isa_cpu: str | None = None  # the CPU preset the kernel was assembled for (None: plain i686)
+    # one decoder per emulation: its records and its trace index are computed once however many
+    # machines (and claim re-timings) time the trace
+    _decoder: Decoder | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def last_call(self) -> int:
         return self.bounds[-2] if len(self.bounds) > 1 else 0
 
     def decoder(self) -> Decoder:
-        return Decoder(self.machine.image.fetch)
+        if self._decoder is None:
+            self._decoder = Decoder(self.machine.image.fetch)
+        return self._decoder
 
     def replay(self, rdtsc_values: list[int]) -> Emulation:
         return emulate(self.source, self.entry, self.setup, self.repeat, self.budget, self.assembler, rdtsc_values,
@@ -134,23 +139,27 @@ def check_model_memory(instructions: int) -> None:
 
 
 def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None,
-                   timeline_iterations: int = 0) -> TimingResult:
+                   timeline_iterations: int = 0, access_logs=None) -> TimingResult:
     """Time an emulation on one CPU preset (a name, or a model from make_model).
     `timeline_iterations`: record a per-instruction timeline of that many iterations of the hot
-    loop (the last call's most executed PC), from the middle of the last call."""
+    loop (the last call's most executed PC), from the middle of the last call. `access_logs`
+    (a sim.memory.replay.AccessLogs, for models that take one): re-timings of the same emulation
+    on the same data caches reuse the first one's cache results."""
     model = make_model(cpu, memory) if isinstance(cpu, str) else cpu
     cpu = model.preset.name
     check_model_memory(emu.trace.instructions)
     timeline = hot_loop_window(emu.trace.pc, emu.last_call, timeline_iterations)
     decoder = emu.decoder()
     check_isa(emu, decoder, model.preset)
-    run = model.run(emu.trace, decoder, emu.bounds, timeline, emu.last_call)
+    # the P6 and K6 cores can replay recorded cache results
+    logs = {"access_logs": access_logs} if access_logs is not None and model.family in ("p6", "k6") else {}
+    run = model.run(emu.trace, decoder, emu.bounds, timeline, emu.last_call, **logs)
     if run.rdtsc.size:
         replay = emu.replay([int(c) for c in run.rdtsc])
         if not np.array_equal(replay.trace.pc, emu.trace.pc):
             raise RetrosimError(f"{emu.source}: {emu.entry} branches on RDTSC values; its timing cannot be replayed")
         emu = replay
-        run = model.run(emu.trace, emu.decoder(), emu.bounds, timeline, emu.last_call)
+        run = model.run(emu.trace, emu.decoder(), emu.bounds, timeline, emu.last_call, **logs)
     calls = [run.segment(k) for k in range(len(emu.bounds))]
     return TimingResult(cpu, model.dram.name, emu.entry, emu.source, emu.repeat, calls, model, run, emu.trace)
 

@@ -50,6 +50,7 @@ from ..errors import RetrosimError
 from ..memory.cache import CacheGeometry
 from ..memory.dram import DramTiming, bus_ratio, core_clocks, line_costs
 from ..memory.hierarchy import Hierarchy
+from ..memory.replay import NO_LOG, AccessLogs
 from ..trace import Trace
 from . import k6_core as core
 from .locking import lock_cost, locked_match
@@ -361,14 +362,12 @@ class K6Model:
         return locked_match(rec, match, self.lock, "k6")
 
     def run(self, trace: Trace, decoder: Decoder, segments: list[int] | None = None,
-            timeline: tuple[int, int] = (0, 0), stat_first: int = 0) -> K6CoreRun:
+            timeline: tuple[int, int] = (0, 0), stat_first: int = 0, access_logs: AccessLogs | None = None) -> K6CoreRun:
         """Time `trace` from a cold machine (the arguments and result are those of P6Model.run)."""
         records, index = decoder.decode_trace(trace.pc)
         records, index, precisions = split_by_precision(records, index, trace, self.table)
         program = self.lower(records, precisions)
         k6_static = self.rules.decode_arrays(program)
-        per_insn = np.bincount(trace.mem_insn, minlength=trace.instructions).astype(np.int64, copy=False)
-        first_access = np.cumsum(per_insn) - per_insn
         cuts = np.asarray(segments or [trace.instructions], dtype=np.int64)
         is_rdtsc = np.array([r.mnemonic == "rdtsc" for r in records], np.int64)
         executed = np.flatnonzero(is_rdtsc)
@@ -378,8 +377,12 @@ class K6Model:
         rows = np.zeros((timeline[1], core.NT), np.int64)
         self.reset()
         data_counts, code_counts = self.dside.new_counts(), self.iside.new_counts()
-        end = core.simulate(index, trace.pc, first_access, per_insn, trace.mem_addr, trace.mem_size,
+        darrays = self.dside.arrays()
+        dlog = access_logs.start(self.family, trace, program, darrays[3]) if access_logs is not None else NO_LOG
+        end = core.simulate(index, trace.pc, trace.mem_insn, trace.mem_addr, trace.mem_size,
                             trace.mem_write, cuts, *program.arrays(), *k6_static, self.params,
-                            *self.dside.arrays(), data_counts, *self.iside.arrays(), code_counts,
-                            counters, per_static, stat_first, rows, timeline[0], is_rdtsc, rdtsc)
+                            *darrays, data_counts, *self.iside.arrays(), code_counts,
+                            counters, per_static, stat_first, rows, timeline[0], is_rdtsc, rdtsc, dlog)
+        if access_logs is not None:
+            access_logs.finish(dlog)
         return K6CoreRun(program, counters, per_static[:-1], rows, rdtsc, int(end))

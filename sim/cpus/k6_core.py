@@ -45,6 +45,7 @@ import numpy as np
 from numba import njit
 
 from ..memory.hierarchy import S_FILLS, S_WRITEBACKS, memory_fills, memory_writebacks, served_level, service
+from ..memory.replay import LOG_OFF, logged_service
 from .lowering import BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, LOAD, NREGS, REG_ST0, STA
 from .p6_core import (C_BRANCHES, C_DECODE_GROUPS, C_DECODER0, C_DRAM_BUS_CYCLES, C_DRAM_FILLS, C_DRAM_WRITEBACKS,
                       C_INSTRUCTIONS, C_L1D_LOAD_MISSES, C_L1D_LOADS, C_L1D_STORE_MISSES, C_L1D_STORES,
@@ -179,15 +180,17 @@ def _k6_miss(r, lvl, start, P, bus, wb1, wb2, ctr):
 
 
 @njit(cache=True, nogil=True)
-def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_write, seg_end,
+def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
              s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ, s_cyc, s_first, s_pfx,
              P, dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
-             counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out):
+             counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out, dlog):
     n = dyn_sid.shape[0]
     nstatic = s_len.shape[0]
     quads, sq_n = P[P_QUADS], P[P_SQ]
     d_levels = dconfig.shape[0]
+    n_acc = mem_insn.shape[0]
+    acc_next = 0  # the first access of instruction i (accesses are in program order: mem_insn sorted)
 
     reg_ready = np.zeros(NREGS, np.int64)
     reg_pmask = np.full(NREGS, 15, np.int64)  # bytes written by the last writer (15 = whole register)
@@ -205,6 +208,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     prev_entry = -1
     sq_ring = np.zeros(sq_n, np.int64)         # commit cycle of the last sq_n stores
     nstores = 0
+    sq_pos = 0  # nstores % sq_n, kept incrementally
     last_commit = 0
     bus = np.zeros(2, np.int64)
     fw_addr = np.full(FW, -1, np.int64)
@@ -327,8 +331,11 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         # ---- ops: issue, execute ---------------------------------------------------------------
         top_before = fp_top
         top_after = (fp_top - s_fpdelta[sid]) & 7
-        acc = acc_start[i]
-        acc_end = acc + acc_count[i]
+        acc = acc_next
+        acc_end = acc
+        while acc_end < n_acc and mem_insn[acc_end] == i:
+            acc_end += 1
+        acc_next = acc_end
         intra = 0           # latest result of this instruction's earlier ops (the op chain)
         inst_complete = entry
         first_dispatch = entry
@@ -354,8 +361,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
             if kind != LOAD and intra > ready:
                 ready = intra  # the instruction's own earlier ops (load -> ALU -> store)
             dep_wait = ready - (entry + 1)
-            if kind == STA and nstores >= sq_n and sq_ring[nstores % sq_n] > ready:
-                w = sq_ring[nstores % sq_n]
+            if kind == STA and nstores >= sq_n and sq_ring[sq_pos] > ready:
+                w = sq_ring[sq_pos]
                 ctr[C_STALL_STORE_BUFFER] += w - ready
                 ready = w
             unit = u_unit[u]
@@ -386,7 +393,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                         fwd_wait = max(0, fw_ready[e] - disp)
                         ctr[C_STALL_STORE_FORWARD] += fwd_wait
                         per_static[psid, S_STALL_STORE_FORWARD] += fwd_wait
-                    r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False)
+                    r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False) if dlog[0] == LOG_OFF else
+                         logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False))
                     lvl = served_level(r)
                     ctr[C_L1D_LOADS] += 1
                     if lvl > 0:
@@ -458,7 +466,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
             j = _access_of(mem_write, acc, acc_end, True)
             if j >= 0:
                 a, sz = np.int64(mem_addr[j]), np.int64(mem_size[j])
-                r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True)
+                r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True) if dlog[0] == LOG_OFF else
+                     logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True))
                 lvl = served_level(r)
                 ctr[C_L1D_STORES] += 1
                 if lvl > 0 or dstats[0, S_FILLS] != l1_fill_seen:
@@ -478,7 +487,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                     if lvl == d_levels:
                         per_static[psid, S_L2_MISSES] += 1
                 fw_n = _remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_ready, commit)
-            sq_ring[nstores % sq_n] = commit
+            sq_ring[sq_pos] = commit
+            sq_pos = sq_pos + 1 if sq_pos + 1 < sq_n else 0
             nstores += 1
             last_commit = commit
 

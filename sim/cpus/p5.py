@@ -31,7 +31,7 @@ from ..errors import RetrosimError
 from ..memory.cache import CacheGeometry
 from ..memory.dram import DramTiming, bus_ratio, core_clocks
 from ..memory.hierarchy import Hierarchy, family_policies
-from ..trace import Trace
+from ..trace import Trace, access_spans
 from . import p5_core as core
 from .k6 import dram_cost as socket7_dram_cost
 from .locking import lock_cost, locked_match
@@ -326,8 +326,7 @@ class P5Model:
         program = self.lower(records, precisions)
         static = self.rules.static(program)
         n = trace.instructions
-        acc_count = np.bincount(trace.mem_insn, minlength=n).astype(np.int64)
-        acc_start = np.cumsum(acc_count) - acc_count
+        acc_start, acc_count = access_spans(trace.mem_insn, n)
         cuts = np.asarray(segments or [n], dtype=np.int64)
         is_rdtsc = np.array([int(r.mnemonic == "rdtsc") for r in records], np.int64)
         executed = np.flatnonzero(is_rdtsc)

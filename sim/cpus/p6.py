@@ -17,6 +17,7 @@ from ..memory.cache import CacheGeometry
 from ..errors import RetrosimError
 from ..memory.dram import DramTiming, core_clocks, line_costs
 from ..memory.hierarchy import Hierarchy, family_policies
+from ..memory.replay import NO_LOG, AccessLogs
 from ..trace import Trace
 from . import p6_core as core
 from . import vocabulary
@@ -148,10 +149,11 @@ class P6Model:
         self.iside.reset()
 
     def run(self, trace: Trace, decoder: Decoder, segments: list[int] | None = None,
-            timeline: tuple[int, int] = (0, 0), stat_first: int = 0) -> "CoreRun":
+            timeline: tuple[int, int] = (0, 0), stat_first: int = 0, access_logs: AccessLogs | None = None) -> "CoreRun":
         """Time `trace` from a cold machine. `segments`: instruction counts at which to cut the
         counters (e.g. one segment per call); `timeline`: (first instruction, count) to record;
-        per-instruction sums cover instructions from `stat_first` on.
+        per-instruction sums cover instructions from `stat_first` on; `access_logs`: record the data
+        caches' results, or replay those of an earlier run on the same caches (sim.memory.replay).
         The result carries the cycle at which each RDTSC executed."""
         records, index = decoder.decode_trace(trace.pc)
         records, index, precisions = split_by_precision(records, index, trace, self.table)
@@ -159,8 +161,6 @@ class P6Model:
                         limits=self.limits, precisions=precisions, adjust=self.locked)
         n = trace.instructions
         seg_end = np.array(segments if segments else [n], dtype=np.int64)
-        acc_count = np.bincount(trace.mem_insn, minlength=n).astype(np.int64)  # accesses per instruction
-        acc_start = np.cumsum(acc_count) - acc_count
         counters = np.zeros((seg_end.size, core.NC), np.int64)
         per_static = np.zeros((len(records) + 1, core.NS), np.int64)
         tl = np.zeros((timeline[1], core.NT), np.int64)
@@ -171,10 +171,13 @@ class P6Model:
         dstats, istats = self.dside.new_counts(), self.iside.new_counts()
         dt, ds, dd, dc, dclk = self.dside.arrays()
         it, is_, id_, ic, iclk = self.iside.arrays()
-        total = core.simulate(index, trace.pc, acc_start, acc_count,
+        dlog = access_logs.start(self.family, trace, program, dc) if access_logs is not None else NO_LOG
+        total = core.simulate(index, trace.pc, trace.mem_insn,
                               trace.mem_addr, trace.mem_size, trace.mem_write, seg_end, *program.arrays(),
                               self.params, dt, ds, dd, dc, dclk, dstats, it, is_, id_, ic, iclk, istats,
-                              counters, per_static, stat_first, tl, timeline[0], rdtsc_sid, rdtsc_out)
+                              counters, per_static, stat_first, tl, timeline[0], rdtsc_sid, rdtsc_out, dlog)
+        if access_logs is not None:
+            access_logs.finish(dlog)
         return CoreRun(program, counters, per_static[:-1], tl, rdtsc_out, int(total))
 
 

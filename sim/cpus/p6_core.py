@@ -33,6 +33,7 @@ import numpy as np
 from numba import njit
 
 from ..memory.hierarchy import memory_fills, memory_writebacks, served_level, service
+from ..memory.replay import LOG_OFF, logged_service
 from .lowering import (BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM,
                        DEC_SIMPLE, LOAD, NREGS, OCC_SCALE, REG_FLAGS, REG_ST0, SIDE, STA, STD)
 
@@ -173,11 +174,11 @@ def _book_port(book, ports, c):
 
 
 @njit(cache=True, nogil=True)
-def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_write, seg_end,
+def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
              s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ,
              P, dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
-             counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out):
+             counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out, dlog):
     n = dyn_sid.shape[0]
     nstatic = s_len.shape[0]
     rob_n, rs_n, rename_w, retire_w = P[P_ROB], P[P_RS], P[P_RENAME], P[P_RETIRE]
@@ -185,6 +186,12 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     l2_lat = P[P_L2_LAT]
     mshr_n, sb_n = P[P_MSHR], P[P_SB]
     d_levels = dconfig.shape[0]
+    n_acc = mem_insn.shape[0]
+    acc_next = 0  # the first access of instruction i (accesses are in program order: mem_insn sorted)
+    # per static instruction, what would otherwise be a division per dynamic one: its BTB set
+    s_bset = np.zeros(nstatic, np.int64)
+    for s in range(nstatic):
+        s_bset[s] = s_pc[s] % P[P_BTB_SETS]
 
     reg_ready = np.zeros(NREGS, np.int64)
     reg_pmask = np.full(NREGS, 15, np.int64)    # bytes written by the last (partial) writer
@@ -209,6 +216,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
     unit_free = np.zeros(nunits, np.int64)  # per resource: when it is free, in hundredths of a cycle
     sb_ring = np.zeros(sb_n, np.int64)
     nstores = 0
+    sb_pos = 0  # nstores % sb_n, kept incrementally
     last_commit = 0
     last_sta_done = 0
     mshr = np.zeros(mshr_n, np.int64)
@@ -354,8 +362,11 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         top_after = (fp_top - s_fpdelta[sid]) & 7
 
         # ---- per uop ----------------------------------------------------------------------------
-        acc = acc_start[i]
-        acc_end = acc + acc_count[i]
+        acc = acc_next
+        acc_end = acc
+        while acc_end < n_acc and mem_insn[acc_end] == i:
+            acc_end += 1
+        acc_next = acc_end
         inst_complete = 0
         inst_retire = 0
         first_alloc = 0
@@ -399,9 +410,9 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                 t = w
                 cause_alloc = max(cause_alloc, 2)
             # a store needs a store-buffer entry
-            if kind == STA and nstores >= sb_n and sb_ring[nstores % sb_n] > t:
-                counters[seg, C_STALL_STORE_BUFFER] += sb_ring[nstores % sb_n] - t
-                t = sb_ring[nstores % sb_n]
+            if kind == STA and nstores >= sb_n and sb_ring[sb_pos] > t:
+                counters[seg, C_STALL_STORE_BUFFER] += sb_ring[sb_pos] - t
+                t = sb_ring[sb_pos]
                 cause_alloc = max(cause_alloc, 2)
             if t > ren_cycle:
                 ren_cycle = t
@@ -455,7 +466,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                     acc += 1
                     # store forwarding: newest older store still in the store buffer that overlaps
                     fwd = _queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
-                    r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False)
+                    r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False) if dlog[0] == LOG_OFF else
+                         logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False))
                     lvl = served_level(r)
                     counters[seg, C_L1D_LOADS] += 1
                     if fwd >= 0:
@@ -569,7 +581,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
             if acc < acc_end:
                 a = np.int64(mem_addr[acc])
                 sz = np.int64(mem_size[acc])
-                r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True)
+                r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True) if dlog[0] == LOG_OFF else
+                     logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True))
                 lvl = served_level(r)
                 counters[seg, C_L1D_STORES] += 1
                 if lvl > 0:
@@ -580,7 +593,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                     w, bus_free, l2bus_free = _miss_latency(r, lvl, d_levels, commit, P, mshr, bus_free, l2bus_free, counters[seg])
                     commit += w
                 fw_n = _remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_std, commit)
-            sb_ring[nstores % sb_n] = commit
+            sb_ring[sb_pos] = commit
+            sb_pos = sb_pos + 1 if sb_pos + 1 < sb_n else 0
             nstores += 1
             last_commit = commit
         br = s_branch[sid]
@@ -590,7 +604,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
             taken = nxt != pc + length
             mispredicted = False
             redirect = False
-            bset = (pc >> 0) % btb_sets
+            bset = s_bset[sid]
             way = -1
             for w in range(btb_ways):
                 if btb_tag[bset, w] == pc:
