@@ -402,6 +402,41 @@ class _Validator:
             self.fail(name, f"expected a table [{name}], got {_toml_type(value)}", None, name)
         return value
 
+    def machine(self, machines: list, label: str, memory: str | None, field: str, table: str, key: str,
+                index: int | None = None) -> None:
+        """Append the CpuChoice of a machine label (preset{overrides}) and memory to `machines`, with
+        one error naming `field` for an unknown preset or memory, an unusable override, or a repeat."""
+        from .cpus import machine_label, make_model, memory_presets, presets, split_label
+
+        try:
+            preset, overrides = split_label(label)
+        except RetrosimError as e:
+            self.fail(field, str(e), table, key, index)
+        known_cpus, known_mem = presets.available(), memory_presets()
+        if preset not in known_cpus:
+            self.fail(field, f"unknown CPU preset '{preset}' (known: {', '.join(known_cpus)})", table, key, index)
+        if memory is not None and memory not in known_mem:
+            self.fail(field, f"unknown memory preset '{memory}' (known: {', '.join(known_mem)})", table, key, index)
+        try:
+            label = machine_label(preset, overrides)
+            model = make_model(label, memory)  # validates every override (and the geometry it makes)
+        except RetrosimError as e:
+            self.fail(field, f"CPU preset '{preset}' is unusable: {e}", table, key, index)
+        choice = CpuChoice(label, model.dram.name, memory is not None)
+        # the same machine spelled twice ('pentium2-233' and its default 'pentium2-233:edo')
+        same = next((m for m in machines if (m.preset, m.memory) == (choice.preset, choice.memory)), None)
+        if same is not None:
+            self.fail(field, f"repeats '{same.label}' (both are {choice.preset} with {choice.memory} memory)",
+                      table, key, index)
+        machines.append(choice)
+
+    def claim_tables(self, doc: dict) -> list[dict]:
+        """The [[claims]] tables of a scene (none: an empty list)."""
+        raw = doc.get("claims", [])
+        if not isinstance(raw, list) or not all(isinstance(c, dict) for c in raw):
+            self.fail("claims", "expected an array of tables [[claims]]", None, "claims")
+        return raw
+
     def keys(self, data: dict, allowed: dict, table: str, index: int | None = None, field: str | None = None,
              note: str = "") -> None:
         field = field or table
@@ -643,31 +678,13 @@ def load_scene(path: str | Path) -> Scene:
         if met == "z_fighting" and gen != "coplanar_far":
             v.fail(f"run.metrics[{i}]", f"'z_fighting' needs coplanar pairs: generator 'coplanar_far', not '{gen}'",
                    "run", "metrics")
+    from .cpus import machine_label
+
     known_cpus, known_mem = cpu_presets.available(), memory_presets()
     machines = []
-    from .cpus import machine_label, make_model, split_label
 
     def machine(label: str, memory: str | None, field: str, table: str, key: str, index=None):
-        try:
-            preset, overrides = split_label(label)
-        except RetrosimError as e:
-            v.fail(field, str(e), table, key, index)
-        if preset not in known_cpus:
-            v.fail(field, f"unknown CPU preset '{preset}' (known: {', '.join(known_cpus)})", table, key, index)
-        if memory is not None and memory not in known_mem:
-            v.fail(field, f"unknown memory preset '{memory}' (known: {', '.join(known_mem)})", table, key, index)
-        try:
-            label = machine_label(preset, overrides)
-            model = make_model(label, memory)  # validates every override (and the geometry it makes)
-        except RetrosimError as e:
-            v.fail(field, f"CPU preset '{preset}' is unusable: {e}", table, key, index)
-        choice = CpuChoice(label, model.dram.name, memory is not None)
-        # the same machine spelled twice ('pentium2-233' and its default 'pentium2-233:edo')
-        same = next((m for m in machines if (m.preset, m.memory) == (choice.preset, choice.memory)), None)
-        if same is not None:
-            v.fail(field, f"repeats '{same.label}' (both are {choice.preset} with {choice.memory} memory)",
-                   table, key, index)
-        machines.append(choice)
+        v.machine(machines, label, memory, field, table, key, index)
 
     for i, entry in enumerate(cpus):
         preset, sep, memory = entry.partition(":")
@@ -731,10 +748,7 @@ def load_scene(path: str | Path) -> Scene:
 
     # [[claims]]
     claims = []
-    raw_claims = doc.get("claims", [])
-    if not isinstance(raw_claims, list) or not all(isinstance(c, dict) for c in raw_claims):
-        v.fail("claims", "expected an array of tables [[claims]]", None, "claims")
-    for i, c in enumerate(raw_claims):
+    for i, c in enumerate(v.claim_tables(doc)):
         field = f"claims[{i}]"
         v.keys(c, _CLAIM_KEYS, "claims", i, field)
         text = v.typed(c, "text", "str", "claims", i, field)

@@ -105,8 +105,7 @@ class SnapScene:
 
 def load(path: Path, text: str, doc: dict) -> SnapScene:
     """Validate a parsed kind = "snap" scene (sim.scene.load_scene reads the file and dispatches)."""
-    from .cpus import machine_label, make_model, memory_presets, presets, split_label
-    from .errors import RetrosimError
+    from .cpus import presets
 
     v = _Validator(path, text)
     for key in doc:
@@ -161,33 +160,12 @@ def load(path: Path, text: str, doc: dict) -> SnapScene:
         v.fail("run.timing_workload", f"'{timing_workload}' is not one of workloads.names ({', '.join(names)})",
                "run", "timing_workload")
     machines = []
-    known, known_mem = presets.available(), memory_presets()
     for i, entry in enumerate(cpus):
-        cpu, sep, memory = entry.partition(":")
-        field_ = f"run.cpus[{i}]"
-        try:
-            preset, overrides = split_label(cpu)
-        except RetrosimError as e:
-            v.fail(field_, str(e), "run", "cpus")
-        if preset not in known:
-            v.fail(field_, f"unknown CPU preset '{preset}' (known: {', '.join(known)})", "run", "cpus")
-        if sep and memory not in known_mem:
-            v.fail(field_, f"unknown memory preset '{memory}' (known: {', '.join(known_mem)})", "run", "cpus")
-        try:
-            label = machine_label(preset, overrides)
-            model = make_model(label, memory or None)
-        except RetrosimError as e:
-            v.fail(field_, f"CPU preset '{preset}' is unusable: {e}", "run", "cpus")
-        choice = CpuChoice(label, model.dram.name, bool(sep))
-        if any((m.preset, m.memory) == (choice.preset, choice.memory) for m in machines):
-            v.fail(field_, f"repeats {choice.preset} with {choice.memory} memory", "run", "cpus")
-        machines.append(choice)
+        label, sep, memory = entry.partition(":")
+        v.machine(machines, label, memory if sep else None, f"run.cpus[{i}]", "run", "cpus")
 
     claims = []
-    raw = doc.get("claims", [])
-    if not isinstance(raw, list) or not all(isinstance(c, dict) for c in raw):
-        v.fail("claims", "expected an array of tables [[claims]]", None, "claims")
-    for i, c in enumerate(raw):
+    for i, c in enumerate(v.claim_tables(doc)):
         f = f"claims[{i}]"
         v.keys(c, _CLAIM_KEYS, "claims", i, f)
         text = v.typed(c, "text", "str", "claims", i, f)
@@ -209,8 +187,8 @@ def load(path: Path, text: str, doc: dict) -> SnapScene:
                 v.fail(f"{f}.workloads", f"'{w}' is not one of workloads.names ({', '.join(names)})",
                        "claims", "workloads", i)
         for p in ccpus:
-            if p not in known:
-                v.fail(f"{f}.cpus", f"unknown CPU preset '{p}' (known: {', '.join(known)})", "claims", "cpus", i)
+            if p not in presets.available():
+                v.fail(f"{f}.cpus", f"unknown CPU preset '{p}' (known: {', '.join(presets.available())})", "claims", "cpus", i)
         for fam in families:
             if fam not in ("p5", "p6", "k6"):
                 v.fail(f"{f}.families", f"unknown family '{fam}' (known: p5, p6, k6)", "claims", "families", i)

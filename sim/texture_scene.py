@@ -178,7 +178,6 @@ def _pair(v: _Validator, table: dict, key: str, default, lo_min: float, hi_max: 
 
 def load(path: Path, text: str, doc: dict) -> TextureScene:
     """Validate a parsed texture scene (sim.scene.load_scene dispatches here on [scene].kind)."""
-    from .cpus import machine_label, make_model, memory_presets, split_label
     from .cpus import presets as cpu_presets
 
     v = _Validator(path, text)
@@ -224,33 +223,14 @@ def load(path: Path, text: str, doc: dict) -> TextureScene:
     for i, var in enumerate(variants):
         if var not in F.VARIANTS:
             v.fail(f"run.variants[{i}]", f"unknown variant '{var}' (known: {', '.join(F.VARIANTS)})", "run", "variants")
-    known_cpus, known_mem = cpu_presets.available(), memory_presets()
+    known_cpus = cpu_presets.available()
     machines = []
     for i, entry in enumerate(cpus):
         label, sep, memory = entry.partition(":")
-        try:
-            preset, overrides = split_label(label)
-        except RetrosimError as e:
-            v.fail(f"run.cpus[{i}]", str(e), "run", "cpus")
-        if preset not in known_cpus:
-            v.fail(f"run.cpus[{i}]", f"unknown CPU preset '{preset}' (known: {', '.join(known_cpus)})", "run", "cpus")
-        if sep and memory not in known_mem:
-            v.fail(f"run.cpus[{i}]", f"unknown memory preset '{memory}' (known: {', '.join(known_mem)})", "run", "cpus")
-        try:
-            label = machine_label(preset, overrides)
-            model = make_model(label, memory or None)
-        except RetrosimError as e:
-            v.fail(f"run.cpus[{i}]", f"CPU preset '{preset}' is unusable: {e}", "run", "cpus")
-        choice = CpuChoice(label, model.dram.name, bool(sep))
-        if any((m.preset, m.memory) == (choice.preset, choice.memory) for m in machines):
-            v.fail(f"run.cpus[{i}]", f"repeats {choice.label}", "run", "cpus")
-        machines.append(choice)
+        v.machine(machines, label, memory if sep else None, f"run.cpus[{i}]", "run", "cpus")
 
     claims = []
-    raw = doc.get("claims", [])
-    if not isinstance(raw, list) or not all(isinstance(c, dict) for c in raw):
-        v.fail("claims", "expected an array of tables [[claims]]", None, "claims")
-    for i, c in enumerate(raw):
+    for i, c in enumerate(v.claim_tables(doc)):
         field_ = f"claims[{i}]"
         v.keys(c, _CLAIM_KEYS, "claims", i, field_)
         text = v.typed(c, "text", "str", "claims", i, field_)
