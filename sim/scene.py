@@ -430,6 +430,29 @@ class _Validator:
                       table, key, index)
         machines.append(choice)
 
+    def machines(self, cpus) -> list[CpuChoice]:
+        """run.cpus entries (preset{overrides}[:memory]) as CpuChoices, each checked by :meth:`machine`."""
+        machines: list[CpuChoice] = []
+        for i, entry in enumerate(cpus):
+            label, sep, memory = entry.partition(":")
+            self.machine(machines, label, memory if sep else None, f"run.cpus[{i}]", "run", "cpus")
+        return machines
+
+    def families(self, field: str, families, index: int) -> None:
+        """A claim's families = [...] name known families."""
+        for fam in families:
+            if fam not in FAMILIES:
+                self.fail(f"{field}.families", f"unknown family '{fam}' (known: {', '.join(FAMILIES)})",
+                          "claims", "families", index)
+
+    def require_cover(self, field: str, index: int, machines: list, covers) -> None:
+        """A claim must cover at least one of the scene's machines: covers(preset, memory, family)."""
+        from .cpus import presets
+
+        if not any(covers(m.preset, m.memory, presets.load(m.preset.split("{")[0]).family) for m in machines):
+            self.fail(field, f"covers none of run.cpus ({', '.join(m.label for m in machines)})", "claims", None,
+                      index)
+
     def claim_tables(self, doc: dict) -> list[dict]:
         """The [[claims]] tables of a scene (none: an empty list)."""
         raw = doc.get("claims", [])
@@ -772,10 +795,7 @@ def load_scene(path: str | Path) -> Scene:
             if sep and memory not in known_mem:
                 v.fail(f"{field}.cpus", f"unknown memory preset '{memory}' in '{entry}' (known: {', '.join(known_mem)})",
                        "claims", "cpus" if "cpus" in c else "cpu", i)
-        for fam in families:
-            if fam not in FAMILIES:
-                v.fail(f"{field}.families", f"unknown family '{fam}' (known: {', '.join(FAMILIES)})",
-                       "claims", "families", i)
+        v.families(field, families, i)
         for mem in memories:
             if mem not in known_mem:
                 v.fail(f"{field}.memories", f"unknown memory preset '{mem}' (known: {', '.join(known_mem)})",
@@ -789,8 +809,7 @@ def load_scene(path: str | Path) -> Scene:
         if not 0 <= tolerance < 1:
             v.fail(f"{field}.tolerance", f"must be in [0, 1), got {tolerance}", "claims", "tolerance", i)
         claim = Claim(text, (pair[0], pair[1]), expect, tolerance, tuple(cover), tuple(families), tuple(memories))
-        if not any(claim.covers(m.preset, m.memory, cpu_presets.load(m.preset).family) for m in machines):
-            v.fail(f"{field}", f"covers none of run.cpus ({', '.join(m.label for m in machines)})", "claims", None, i)
+        v.require_cover(field, i, machines, claim.covers)
         claims.append(claim)
 
     return Scene(path, name, description, width, height, geometry,

@@ -159,10 +159,7 @@ def load(path: Path, text: str, doc: dict) -> SnapScene:
     if timing_workload not in names:
         v.fail("run.timing_workload", f"'{timing_workload}' is not one of workloads.names ({', '.join(names)})",
                "run", "timing_workload")
-    machines = []
-    for i, entry in enumerate(cpus):
-        label, sep, memory = entry.partition(":")
-        v.machine(machines, label, memory if sep else None, f"run.cpus[{i}]", "run", "cpus")
+    machines = v.machines(cpus)
 
     claims = []
     for i, c in enumerate(v.claim_tables(doc)):
@@ -189,15 +186,12 @@ def load(path: Path, text: str, doc: dict) -> SnapScene:
         for p in ccpus:
             if p not in presets.available():
                 v.fail(f"{f}.cpus", f"unknown CPU preset '{p}' (known: {', '.join(presets.available())})", "claims", "cpus", i)
-        for fam in families:
-            if fam not in ("p5", "p6", "k6"):
-                v.fail(f"{f}.families", f"unknown family '{fam}' (known: p5, p6, k6)", "claims", "families", i)
+        v.families(f, families, i)
         claim = SnapClaim(text, expect, tuple(pair), tuple(ccpus), tuple(families), tuple(works))
         if expect in TIMED:
             if not ccpus and not families:
                 v.fail(f, "names no CPU: give cpus = [...] and/or families = [...]", "claims", None, i)
-            if not any(claim.covers(m.preset, presets.load(m.preset.split("{")[0]).family) for m in machines):
-                v.fail(f, f"covers none of run.cpus ({', '.join(m.label for m in machines)})", "claims", None, i)
+            v.require_cover(f, i, machines, lambda preset, memory, family: claim.covers(preset, family))
         claims.append(claim)
     return SnapScene(path, name, description, tuple(names), vertices, seed, width, height, tuple(variants),
                      tuple(machines), timing_workload, tuple(claims))

@@ -55,7 +55,7 @@ import numpy as np
 from . import texture_frame as F
 from .errors import RetrosimError
 from .kernels import kernels_root
-from .scene import FAMILIES, CpuChoice, _show, _Validator
+from .scene import CpuChoice, _show, _Validator
 
 QUANTITIES = {
     "cycles_per_pixel": "cycles per pixel of a variant's frame",
@@ -224,10 +224,7 @@ def load(path: Path, text: str, doc: dict) -> TextureScene:
         if var not in F.VARIANTS:
             v.fail(f"run.variants[{i}]", f"unknown variant '{var}' (known: {', '.join(F.VARIANTS)})", "run", "variants")
     known_cpus = cpu_presets.available()
-    machines = []
-    for i, entry in enumerate(cpus):
-        label, sep, memory = entry.partition(":")
-        v.machine(machines, label, memory if sep else None, f"run.cpus[{i}]", "run", "cpus")
+    machines = v.machines(cpus)
 
     claims = []
     for i, c in enumerate(v.claim_tables(doc)):
@@ -273,14 +270,10 @@ def load(path: Path, text: str, doc: dict) -> TextureScene:
             if entry not in known_cpus:
                 v.fail(f"{field_}.cpus", f"unknown CPU preset '{entry}' (known: {', '.join(known_cpus)})",
                        "claims", "cpus", i)
-        for fam in families:
-            if fam not in FAMILIES:
-                v.fail(f"{field_}.families", f"unknown family '{fam}' (known: {', '.join(FAMILIES)})",
-                       "claims", "families", i)
+        v.families(field_, families, i)
         claim = TextureClaim(text, quantity, tuple(pair), expect, value, tolerance, within,
                              rng if expect == "between" else None, tuple(cover), tuple(families))
-        if not any(claim.covers(m.preset, cpu_presets.load(m.preset.split("{")[0]).family) for m in machines):
-            v.fail(field_, f"covers none of run.cpus ({', '.join(m.label for m in machines)})", "claims", None, i)
+        v.require_cover(field_, i, machines, lambda preset, memory, family: claim.covers(preset, family))
         claims.append(claim)
 
     scene = TextureScene(path, name, v.typed(sc, "description", "str", "scene", default=""), width, height, seed,
