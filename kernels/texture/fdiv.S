@@ -14,6 +14,7 @@
 .text
 
 .include "span_frame.inc"
+.include "span_loops.inc"
 
 # SETUP, then EDI = dst
 .macro SETUP_DST
@@ -22,20 +23,10 @@
 .endm
 
 # the 16-pixel inner loop of tex5 (the sub-span counter is a local at [esp], pushed after SETUP)
-.macro INNER16 label
+.macro INNER16
     mov ebp, 16
-    jmp \label
-.p2align 4, 0xCC
-\label:
-    mov al, [ebx]
-    add edx, esi
-    adc bl, dl
-    add eax, ecx
-    adc bh, dh
-    mov [edi], al
-    inc edi
-    dec ebp
-    jnz \label
+    jmp 1f
+    LOOP5 1
 .endm
 
 # @entry sub16(dst, tex, count, u, v, du, dv, c) -> EAX = count
@@ -46,7 +37,7 @@ sub16:
     shr ebp, 4
     push ebp
 0:
-    INNER16 .Lsub16
+    INNER16
     dec dword ptr [esp]
     jnz 0b
     add esp, 4
@@ -63,7 +54,7 @@ sub16_overlap:
     mov ebp, [esp+52]
     fld1
     fdiv dword ptr [ebp]
-    INNER16 .Loverlap
+    INNER16
     mov ebp, [esp+52]
     fstp dword ptr [ebp+4]
     dec dword ptr [esp]
@@ -83,7 +74,7 @@ sub16_serial:
     fld1
     fdiv dword ptr [ebp]
     fstp dword ptr [ebp+4]
-    INNER16 .Lserial
+    INNER16
     dec dword ptr [esp]
     jnz 0b
     add esp, 4

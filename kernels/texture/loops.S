@@ -16,6 +16,7 @@
 .text
 
 .include "span_frame.inc"
+.include "span_loops.inc"
 
 # @entry tex9(dst, tex, count, u, v, du, dv) -> EAX = count
 .globl tex9
@@ -24,17 +25,7 @@ tex9:
     mov cx, [esp+28]
     mov edi, [esp+20]
     jmp 9f
-.p2align 4, 0xCC
-9:
-    mov al, [ebx]
-    mov [edi], al
-    add edx, esi
-    adc bl, dl
-    add eax, ecx
-    adc bh, dh
-    inc edi
-    dec cx
-    jnz 9b
+    LOOP9 9
     RESTORE
 
 # @entry tex5(dst, tex, count, u, v, du, dv) -> EAX = count
@@ -44,17 +35,7 @@ tex5:
     mov ebp, [esp+28]
     mov edi, [esp+20]
     jmp 5f
-.p2align 4, 0xCC
-5:
-    mov al, [ebx]
-    add edx, esi
-    adc bl, dl
-    add eax, ecx
-    adc bh, dh
-    mov [edi], al
-    inc edi
-    dec ebp
-    jnz 5b
+    LOOP5 5
     RESTORE
 
 # @entry tex4(dst, tex, count, u, v, du, dv) -> EAX = count
@@ -66,14 +47,5 @@ tex4:
     add ebp, edi
     neg edi
     jmp 4f
-.p2align 4, 0xCC
-4:
-    mov al, [ebx]
-    add edx, esi
-    adc bl, dl
-    add eax, ecx
-    adc bh, dh
-    mov [edi+ebp], al
-    inc edi
-    jnz 4b
+    LOOP4 4
     RESTORE

@@ -25,6 +25,8 @@
 .intel_syntax noprefix
 .text
 
+.include "span_loops.inc"
+
 # frame of the span functions (after 4 pushes and SUB ESP, FRAME): locals, then return, rec, tex
 .equ FRAME, 80
 .equ L_A, 0
@@ -241,17 +243,7 @@ span_a:
     REGS16
     mov cx, [esp+L_RUN]
     jmp 2f
-.p2align 4, 0xCC
-2:
-    mov al, [ebx]
-    mov [edi], al
-    add edx, esi
-    adc bl, dl
-    add eax, ecx
-    adc bh, dh
-    inc edi
-    dec cx
-    jnz 2b
+    LOOP9 2
     STEP
     RECIP
     ADVANCE
@@ -281,17 +273,7 @@ span_b:
     REGS16
     mov cx, [esp+L_RUN]
     jmp 2f
-.p2align 4, 0xCC
-2:
-    mov al, [ebx]
-    mov [edi], al
-    add edx, esi
-    adc bl, dl
-    add eax, ecx
-    adc bh, dh
-    inc edi
-    dec cx
-    jnz 2b
+    LOOP9 2
     fstp qword ptr [esp+L_CINV]
     ADVANCE
     FTOL_UV L_U1, L_V1
@@ -321,17 +303,7 @@ span_c:
     REGS16
     mov ebp, [esp+L_RUN]
     jmp 2f
-.p2align 4, 0xCC
-2:
-    mov al, [ebx]
-    add edx, esi
-    adc bl, dl
-    add eax, ecx
-    adc bh, dh
-    mov [edi], al
-    inc edi
-    dec ebp
-    jnz 2b
+    LOOP5 2
     fstp qword ptr [esp+L_CINV]
     ADVANCE
     UPDATE_UV L_U1, L_V1, k65536
@@ -364,16 +336,7 @@ span_d:
     mov edi, [esp+L_RUN]
     neg edi
     jmp 2f
-.p2align 4, 0xCC
-2:
-    mov al, [ebx]
-    add edx, esi
-    adc bl, dl
-    add eax, ecx
-    adc bh, dh
-    mov [edi+ebp], al
-    inc edi
-    jnz 2b
+    LOOP4 2
     fstp qword ptr [esp+L_CINV]
     ADVANCE
     UPDATE_UV L_U1, L_V1, k65536
