@@ -44,10 +44,11 @@ pytestmark = pytest.mark.skipif(platform.machine() not in ("x86_64", "AMD64") or
                                 reason="needs an x86-64 host and GNU as")
 
 
-@pytest.fixture(scope="module")
-def host_convert(tmp_path_factory):
+def host_function(tmp_path_factory, source: str, argtypes: list):
+    """(function, page): `source` assembled for the host (as --64) and mapped executable; keep the
+    page alive while the function is used."""
     d = tmp_path_factory.mktemp("host")
-    (d / "h.S").write_text(HOST_SOURCE)
+    (d / "h.S").write_text(source)
     subprocess.run(["as", "--64", "-o", str(d / "h.o"), str(d / "h.S")], check=True)
     with open(d / "h.o", "rb") as f:
         code = ELFFile(f).get_section_by_name(".text").data()
@@ -57,8 +58,13 @@ def host_convert(tmp_path_factory):
         pytest.skip(f"cannot map executable memory: {e}")
     buf.write(code)
     addr = ctypes.addressof(ctypes.c_char.from_buffer(buf))
-    proto = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_uint32, ctypes.c_uint32)
-    fn = proto(addr)
+    return ctypes.CFUNCTYPE(None, *argtypes)(addr), buf
+
+
+@pytest.fixture(scope="module")
+def host_convert(tmp_path_factory):
+    fn, page = host_function(tmp_path_factory, HOST_SOURCE, [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t,
+                                                             ctypes.c_uint32, ctypes.c_uint32])
 
     def convert(values, edx_in, ecx_in):
         src = np.ascontiguousarray(values, dtype=np.uint32)
@@ -66,7 +72,7 @@ def host_convert(tmp_path_factory):
         fn(src.ctypes.data, dst.ctypes.data, src.size, edx_in, ecx_in)
         return dst
 
-    yield convert  # `buf` (the executable page) stays mapped until the module's tests are done
+    yield convert  # `page` (the executable page) stays mapped until the module's tests are done
 
 
 def sample() -> np.ndarray:
@@ -139,19 +145,7 @@ CONTROL_WORDS = {24: 0x007F, 53: 0x027F, 64: 0x037F}
 
 @pytest.fixture(scope="module")
 def host_x87(tmp_path_factory):
-    d = tmp_path_factory.mktemp("host87")
-    (d / "h.S").write_text(HOST_X87)
-    subprocess.run(["as", "--64", "-o", str(d / "h.o"), str(d / "h.S")], check=True)
-    with open(d / "h.o", "rb") as f:
-        code = ELFFile(f).get_section_by_name(".text").data()
-    try:
-        buf = mmap.mmap(-1, mmap.PAGESIZE, prot=mmap.PROT_READ | mmap.PROT_WRITE | mmap.PROT_EXEC)
-    except (OSError, ValueError) as e:
-        pytest.skip(f"cannot map executable memory: {e}")
-    buf.write(code)
-    addr = ctypes.addressof(ctypes.c_char.from_buffer(buf))
-    proto = ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 5, ctypes.c_size_t, ctypes.c_uint32)
-    fn = proto(addr)
+    fn, page = host_function(tmp_path_factory, HOST_X87, [*[ctypes.c_void_p] * 5, ctypes.c_size_t, ctypes.c_uint32])
 
     def run(a, b, cw):
         a = np.ascontiguousarray(a, np.float32)
@@ -160,7 +154,7 @@ def host_x87(tmp_path_factory):
         fn(a.ctypes.data, b.ctypes.data, *(o.ctypes.data for o in outs), a.size, cw)
         return outs
 
-    yield run
+    yield run  # `page` stays mapped until the module's tests are done
 
 
 def x87_sample() -> tuple[np.ndarray, np.ndarray]:
