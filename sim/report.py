@@ -242,14 +242,14 @@ def to_json(result: SceneResult) -> dict:
     }
 
 
-def to_csv(result: SceneResult) -> str:
+def to_csv(result: SceneResult, units: tuple[str, str] = ("pixels", "cycles_per_pixel")) -> str:
     """One row per (variant, CPU); the counter columns are the union over the CPUs of the run, in order
     of first appearance (families count different things: the K6 adds fpu_ops, l3_*), empty where a
-    CPU's model has no such counter."""
+    CPU's model has no such counter. `units` names the work-unit columns (a snap scene counts vertices)."""
     buf = io.StringIO()
     counters = list(dict.fromkeys(c for t in result.timings for c in t.counters))
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["scene", "variant", "cpu", "memory", "pixels", "cycles_per_pixel"] + counters)
+    w.writerow(["scene", "variant", "cpu", "memory", *units] + counters)
     for t in result.timings:
         w.writerow([result.scene.name, t.variant, t.cpu, t.memory, t.pixels, f"{t.per_pixel('cycles'):.4f}"]
                    + [t.counters.get(c, "") for c in counters])

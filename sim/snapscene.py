@@ -39,7 +39,6 @@ problem is one SceneError naming the file, line and field.
 
 from __future__ import annotations
 
-import csv
 import io
 import json
 from dataclasses import dataclass, field
@@ -416,14 +415,9 @@ def to_json(result: SnapResult) -> dict:
 
 
 def to_csv(result: SnapResult) -> str:
-    buf = io.StringIO()
-    counters = list(dict.fromkeys(c for t in result.timings for c in t.counters))
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["scene", "variant", "cpu", "memory", "vertices", "cycles_per_vertex"] + counters)
-    for t in result.timings:
-        w.writerow([result.scene.name, t.variant, t.cpu, t.memory, t.pixels, f"{t.per_pixel('cycles'):.4f}"]
-                   + [t.counters.get(c, "") for c in counters])
-    return buf.getvalue()
+    from .report import to_csv as timings_csv  # the Z-buffer scenes' table, counted in vertices
+
+    return timings_csv(result, ("vertices", "cycles_per_vertex"))
 
 
 def to_markdown(result: SnapResult, png_name: str | None) -> str:
