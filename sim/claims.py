@@ -139,13 +139,10 @@ def holds(claim, ratio: float) -> bool:
 
 def covered(claim, result) -> tuple[list[str], list[str]]:
     """(machine keys of the run the claim covers, covered machines of the scene not in the run)."""
-    from .cpus import presets
+    from .cpus import family_of
 
-    def fam(preset):
-        return presets.load(preset).family
-
-    run = [k for k in result.cpu_keys if claim.covers(*k.split(":"), fam(k.split(":")[0]))]
-    scene = [m.label for m in result.scene.run.cpus if claim.covers(m.preset, m.memory, fam(m.preset))]
+    run = [k for k in result.cpu_keys if claim.covers(*k.split(":"), family_of(k))]
+    scene = [m.label for m in result.scene.run.cpus if claim.covers(m.preset, m.memory, family_of(m.preset))]
     explicit = [c for c in claim.cpus if ":" in c and c not in scene]  # named but not in the scene
     return run, [k for k in scene + explicit if k not in run]
 

@@ -447,9 +447,9 @@ class _Validator:
 
     def require_cover(self, field: str, index: int, machines: list, covers) -> None:
         """A claim must cover at least one of the scene's machines: covers(preset, memory, family)."""
-        from .cpus import presets
+        from .cpus import family_of
 
-        if not any(covers(m.preset, m.memory, presets.load(m.preset.split("{")[0]).family) for m in machines):
+        if not any(covers(m.preset, m.memory, family_of(m.preset)) for m in machines):
             self.fail(field, f"covers none of run.cpus ({', '.join(m.label for m in machines)})", "claims", None,
                       index)
 

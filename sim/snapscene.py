@@ -271,7 +271,7 @@ def run_scene(scene: SnapScene, cpus: list[str] | None = None, progress=None, ro
 # -- claims ------------------------------------------------------------------------------------
 def evaluate_claims(result: SnapResult) -> list[dict]:
     """Each claim's verdict ('reproduced' or 'not reproduced') with the numbers behind it."""
-    from .cpus import presets
+    from .cpus import family_of
 
     out = []
     for c in result.scene.claims:
@@ -280,7 +280,7 @@ def evaluate_claims(result: SnapResult) -> list[dict]:
             per = []
             for key in result.cpu_keys:
                 cpu = key.rsplit(":", 1)[0]
-                if not c.covers(cpu, presets.load(cpu.split("{")[0]).family):
+                if not c.covers(cpu, family_of(cpu)):
                     continue
                 a, b = (result.cycles_per_vertex(v, key) for v in c.variants)
                 held = a > b if c.expect == "slower" else a < b
@@ -371,7 +371,7 @@ def failure_rows(result: SnapResult) -> tuple[list[str], list[list[str]]]:
 
 def findings(result: SnapResult) -> list[str]:
     """Plain statements computed from the results."""
-    from .cpus import presets
+    from .cpus import family_of
 
     s, out = result.scene, []
     in_range = [w for w in s.workloads if w in snap.IN_RANGE]
@@ -385,7 +385,7 @@ def findings(result: SnapResult) -> list[str]:
                    f"{sum(result.errors[(v, w)].coordinates for w in s.workloads):,}.")
     by_family: dict = {}
     for key in result.cpu_keys:
-        fam = presets.load(key.split(":")[0].split("{")[0]).family
+        fam = family_of(key)
         by_family.setdefault(fam, []).append(key)
     for fam, keys in by_family.items():
         parts = []
@@ -476,7 +476,7 @@ def figure(result: SnapResult):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .cpus import presets
+    from .cpus import family_of, presets
 
     s = result.scene
     in_range = [w for w in s.workloads if w in snap.IN_RANGE] or list(s.workloads)
@@ -491,7 +491,7 @@ def figure(result: SnapResult):
         cpu = key.rsplit(":", 1)[0]
         base = cpu.split("{")[0]
         offset = (i - (len(keys) - 1) / 2) * (0.6 / max(1, len(keys) - 1)) if len(keys) > 1 else 0.0
-        fam = presets.load(base).family
+        fam = family_of(base)
         ax.scatter([result.cycles_per_vertex(v, key) for v in rows], [len(rows) - 1 - j - offset for j in range(len(rows))],
                    s=36, color=palette(names.index(base) % palette.N) if base in names else "0.5",
                    marker={"p5": "s", "p6": "o", "k6": "D"}.get(fam, "o"), edgecolors="black", linewidths=0.4,

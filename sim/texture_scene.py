@@ -53,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from . import texture_frame as F
+from .cpus import family_of
 from .errors import RetrosimError
 from .kernels import kernels_root
 from .scene import CpuChoice, _show, _Validator
@@ -374,7 +375,7 @@ def measure_probes(cpu: str, memory: str, first_span: F.SpanParams) -> dict:
     out = {"ftol_call": per["ftol"]["cycles"] - per["none"]["cycles"],
            "fistp": per["fistp"]["cycles"] - per["none"]["cycles"]}
     out["ftol_per_subspan"] = 2 * out["ftol_call"]
-    names = ("instructions",) + EXPLAIN[_family(cpu)]
+    names = ("instructions",) + EXPLAIN[family_of(cpu)]
     explain = {q: {k: round(per[name][k] - per["none"][k], 2) for k in names
                    if k in per["none"] and abs(per[name][k] - per["none"][k]) >= 0.5}
                for q, name in (("ftol_call", "ftol"), ("fistp", "fistp"))}
@@ -511,12 +512,6 @@ def quantity(result: TextureResult, claim: TextureClaim, key: str) -> float:
     return float(result.probes[key][claim.quantity])
 
 
-def _family(key: str) -> str:
-    from .cpus import presets
-
-    return presets.load(key.split(":")[0].split("{")[0]).family
-
-
 EXPLAIN = {"p5": ("pairs", "alone", "stall_agi", "stall_memory", "stall_write_buffer", "stall_fpu", "l1d_load_misses",
                   "l1d_store_misses"),
            "p6": ("uops", "stall_partial_register", "stall_dependency", "stall_port", "stall_rob", "stall_memory",
@@ -528,7 +523,7 @@ EXPLAIN = {"p5": ("pairs", "alone", "stall_agi", "stall_memory", "stall_write_bu
 def explanation(result: TextureResult, claim: TextureClaim, key: str) -> dict:
     """The counters behind a measured quantity: per pixel for a variant (the difference for two),
     the probe's counter differences for _ftol, the set-up and the parts for the others."""
-    fam = _family(key)
+    fam = family_of(key)
     if claim.variants:
         names = [n for n in EXPLAIN[fam] if any(n in result.timings[(v, key)] for v in claim.variants)]
         if len(claim.variants) == 1:
@@ -560,7 +555,7 @@ def evaluate(result: TextureResult) -> list[dict]:
     for claim in result.scene.claims:
         per_cpu = []
         for key in result.keys:
-            if not claim.covers(key.split(":")[0], _family(key)):
+            if not claim.covers(key.split(":")[0], family_of(key)):
                 continue
             x = quantity(result, claim, key)
             ok = claim.holds(x)
@@ -571,7 +566,7 @@ def evaluate(result: TextureResult) -> list[dict]:
         overall = verdicts.pop() if len(verdicts) == 1 else ("mixed (see each machine)" if per_cpu else "not checked")
         run_presets = {k.split(":")[0] for k in result.keys}
         missing = [m.label for m in result.scene.machines if m.preset not in run_presets
-                   and claim.covers(m.preset, _family(m.label))]
+                   and claim.covers(m.preset, family_of(m.label))]
         out.append({"text": claim.text, "quantity": claim.quantity, "claim": claim.describe(),
                     "covers": claim.coverage(), "verdict": overall, "holds": bool(per_cpu) and all(e["holds"] for e in per_cpu),
                     "per_cpu": per_cpu, "not_checked": missing})
@@ -606,7 +601,7 @@ def _label(key: str) -> str:
 
 def _ordered_keys(result: TextureResult) -> list[str]:
     order = {"p5": 0, "p6": 1, "k6": 2}
-    return sorted(result.keys, key=lambda k: (order.get(_family(k), 9), result.keys.index(k)))
+    return sorted(result.keys, key=lambda k: (order.get(family_of(k), 9), result.keys.index(k)))
 
 
 def claim_lines(c: dict) -> list[str]:
@@ -646,7 +641,7 @@ def findings(result: TextureResult) -> list[str]:
             continue
         parts = []
         for key in _ordered_keys(result):
-            diff = {n: result.per_pixel(x, key, n) - result.per_pixel(y, key, n) for n in EXPLAIN[_family(key)]
+            diff = {n: result.per_pixel(x, key, n) - result.per_pixel(y, key, n) for n in EXPLAIN[family_of(key)]
                     if n.startswith("stall_") or n in ("alone", "uops")}
             top = sorted(diff, key=lambda n: (-abs(diff[n]), n))[:2]
             parts.append(f"{key.split(':')[0]} {result.cycles_per_pixel(x, key) - result.cycles_per_pixel(y, key):.2f} "
@@ -719,7 +714,7 @@ def to_markdown(result: TextureResult, png_name: str | None) -> str:
     parts += ["## Findings", ""] + [f"- {f}" for f in findings(result)] + [""]
     parts += ["## Where the cycles go", "", "Per pixel of the timed pass.", ""]
     for k in keys:
-        fam = _family(k)
+        fam = family_of(k)
         names = [n for n in EXPLAIN[fam] if any(n in result.timings[(v, k)] for v in s.variants)]
         parts += [f"### {_label(k)}", "",
                   _md_table(["variant", "cycles", "instructions"] + [n.replace("stall_", "stall ") for n in names],
@@ -787,7 +782,7 @@ def error_cycles_png(result: TextureResult) -> bytes:
         base = key.split(":")[0].split("{")[0]
         colour = palette(names.index(base) % palette.N) if base in names else "0.5"
         ax.scatter([result.cycles_per_pixel(v, key) for v in rows], [ypos[v] - offset for v in rows],
-                   marker=markers.get(_family(key), "o"), s=40, color=colour, edgecolors="black", linewidths=0.4,
+                   marker=markers.get(family_of(key), "o"), s=40, color=colour, edgecolors="black", linewidths=0.4,
                    label=_label(key), zorder=3)
     for k in range(len(rows) - 1):
         ax.axhline(k + 0.5, color="0.85", lw=0.8, zorder=1)
@@ -856,7 +851,7 @@ def summary_tables(result: TextureResult) -> list:
         fams = {}
         for c in claims:
             for e in c["per_cpu"]:
-                n = fams.setdefault(_family(e["cpu"]), [0, 0])
+                n = fams.setdefault(family_of(e["cpu"]), [0, 0])
                 n[0] += e["holds"]
                 n[1] += 1
         out.append(Padding(Text(f"claims: {held} of {len(claims)} reproduced on every machine they cover; checks "
@@ -865,7 +860,7 @@ def summary_tables(result: TextureResult) -> list:
         for c in claims:
             counts = {}
             for e in c["per_cpu"]:
-                n = counts.setdefault(_family(e["cpu"]), [0, 0])
+                n = counts.setdefault(family_of(e["cpu"]), [0, 0])
                 n[0] += e["holds"]
                 n[1] += 1
             per = ", ".join(f"{f.upper()} {a}/{b}" for f, (a, b) in sorted(counts.items()))

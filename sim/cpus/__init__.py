@@ -164,6 +164,12 @@ def split_label(label: str) -> tuple[str, dict]:
     return m.group(1), normalize_overrides(overrides)
 
 
+def family_of(key: str) -> str:
+    """The family (p5, p6, k6) of a machine key or label: 'preset', 'preset{overrides}', either
+    with ':memory'. Overrides never change a preset's family, so they are not applied."""
+    return presets.load(key.split(":")[0].split("{")[0]).family
+
+
 def load_preset(label: str):
     """The preset a machine label names, with its overrides applied and validated."""
     base, overrides = split_label(label)
