@@ -32,7 +32,6 @@ from __future__ import annotations
 import ctypes
 import os
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from numba import carray, cfunc, njit, types

@@ -208,7 +208,7 @@ def test_rdtsc_returns_simulated_cycles(tmp_path):
     assert Machine.from_source(src, rdtsc=lambda ev: next(answers)).call("timed", 200).eax == measured
 
 
-def _loop_kernel(tmp_path, body: str, setup: str = "") -> "Path":
+def _loop_kernel(tmp_path, body: str, setup: str = ""):
     """A kernel `k(n)` running `body` n times (with DEC/JNZ)."""
     src = tmp_path / "k.S"
     src.write_text(".intel_syntax noprefix\n.text\n.globl k\n.p2align 4\nk:\n    push ebx\n    push esi\n    push edi\n"

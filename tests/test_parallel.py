@@ -4,7 +4,6 @@ results for any number of workers."""
 from pathlib import Path
 
 import numpy as np
-import pytest
 from click.testing import CliRunner
 
 from sim.cli import main

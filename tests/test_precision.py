@@ -4,7 +4,7 @@ take the time of the precision in force on every family (P5, P6, K6)."""
 import numpy as np
 import pytest
 
-from sim.cpus import make_model, presets
+from sim.cpus import presets
 from sim.cpus.table import InstructionTable
 from sim.emu import Machine
 from sim.errors import RetrosimError

@@ -15,7 +15,7 @@ from ..decode import Decoder
 from ..elf import EXIT_ADDR
 from ..memory.cache import CacheGeometry
 from ..errors import RetrosimError
-from ..memory.dram import DramTiming, core_clocks, line_costs
+from ..memory.dram import DramTiming, line_costs
 from ..memory.hierarchy import Hierarchy, family_policies
 from ..memory.replay import NO_LOG, AccessLogs
 from ..trace import Trace
