@@ -143,23 +143,21 @@ def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None
     """Time an emulation on one CPU preset (a name, or a model from make_model).
     `timeline_iterations`: record a per-instruction timeline of that many iterations of the hot
     loop (the last call's most executed PC), from the middle of the last call. `access_logs`
-    (a sim.memory.replay.AccessLogs, for models that take one): re-timings of the same emulation
-    on the same data caches reuse the first one's cache results."""
+    (a sim.memory.replay.AccessLogs): re-timings of the same emulation on the same data caches
+    reuse the first one's cache results (the P6 and K6 cores; the P5 core walks its caches each time)."""
     model = make_model(cpu, memory) if isinstance(cpu, str) else cpu
     cpu = model.preset.name
     check_model_memory(emu.trace.instructions)
     timeline = hot_loop_window(emu.trace.pc, emu.last_call, timeline_iterations)
     decoder = emu.decoder()
     check_isa(emu, decoder, model.preset)
-    # the P6 and K6 cores can replay recorded cache results
-    logs = {"access_logs": access_logs} if access_logs is not None and model.family in ("p6", "k6") else {}
-    run = model.run(emu.trace, decoder, emu.bounds, timeline, emu.last_call, **logs)
+    run = model.run(emu.trace, decoder, emu.bounds, timeline, emu.last_call, access_logs=access_logs)
     if run.rdtsc.size:
         replay = emu.replay([int(c) for c in run.rdtsc])
         if not np.array_equal(replay.trace.pc, emu.trace.pc):
             raise RetrosimError(f"{emu.source}: {emu.entry} branches on RDTSC values; its timing cannot be replayed")
         emu = replay
-        run = model.run(emu.trace, emu.decoder(), emu.bounds, timeline, emu.last_call, **logs)
+        run = model.run(emu.trace, emu.decoder(), emu.bounds, timeline, emu.last_call, access_logs=access_logs)
     calls = [run.segment(k) for k in range(len(emu.bounds))]
     return TimingResult(cpu, model.dram.name, emu.entry, emu.source, emu.repeat, calls, model, run, emu.trace)
 

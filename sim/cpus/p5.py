@@ -319,8 +319,9 @@ class P5Model:
         return locked_match(rec, match, self.lock, "p5")
 
     def run(self, trace: Trace, decoder: Decoder, segments: list[int] | None = None,
-            timeline: tuple[int, int] = (0, 0), stat_first: int = 0) -> P5CoreRun:
-        """Time `trace` from a cold machine (the arguments and result are those of P6Model.run)."""
+            timeline: tuple[int, int] = (0, 0), stat_first: int = 0, access_logs=None) -> P5CoreRun:
+        """Time `trace` from a cold machine (the arguments and result are those of P6Model.run;
+        `access_logs` is accepted and not used: the P5 core walks its caches on every run)."""
         records, index = decoder.decode_trace(trace.pc)
         records, index, precisions = split_by_precision(records, index, trace, self.table)
         program = self.lower(records, precisions)
