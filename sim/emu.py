@@ -244,9 +244,11 @@ class Machine:
 
     # -- calls -------------------------------------------------------------------------------
     def call(self, entry: str, *args, budget: int = DEFAULT_BUDGET, trace: bool | str = False,
-             regs: dict[str, int] | None = None) -> CallResult:
+             regs: dict[str, int] | None = None, on_chunk=None) -> CallResult:
         """Call a cdecl entry point. `trace`: False, True (native), or "python" (Python hooks, for
-        comparison only). `regs` preloads registers (e.g. to study an uninitialised EDX)."""
+        comparison only). `regs` preloads registers (e.g. to study an uninitialised EDX).
+        `on_chunk` (native traces): called with each chunk of the trace, in order, as the run
+        records it (about a million instructions each); the call's result then holds no trace."""
         declared = self.entries.get(entry)
         if declared is not None and len(args) != len(declared.args):
             raise ArgumentError(f"{self.image.path}:{declared.line}: {declared.signature(returns=False)} takes "
@@ -261,7 +263,7 @@ class Machine:
         if trace == "python":
             result = self._run_python_traced(start, budget)
         elif trace:
-            result = self._run_traced(start, budget)
+            result = self._run_traced(start, budget, on_chunk)
         else:
             self._run_segment(start, budget)
             self._check_finished(budget)
@@ -283,10 +285,11 @@ class Machine:
             raise RunawayKernel(f"{self.image.path}: kernel ran past its budget of {budget:,} instructions; stopped at "
                                 f"{self.where(pc)}: {self.disassemble(pc)} (raise --budget if it is not a hang)", pc)
 
-    def _run_traced(self, start: int, budget: int) -> Trace:
+    def _run_traced(self, start: int, budget: int, on_chunk=None) -> Trace | None:
         if self._tracer is None:
             self._tracer = NativeTracer(self.uc, control_word_pcs=self.control_word_pcs())
         tr = self._tracer
+        tr.sink = on_chunk
         tr.attach()
         pc = start
         try:
@@ -297,9 +300,13 @@ class Machine:
                 self._run_segment(pc)
                 tr.drain()
                 pc = self.reg("eip")
+            if on_chunk is not None:
+                tr.drain()
+                return None
             return tr.take()
         finally:
             tr.detach()
+            tr.sink = None
             tr.take()  # drop a partial trace left by a fault
 
     def _run_python_traced(self, start: int, budget: int) -> Trace:

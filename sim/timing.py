@@ -35,7 +35,7 @@ class TimingResult:
     calls: list[dict]                 # counters per call
     model: object = field(repr=False)
     run: object = field(repr=False)
-    trace: Trace = field(repr=False)
+    trace: Trace | None = field(repr=False)  # None when the run was streamed (sim/stream.py)
 
     @property
     def last(self) -> dict:
@@ -165,20 +165,25 @@ def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None
 def check_isa(emu: Emulation, decoder: Decoder, preset) -> None:
     """Refuse (one IsaError) an executed instruction the preset lacks, or a system instruction.
     Where the kernel assembles for that CPU, the error is the assembler's, with the source line."""
+    records, _ = decoder.decode_trace(emu.trace.pc)
+    check_records(records, preset, emu.source, emu.machine, emu.assembler, emu.isa_cpu)
+
+
+def check_records(records, preset, source: Path, machine: Machine, assembler: str | None, isa_cpu: str | None) -> None:
+    """:func:`check_isa` for decoded records (a streamed run checks each chunk's new ones)."""
     from .isa import IsaError, check_record
 
-    records, _ = decoder.decode_trace(emu.trace.pc)
     for rec in records:
         try:
-            check_record(rec, preset, lambda: f"{emu.source}: pc {emu.machine.where(rec.pc)}")
+            check_record(rec, preset, lambda: f"{source}: pc {machine.where(rec.pc)}")
         except IsaError:
             # GNU as, told the CPU, refuses the instruction with its source line (clang does not)
             from .asm import assemble
             from .errors import AssemblerMissing
 
-            for name in dict.fromkeys(n for n in (emu.assembler, "gnu") if emu.isa_cpu != preset.name or n == "gnu"):
+            for name in dict.fromkeys(n for n in (assembler, "gnu") if isa_cpu != preset.name or n == "gnu"):
                 try:
-                    assemble(emu.source, name, preset.name)
+                    assemble(source, name, preset.name)
                 except AssemblerMissing:
                     pass
             raise
@@ -189,7 +194,19 @@ def time_kernel(source: str | Path, entry: str, setup: Setup | None = None, cpu:
                 timeline_iterations: int = 0, assembler: str | None = None,
                 progress: Callable[[int, int], None] | None = None) -> TimingResult:
     """Emulate and time in one step (see :func:`emulate` and :func:`time_emulation`); the kernel is
-    assembled for the preset's instruction set."""
+    assembled for the preset's instruction set. The model times the trace as the emulator makes it
+    (sim/stream.py), unless a timeline window is asked for (it is chosen from the whole trace), the
+    model cannot take a trace in chunks, or the kernel reads RDTSC (its answers need a first pass)."""
     model = make_model(cpu, memory)  # before emulating: an unknown preset fails fast
+    if timeline_iterations == 0 and hasattr(model, "session"):
+        from .stream import emulate_and_time
+
+        name = model.preset.name
+        machine, run = emulate_and_time(
+            source, entry, setup, model, repeat, budget, assembler, progress,
+            check=lambda m, records: check_records(records, model.preset, Path(source), m, assembler, name))
+        if run.rdtsc.size == 0:
+            calls = [run.segment(k) for k in range(repeat)]
+            return TimingResult(name, model.dram.name, entry, Path(source), repeat, calls, model, run, None)
     emu = emulate(source, entry, setup, repeat, budget, assembler, isa_cpu=model.preset.name, progress=progress)
     return time_emulation(emu, model, timeline_iterations=timeline_iterations)

@@ -178,6 +178,18 @@ class Trace:
         return Trace(self.pc[:n], self.mem_addr[:m], self.mem_size[:m], self.mem_write[:m], self.mem_insn[:m],
                      self.cw_at[:c], self.cw_value[:c])
 
+    def part(self, start: int, stop: int) -> Trace:
+        """Instructions start .. stop - 1 as a trace of their own (accesses counted from `start`,
+        opening with the control word in force at `start`): a chunk, as a streamed run sees it."""
+        m0, m1 = (int(x) for x in np.searchsorted(self.mem_insn, [start, stop], side="left"))
+        j0 = max(0, int(np.searchsorted(self.cw_at, start, side="right")) - 1)
+        j1 = int(np.searchsorted(self.cw_at, stop, side="left"))
+        later = slice(j0 + 1, max(j0 + 1, j1))
+        return Trace(self.pc[start:stop], self.mem_addr[m0:m1], self.mem_size[m0:m1], self.mem_write[m0:m1],
+                     (self.mem_insn[m0:m1] - start).astype(np.uint32),
+                     np.concatenate([[0], self.cw_at[later] - start]).astype(np.uint32),
+                     np.concatenate([self.cw_value[j0:j0 + 1], self.cw_value[later]]).astype(np.uint16))
+
     @property
     def instructions(self) -> int:
         return int(self.pc.size)
@@ -320,6 +332,8 @@ class NativeTracer:
         self.held_bytes = 0  # bytes of the drained chunks (bounded by trace_limit_bytes)
         self._parts: list[Trace] = []
         self.active = False
+        # a streamed run (sim/stream.py) hands each validated chunk to `sink` instead of holding it
+        self.sink = None
 
     def attach(self) -> None:
         if self.active:
@@ -356,7 +370,8 @@ class NativeTracer:
         if b[4]:
             raise RuntimeError("native trace lost memory accesses (buffer overflow)")
         n, m = int(b[0]), int(b[2])
-        self.held_bytes += 4 * n + 10 * m + 6 * int(b[7])
+        if self.sink is None:
+            self.held_bytes += 4 * n + 10 * m + 6 * int(b[7])
         try:
             check_trace_bytes(self.held_bytes, self.recorded + n)
         except LimitError:
@@ -370,7 +385,7 @@ class NativeTracer:
         packed = pairs[:, 0]
         at = HEADER + self.icap + 2 * self.acap
         words = b[at:at + 2 * int(b[7])].reshape(-1, 2)
-        self._parts.append(Trace(
+        chunk = Trace(
             pc=pcs,
             mem_addr=(packed & _U64(0xFFFFFFFF)).astype(np.uint32),
             mem_size=((packed >> _U64(32)) & _U64(0xFF)).astype(np.uint8),
@@ -378,10 +393,15 @@ class NativeTracer:
             mem_insn=pairs[:, 1].astype(np.uint32),
             cw_at=words[:, 0].astype(np.uint32) if n else np.zeros(0, np.uint32),
             cw_value=words[:, 1].astype(np.uint16) if n else np.zeros(0, np.uint16),
-        ))
+        )
         self.recorded += n
         b[0] = b[2] = b[7] = 0
         b[6] = 1  # the next chunk opens with the control word in force
+        if self.sink is None:
+            self._parts.append(chunk)
+        elif n:
+            chunk.validate()
+            self.sink(chunk)
 
     def take(self) -> Trace:
         """The whole trace since the last take, as one validated :class:`Trace`."""

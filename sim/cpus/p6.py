@@ -21,10 +21,10 @@ from ..memory.replay import NO_LOG, AccessLogs
 from ..trace import Trace
 from . import p6_core as core
 from . import vocabulary
-from .precision import split_by_precision
 from .locking import lock_cost, locked_match
 from .lowering import P6Limits, StaticProgram, lower
 from .presets import CacheSpec, CpuPreset, dram_overhead
+from .session import CoreSession
 from .table import TABLES, InstructionTable, load_table
 
 # Model choices with no figure in the sources (each says why it is what it is).
@@ -155,30 +155,51 @@ class P6Model:
         per-instruction sums cover instructions from `stat_first` on; `access_logs`: record the data
         caches' results, or replay those of an earlier run on the same caches (sim.memory.replay).
         The result carries the cycle at which each RDTSC executed."""
-        records, index = decoder.decode_trace(trace.pc)
-        records, index, precisions = split_by_precision(records, index, trace, self.table)
-        program = lower(records, self.table, self.l1_latency, self.machine["decode"]["simple_decoder_max_length"]["value"],
-                        limits=self.limits, precisions=precisions, adjust=self.locked)
-        n = trace.instructions
-        seg_end = np.array(segments if segments else [n], dtype=np.int64)
-        counters = np.zeros((seg_end.size, core.NC), np.int64)
-        per_static = np.zeros((len(records) + 1, core.NS), np.int64)
-        tl = np.zeros((timeline[1], core.NT), np.int64)
-        rdtsc_sid = np.array([int(r.mnemonic == "rdtsc") for r in records], np.int64)
-        rdtsc_runs = int(np.isin(index, np.flatnonzero(rdtsc_sid)).sum()) if rdtsc_sid.any() else 0
-        rdtsc_out = np.zeros(rdtsc_runs, np.int64)
-        self.reset()
-        dstats, istats = self.dside.new_counts(), self.iside.new_counts()
-        dt, ds, dd, dc, dclk = self.dside.arrays()
-        it, is_, id_, ic, iclk = self.iside.arrays()
-        dlog = access_logs.start(self.family, trace, program, dc) if access_logs is not None else NO_LOG
-        total = core.simulate(index, trace.pc, trace.mem_insn,
-                              trace.mem_addr, trace.mem_size, trace.mem_write, seg_end, *program.arrays(),
-                              self.params, dt, ds, dd, dc, dclk, dstats, it, is_, id_, ic, iclk, istats,
-                              counters, per_static, stat_first, tl, timeline[0], rdtsc_sid, rdtsc_out, dlog)
+        session = P6Session(self, decoder, segments if segments else [trace.instructions], timeline, stat_first)
+        session.feed(trace, -1, access_logs)
+        return session.finish()
+
+    def session(self, decoder: Decoder, segments: list[int], stat_first: int = 0, check=None) -> "P6Session":
+        """A run fed in chunks (sim/stream.py); `segments` as for :meth:`run`, an end not yet known
+        as a large number (set it with :meth:`P6Session.end_segment` before the chunk it ends).
+        `check(records)` sees each chunk's new static instructions before they are lowered."""
+        return P6Session(self, decoder, segments, (0, 0), stat_first, check)
+
+    def lower(self, records, precisions) -> StaticProgram:
+        return lower(records, self.table, self.l1_latency, self.machine["decode"]["simple_decoder_max_length"]["value"],
+                     limits=self.limits, precisions=precisions, adjust=self.locked)
+
+
+class P6Session(CoreSession):
+    """One P6 run fed in order, chunk by chunk (the core's state is kept between chunks)."""
+
+    NC, NS, NT = core.NC, core.NS, core.NT
+
+    def __init__(self, model: P6Model, decoder: Decoder, segments: list[int], timeline: tuple[int, int] = (0, 0),
+                 stat_first: int = 0, check=None):
+        super().__init__(model, decoder, segments, timeline, stat_first, check)
+        self.dstats, self.istats = model.dside.new_counts(), model.iside.new_counts()
+        self.state = core.new_state(model.params, 0)
+
+    def grown(self, program) -> None:
+        self.state = core.grow_units(self.state, int(program.u_unit.max(initial=0)))
+
+    def time_chunk(self, chunk, index, next_pc, rdtsc_sid, rdtsc_out, access_logs) -> int:
+        model, program = self.model, self.program
+        dt, ds, dd, dc, dclk = model.dside.arrays()
+        it, is_, id_, ic, iclk = model.iside.arrays()
+        dlog = access_logs.start(model.family, chunk, program, dc) if access_logs is not None else NO_LOG
+        total = core.simulate(self.base, next_pc, index, chunk.pc, chunk.mem_insn, chunk.mem_addr, chunk.mem_size,
+                              chunk.mem_write, self.seg_end, *program.arrays(), model.params,
+                              dt, ds, dd, dc, dclk, self.dstats, it, is_, id_, ic, iclk, self.istats,
+                              self.counters, self.per_static, self.stat_first, self.timeline, self.tl_first,
+                              rdtsc_sid, rdtsc_out, dlog, *self.state)
         if access_logs is not None:
             access_logs.finish(dlog)
-        return CoreRun(program, counters, per_static[:-1], tl, rdtsc_out, int(total))
+        return total
+
+    def result(self, program, counters, per_static, timeline, rdtsc, total) -> "CoreRun":
+        return CoreRun(program, counters, per_static, timeline, rdtsc, total)
 
 
 @dataclass

@@ -173,99 +173,141 @@ def _book_port(book, ports, c):
         c += 1
 
 
+# Loop-carried scalar state: kept in an int64 vector between calls, so a trace can be timed in
+# chunks (a streamed emulation) exactly as in one call (see :func:`new_state`).
+(V_FLAGS_MASK, V_FLAGS_RETIRE, V_FP_TOP, V_RS_PENDING, V_RS_TIME, V_NSTORES, V_SB_POS, V_LAST_COMMIT,
+ V_LAST_STA_DONE, V_BUS_FREE, V_L2BUS_FREE, V_FW_N, V_RSB_TOP, V_DEC_CYCLE, V_DEC_POS, V_DEC_LIMIT,
+ V_FETCH_RESTART, V_FE_READY, V_LAST_ILINE, V_REN_CYCLE, V_REN_COUNT, V_RET_CYCLE, V_RET_COUNT, V_U_GLOBAL,
+ V_ROB_POS, V_Q_POS, V_SEG, V_SEG_START_RETIRE, V_MAX_RETIRE) = range(29)
+NSTATE = 29
+
+
+def new_state(P: np.ndarray, units: int) -> tuple:
+    """The machine at reset, for :func:`simulate`: the scalar vector, then the arrays in the order
+    simulate takes them. `units`: how many non-pipelined resources the program has (ids 1..units);
+    :func:`grow_units` makes room for more between calls."""
+    sv = np.zeros(NSTATE, np.int64)
+    sv[V_FLAGS_MASK] = 0x1FF
+    sv[V_DEC_POS] = 3         # slots used in the current decode group (3 = start a new group)
+    sv[V_DEC_LIMIT] = -1      # end (exclusive) of the current IFETCH block
+    sv[V_FETCH_RESTART] = 1   # fetch (re)starts at an aligned 16-byte chunk: program start, taken branch
+    sv[V_LAST_ILINE] = -1
+    sv[V_REN_CYCLE] = -1
+    sv[V_RET_CYCLE] = -1
+    btb_sets, btb_ways, hist_bits = int(P[P_BTB_SETS]), int(P[P_BTB_WAYS]), int(P[P_HIST_BITS])
+    rsb = np.zeros(int(P[P_RSB]), np.int64)
+    rsb[0] = P[P_EXIT_ADDR]  # the harness's call into the kernel: its return is predictable
+    sv[V_RSB_TOP] = 1
+    return (sv,
+            np.zeros(NREGS, np.int64),            # reg_ready
+            np.full(NREGS, 15, np.int64),         # reg_pmask: bytes written by the last (partial) writer
+            np.zeros(NREGS, np.int64),            # reg_pretire: its retire cycle
+            np.zeros(NREGS, np.int64),            # reg_zeroed: upper bytes known zero (XOR/SUB idiom)
+            np.zeros(int(P[P_ROB]), np.int64),    # rob_ring
+            # RS occupancy: uops allocated but not yet dispatched, counted by dispatch cycle in a ring
+            # (exact, like a heap of dispatch times, but O(1) per uop: allocation times only move forward)
+            np.zeros(WINDOW, np.int64),           # rs_by_cycle
+            np.zeros(max(int(P[P_QUEUE]), 1), np.int64),  # queue_ring
+            np.full(WINDOW, -1 << 5, np.int64),   # book: port reservations
+            np.zeros(units + 1, np.int64),        # unit_free: per resource, hundredths of a cycle
+            np.zeros(int(P[P_SB]), np.int64),     # sb_ring
+            np.zeros(int(P[P_MSHR]), np.int64),   # mshr
+            np.full(FW, -1, np.int64),            # fw_addr
+            np.zeros(FW, np.int64),               # fw_size
+            np.zeros(FW, np.int64),               # fw_ready
+            np.zeros(FW, np.int64),               # fw_commit
+            np.full((btb_sets, btb_ways), -1, np.int64),  # btb_tag
+            np.zeros((btb_sets, btb_ways), np.int64),     # btb_stamp
+            np.zeros((btb_sets, btb_ways), np.int64),     # btb_hist
+            np.zeros((btb_sets, btb_ways), np.int64),     # btb_target
+            np.full((btb_sets, btb_ways, 1 << hist_bits), 2, np.int64),  # pht
+            rsb,
+            np.full(16, -1, np.int64))            # iline_seen
+
+
+UNIT_FREE = 9  # position of unit_free in new_state's tuple
+
+
+def grow_units(state: tuple, units: int) -> tuple:
+    """`state` with room for resource ids up to `units` (a later chunk brought new instructions)."""
+    old = state[UNIT_FREE]
+    if old.shape[0] > units:
+        return state
+    grown = np.zeros(units + 1, np.int64)
+    grown[:old.shape[0]] = old
+    return state[:UNIT_FREE] + (grown,) + state[UNIT_FREE + 1:]
+
+
 @njit(cache=True, nogil=True)
-def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
+def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
              s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ,
              P, dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
-             counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out, dlog):
+             counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out, dlog,
+             sv, reg_ready, reg_pmask, reg_pretire, reg_zeroed, rob_ring, rs_by_cycle, queue_ring, book, unit_free,
+             sb_ring, mshr, fw_addr, fw_size, fw_ready, fw_commit, btb_tag, btb_stamp, btb_hist, btb_target, pht,
+             rsb, iline_seen):
+    """Time instructions base .. base + len(dyn_sid) - 1 of a run, continuing from the state
+    (`sv` and the arrays after it, from :func:`new_state`) and leaving it for the next chunk.
+    The chunk's arrays are its own (``mem_insn`` counts from the chunk's first instruction);
+    everything else counts instructions from the run's start. `next_pc`: the PC of the
+    instruction after the chunk, -1 at the end of the run. Returns the latest retire cycle."""
     n = dyn_sid.shape[0]
-    nstatic = s_len.shape[0]
+    sink = per_static.shape[0] - 1  # per-static sums only from stat_first: earlier ones go to this row
     rob_n, rs_n, rename_w, retire_w = P[P_ROB], P[P_RS], P[P_RENAME], P[P_RETIRE]
     queue_n, block = P[P_QUEUE], P[P_FETCH_BLOCK]
     l2_lat = P[P_L2_LAT]
     mshr_n, sb_n = P[P_MSHR], P[P_SB]
     d_levels = dconfig.shape[0]
     n_acc = mem_insn.shape[0]
-    acc_next = 0  # the first access of instruction i (accesses are in program order: mem_insn sorted)
+    nstatic = s_len.shape[0]
     # per static instruction, what would otherwise be a division per dynamic one: its BTB set
     s_bset = np.zeros(nstatic, np.int64)
     for s in range(nstatic):
         s_bset[s] = s_pc[s] % P[P_BTB_SETS]
+    btb_ways, hist_bits = P[P_BTB_WAYS], P[P_HIST_BITS]
 
-    reg_ready = np.zeros(NREGS, np.int64)
-    reg_pmask = np.full(NREGS, 15, np.int64)    # bytes written by the last (partial) writer
-    reg_pretire = np.zeros(NREGS, np.int64)     # its retire cycle
-    reg_zeroed = np.zeros(NREGS, np.int64)      # upper bytes known zero (XOR/SUB idiom): no partial stall
-    flags_mask = 0x1FF
-    flags_retire = 0
-    fp_top = 0
-
-    rob_ring = np.zeros(rob_n, np.int64)
-    # RS occupancy: uops allocated but not yet dispatched, counted by dispatch cycle in a ring
-    # (exact, like a heap of dispatch times, but O(1) per uop: allocation times only move forward)
-    rs_by_cycle = np.zeros(WINDOW, np.int64)
-    rs_pending = 0  # uops in the RS at cycle rs_time (dispatch cycle > rs_time)
-    rs_time = 0
-    queue_ring = np.zeros(max(queue_n, 1), np.int64)
-    book = np.full(WINDOW, -1 << 5, np.int64)
-    nunits = 1
-    for u in range(u_unit.shape[0]):
-        if u_unit[u] + 1 > nunits:
-            nunits = u_unit[u] + 1
-    unit_free = np.zeros(nunits, np.int64)  # per resource: when it is free, in hundredths of a cycle
-    sb_ring = np.zeros(sb_n, np.int64)
-    nstores = 0
-    sb_pos = 0  # nstores % sb_n, kept incrementally
-    last_commit = 0
-    last_sta_done = 0
-    mshr = np.zeros(mshr_n, np.int64)
-    bus_free = 0
-    l2bus_free = 0
-    fw_addr = np.full(FW, -1, np.int64)
-    fw_size = np.zeros(FW, np.int64)
-    fw_ready = np.zeros(FW, np.int64)
-    fw_commit = np.zeros(FW, np.int64)
-    fw_n = 0
-
-    btb_sets, btb_ways, hist_bits = P[P_BTB_SETS], P[P_BTB_WAYS], P[P_HIST_BITS]
-    btb_tag = np.full((btb_sets, btb_ways), -1, np.int64)
-    btb_stamp = np.zeros((btb_sets, btb_ways), np.int64)
-    btb_hist = np.zeros((btb_sets, btb_ways), np.int64)
-    btb_target = np.zeros((btb_sets, btb_ways), np.int64)
-    pht = np.full((btb_sets, btb_ways, 1 << hist_bits), 2, np.int64)
-    rsb = np.zeros(P[P_RSB], np.int64)
-    rsb_top = 0
-    rsb[0] = P[P_EXIT_ADDR]  # the harness's call into the kernel: its return is predictable
-    rsb_top = 1
-
-    dec_cycle = 0
-    dec_pos = 3       # slots used in the current decode group (3 = start a new group)
-    dec_limit = -1    # end (exclusive) of the current IFETCH block
-    fetch_restart = True  # fetch (re)starts at an aligned 16-byte chunk: program start, taken branch
-    fe_ready = 0
-    last_iline = -1
-    iline_seen = np.full(16, -1, np.int64)
-    ren_cycle = -1
-    ren_count = 0
-    ret_cycle = -1
-    ret_count = 0
-    u_global = 0
-    rob_pos = 0  # u_global % rob_n, kept incrementally (a division per uop is measurable)
-    q_pos = 0    # u_global % queue_n
-    seg = 0
-    seg_start_retire = 0
-    max_retire = 0
+    flags_mask = sv[V_FLAGS_MASK]
+    flags_retire = sv[V_FLAGS_RETIRE]
+    fp_top = sv[V_FP_TOP]
+    rs_pending = sv[V_RS_PENDING]  # uops in the RS at cycle rs_time (dispatch cycle > rs_time)
+    rs_time = sv[V_RS_TIME]
+    nstores = sv[V_NSTORES]
+    sb_pos = sv[V_SB_POS]  # nstores % sb_n, kept incrementally
+    last_commit = sv[V_LAST_COMMIT]
+    last_sta_done = sv[V_LAST_STA_DONE]
+    bus_free = sv[V_BUS_FREE]
+    l2bus_free = sv[V_L2BUS_FREE]
+    fw_n = sv[V_FW_N]
+    rsb_top = sv[V_RSB_TOP]
+    dec_cycle = sv[V_DEC_CYCLE]
+    dec_pos = sv[V_DEC_POS]
+    dec_limit = sv[V_DEC_LIMIT]
+    fetch_restart = sv[V_FETCH_RESTART] != 0
+    fe_ready = sv[V_FE_READY]
+    last_iline = sv[V_LAST_ILINE]
+    ren_cycle = sv[V_REN_CYCLE]
+    ren_count = sv[V_REN_COUNT]
+    ret_cycle = sv[V_RET_CYCLE]
+    ret_count = sv[V_RET_COUNT]
+    u_global = sv[V_U_GLOBAL]
+    rob_pos = sv[V_ROB_POS]  # u_global % rob_n, kept incrementally (a division per uop is measurable)
+    q_pos = sv[V_Q_POS]  # u_global % queue_n
+    seg = sv[V_SEG]
+    seg_start_retire = sv[V_SEG_START_RETIRE]
+    max_retire = sv[V_MAX_RETIRE]
+    acc_next = 0  # the chunk's first access of instruction li (accesses are in program order: mem_insn sorted)
     nrdtsc = 0
 
-    for i in range(n):
-        sid = dyn_sid[i]
-        pc = dyn_pc[i]
+    for li in range(n):
+        i = base + li
+        sid = dyn_sid[li]
+        pc = dyn_pc[li]
         length = s_len[sid]
         nu = s_nuops[sid]
         u0 = s_uop0[sid]
         dec = s_dec[sid]
-        psid = sid if i >= stat_first else nstatic  # per-static sums only from stat_first (the last row is a sink)
+        psid = sid if i >= stat_first else sink
 
         # ---- front end: fetch (L1I) and decode ------------------------------------------------
         stall_fetch = 0
@@ -364,7 +406,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
         # ---- per uop ----------------------------------------------------------------------------
         acc = acc_next
         acc_end = acc
-        while acc_end < n_acc and mem_insn[acc_end] == i:
+        while acc_end < n_acc and mem_insn[acc_end] == li:
             acc_end += 1
         acc_next = acc_end
         inst_complete = 0
@@ -600,7 +642,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
         br = s_branch[sid]
         if br != BR_NONE:
             counters[seg, C_BRANCHES] += 1
-            nxt = dyn_pc[i + 1] if i + 1 < n else pc + length
+            nxt = dyn_pc[li + 1] if li + 1 < n else (next_pc if next_pc >= 0 else pc + length)
             taken = nxt != pc + length
             mispredicted = False
             redirect = False
@@ -691,6 +733,36 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             counters[seg, C_CYCLES] = max_retire - seg_start_retire
             seg_start_retire = max_retire
             seg += 1
+
+    sv[V_FLAGS_MASK] = flags_mask
+    sv[V_FLAGS_RETIRE] = flags_retire
+    sv[V_FP_TOP] = fp_top
+    sv[V_RS_PENDING] = rs_pending
+    sv[V_RS_TIME] = rs_time
+    sv[V_NSTORES] = nstores
+    sv[V_SB_POS] = sb_pos
+    sv[V_LAST_COMMIT] = last_commit
+    sv[V_LAST_STA_DONE] = last_sta_done
+    sv[V_BUS_FREE] = bus_free
+    sv[V_L2BUS_FREE] = l2bus_free
+    sv[V_FW_N] = fw_n
+    sv[V_RSB_TOP] = rsb_top
+    sv[V_DEC_CYCLE] = dec_cycle
+    sv[V_DEC_POS] = dec_pos
+    sv[V_DEC_LIMIT] = dec_limit
+    sv[V_FETCH_RESTART] = 1 if fetch_restart else 0
+    sv[V_FE_READY] = fe_ready
+    sv[V_LAST_ILINE] = last_iline
+    sv[V_REN_CYCLE] = ren_cycle
+    sv[V_REN_COUNT] = ren_count
+    sv[V_RET_CYCLE] = ret_cycle
+    sv[V_RET_COUNT] = ret_count
+    sv[V_U_GLOBAL] = u_global
+    sv[V_ROB_POS] = rob_pos
+    sv[V_Q_POS] = q_pos
+    sv[V_SEG] = seg
+    sv[V_SEG_START_RETIRE] = seg_start_retire
+    sv[V_MAX_RETIRE] = max_retire
     return max_retire
 
 

@@ -1,0 +1,156 @@
+"""A timing run fed in chunks: the static program grows as the trace brings new instructions.
+
+A core times a trace in one pass, in program order, so it can equally take the trace a chunk at a
+time (a streamed emulation: sim/stream.py) if its loop-carried state survives between chunks (each
+family's core keeps it in a state vector and arrays, :func:`sim.cpus.p6_core.new_state`). What
+the chunks change is the static program: a chunk may run instructions no earlier chunk ran, or a
+precision-dependent x87 instruction at a new precision (sim/cpus/precision.py). :class:`Statics`
+gives every static instruction one id for the whole run, in order of first appearance, so the
+core's per-static state and sums stay where they are; :meth:`Statics.canonical` is the order one
+whole-trace decode gives (every PC's first precision in order of first appearance, then the other
+precisions), so a run fed in any number of chunks reports exactly what one fed whole does.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..decode import Decoder, InsnRecord
+from ..trace import Trace
+from .precision import split_by_precision
+from .table import InstructionTable
+
+
+class Statics:
+    """Static instructions of a run, keyed by (PC, precision index or None), in order of first appearance."""
+
+    def __init__(self, decoder: Decoder, table: InstructionTable):
+        self.decoder = decoder
+        self.table = table
+        self.records: list[InsnRecord] = []
+        self.precisions: list[int | None] = []
+        self._id: dict[tuple[int, int | None], int] = {}
+        self._first_of_pc: dict[int, int] = {}  # pc -> the id of its first appearance
+
+    def __len__(self) -> int:
+        return len(self.records)
+
+    def index(self, chunk: Trace) -> tuple[np.ndarray, list[InsnRecord]]:
+        """The chunk's dynamic static-id array (int32, ids of the whole run), and the records that
+        this chunk added (in id order)."""
+        records, index = self.decoder.decode_trace(chunk.pc)
+        records, index, precisions = split_by_precision(records, index, chunk, self.table)
+        before = len(self.records)
+        ids = np.empty(len(records), np.int32)
+        for k, (rec, prec) in enumerate(zip(records, precisions)):
+            key = (rec.pc, prec)
+            sid = self._id.get(key)
+            if sid is None:
+                sid = self._id[key] = len(self.records)
+                self.records.append(rec)
+                self.precisions.append(prec)
+                self._first_of_pc.setdefault(rec.pc, sid)
+            ids[k] = sid
+        if np.array_equal(ids, np.arange(ids.size)):
+            return index, self.records[before:]  # the chunk's own order is the run's (one whole trace)
+        return ids[index], self.records[before:]
+
+    def canonical(self) -> np.ndarray:
+        """Permutation `order` such that ``[self.records[s] for s in order]`` is the order of one
+        whole-trace decode (sim/cpus/precision.py): first appearances of each PC, then each PC's
+        other precisions in ascending order, by its first appearance."""
+        base_rank = {pc: rank for rank, pc in enumerate(sorted(self._first_of_pc, key=self._first_of_pc.get))}
+        def key(sid):
+            rec = self.records[sid]
+            if self._first_of_pc[rec.pc] == sid:
+                return (0, base_rank[rec.pc], 0)
+            return (1, base_rank[rec.pc], self.precisions[sid])
+        return np.array(sorted(range(len(self.records)), key=key), np.int64)
+
+
+def grow_rows(a: np.ndarray, rows: int) -> np.ndarray:
+    """`a` with at least `rows` rows plus its last (sink) row; grown geometrically, contents kept."""
+    if a.shape[0] >= rows + 1:
+        return a
+    grown = np.zeros((max(rows + 1, 2 * a.shape[0]),) + a.shape[1:], a.dtype)
+    grown[:a.shape[0] - 1] = a[:-1]
+    return grown
+
+
+class CoreSession:
+    """One run fed in order, chunk by chunk. The family's subclass keeps its core's state between
+    chunks (:meth:`grown`, :meth:`time_chunk`) and builds its result (:meth:`result`); this class
+    keeps the statics, the static program, the counters and the per-static sums.
+
+    `segments`: the instruction counts at which counters are cut (one segment per call); an end not
+    known yet is a large number, set with :meth:`end_segment` before the chunk holding it is fed.
+    `timeline`: (first instruction, rows) to record. `stat_first`: per-static sums cover
+    instructions from there on (settable until its chunk is fed). `check(records)` sees each
+    chunk's new static instructions before they are lowered (the ISA check)."""
+
+    NC = NS = NT = 0  # the family core's counter, per-static and timeline widths
+    TL_STATIC = 1     # the timeline column holding the static id
+
+    def __init__(self, model, decoder: Decoder, segments, timeline: tuple[int, int] = (0, 0),
+                 stat_first: int = 0, check=None):
+        self.model = model
+        self.check = check
+        self.statics = Statics(decoder, model.table)
+        self.program = model.lower([], [])
+        self.seg_end = np.array(segments, dtype=np.int64)
+        self.counters = np.zeros((self.seg_end.size, self.NC), np.int64)
+        self.per_static = np.zeros((1, self.NS), np.int64)  # the last row is the sink
+        self.timeline = np.zeros((timeline[1], self.NT), np.int64)
+        self.tl_first = timeline[0]
+        self.stat_first = stat_first
+        self.rdtsc: list[np.ndarray] = []
+        self.base = 0  # instructions fed so far
+        self.total = 0
+        model.reset()
+
+    def end_segment(self, k: int, end: int) -> None:
+        self.seg_end[k] = end
+
+    def feed(self, chunk: Trace, next_pc: int, access_logs=None) -> None:
+        """Time the chunk's instructions; `next_pc`: the PC that follows the chunk (-1: the run ends).
+        `access_logs` (sim.memory.replay) only for a run fed whole."""
+        index, added = self.statics.index(chunk)
+        if added:
+            if self.check is not None:
+                self.check(added)
+            self.program = self.model.lower(self.statics.records, self.statics.precisions)
+            self.per_static = grow_rows(self.per_static, len(self.statics))
+            self.grown(self.program)
+        rdtsc_sid = np.array([int(r.mnemonic == "rdtsc") for r in self.statics.records], np.int64)
+        rdtsc_out = np.zeros(int(rdtsc_sid[index].sum()) if rdtsc_sid.any() else 0, np.int64)
+        self.total = self.time_chunk(chunk, index, next_pc, rdtsc_sid, rdtsc_out, access_logs)
+        self.rdtsc.append(rdtsc_out)
+        self.base += chunk.instructions
+
+    def grown(self, program) -> None:
+        """The static program gained instructions: make room in the core's state."""
+
+    def time_chunk(self, chunk: Trace, index: np.ndarray, next_pc: int, rdtsc_sid: np.ndarray,
+                   rdtsc_out: np.ndarray, access_logs) -> int:
+        """Run the core on the chunk; returns the latest retire cycle so far."""
+        raise NotImplementedError
+
+    def result(self, program, counters, per_static, timeline, rdtsc, total):
+        raise NotImplementedError
+
+    def finish(self):
+        order = self.statics.canonical()
+        program, per_static, timeline = self.program, self.per_static[:len(self.statics)], self.timeline
+        if not np.array_equal(order, np.arange(order.size)):
+            # a chunk met a precision variant before a later PC's first appearance: report in the
+            # order one whole-trace decode gives
+            program = self.model.lower([self.statics.records[s] for s in order],
+                                       [self.statics.precisions[s] for s in order])
+            per_static = per_static[order]
+            rank = np.empty_like(order)
+            rank[order] = np.arange(order.size)
+            timeline = timeline.copy()
+            written = min(timeline.shape[0], max(0, self.base - self.tl_first))
+            timeline[:written, self.TL_STATIC] = rank[timeline[:written, self.TL_STATIC]]
+        rdtsc = np.concatenate(self.rdtsc) if self.rdtsc else np.zeros(0, np.int64)
+        return self.result(program, self.counters, per_static, timeline, rdtsc, int(self.total))
