@@ -425,11 +425,10 @@ class P5Session(CoreSession):
         self.static = self.model.rules.static(program)
         self.state = core.grow_statics(self.state, len(program.records))
 
-    def _simulate(self, base, li0, stop, next_pc, index, chunk, rdtsc_sid, rdtsc_out) -> int:
+    def _simulate(self, base, stop, next_pc, index, pc, acc_start, acc_count, chunk, rdtsc_sid, rdtsc_out) -> int:
         model = self.model
-        acc_start, acc_count = access_spans(chunk.mem_insn, chunk.instructions)
-        return core.simulate(base, li0, stop, next_pc, index, chunk.pc, acc_start, acc_count, chunk.mem_addr,
-                             chunk.mem_size, chunk.mem_write, self.seg_end, *self.static.arrays, model.params,
+        return core.simulate(base, stop, next_pc, index, pc, acc_start, acc_count, chunk.mem_addr, chunk.mem_size,
+                             chunk.mem_write, self.seg_end, *self.static.arrays, model.params,
                              *model.dside.arrays(), self.dstats, *model.iside.arrays(), self.istats, self.counters,
                              self.per_static, self.stat_first, self.timeline, self.tl_first, rdtsc_sid, rdtsc_out,
                              *self.state)
@@ -437,16 +436,20 @@ class P5Session(CoreSession):
     def time_chunk(self, chunk, index, next_pc, rdtsc_sid, rdtsc_out, access_logs) -> int:
         n = chunk.instructions
         sv = self.state[0]
-        li0 = 0
+        first = 0  # the chunk's first instruction not yet timed
         if self.held is not None and n:
             held, sid = self.held
             self.held = None
             two = Trace.concatenate([held, chunk.part(0, 1)])
-            self._simulate(self.base - 1, 0, 1, int(chunk.pc[1]) if n > 1 else next_pc,
-                           np.array([sid, index[0]], index.dtype), two, rdtsc_sid, np.zeros(0, np.int64))
-            li0 = int(sv[core.V_STOPPED]) - 1  # 1: the chunk's first instruction went with it (V pipe)
-        total = self._simulate(self.base, li0, n, next_pc, index, chunk, rdtsc_sid, rdtsc_out)
-        stopped = int(sv[core.V_STOPPED])
+            self._simulate(self.base - 1, 1, int(chunk.pc[1]) if n > 1 else next_pc,
+                           np.array([sid, index[0]], index.dtype), two.pc, *access_spans(two.mem_insn, 2), two,
+                           rdtsc_sid, np.zeros(0, np.int64))
+            first = int(sv[core.V_STOPPED]) - 1  # 1: the chunk's first instruction went with it (V pipe)
+        acc_start, acc_count = access_spans(chunk.mem_insn, n)
+        # the rest as views from `first` (the core counts from its arrays' start)
+        total = self._simulate(self.base + first, n - first, next_pc, index[first:], chunk.pc[first:],
+                               acc_start[first:], acc_count[first:], chunk, rdtsc_sid, rdtsc_out)
+        stopped = first + int(sv[core.V_STOPPED])
         if stopped < n:  # the core's hold-back: only the last instruction, never an RDTSC (NP)
             self.held = (chunk.part(stopped, n), int(index[stopped]))
             assert stopped == n - 1 and not rdtsc_sid[index[stopped]]

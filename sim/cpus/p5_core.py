@@ -220,16 +220,16 @@ def grow_statics(state: tuple, nstatic: int) -> tuple:
 
 
 @njit(cache=True, nogil=True)
-def simulate(base, li0, stop, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_write, seg_end,
+def simulate(base, stop, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_cls, s_cyc, s_pfx, s_pfxv, s_immdisp, s_addr, s_stack, s_esp_agi, s_rmask, s_wmask, s_rflags,
              s_wflags, s_jcc, s_branch, s_fp, s_fplat, s_fpnext, s_fmul, s_waitfpu, s_mmx, s_mmx_u, s_mmxlat,
              s_rep, s_repstart, s_rep0, s_nsrc, s_src, s_ndst, s_dst, s_fpdelta, s_memkind, s_fstore, P,
              dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
              counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out,
-             sv, reg_avail, ext_ready, wb_free, seen, pair_cache, btb_tag, btb_stamp, btb_hist, btb_target, pht,
-             iline_seen):
-    """Time the groups that start at the chunk's instructions li0 .. stop - 1 (run instructions
-    base + li0 ...), continuing from the state (`sv` and the arrays after it, from :func:`new_state`)
+             sv, reg_avail_s, ext_ready_s, wb_free_s, seen_s, pair_cache_s, btb_tag_s, btb_stamp_s, btb_hist_s,
+             btb_target_s, pht_s, iline_seen_s):
+    """Time the groups that start at the chunk's instructions 0 .. stop - 1 (run instructions
+    base ...), continuing from the state (`sv` and the arrays after it, from :func:`new_state`)
     and leaving it for the next call. The chunk's arrays are its own (``acc_start`` indexes its
     accesses); everything else counts instructions from the run's start. `next_pc`: the PC of the
     instruction after the chunk, -1 at the end of the run.
@@ -254,12 +254,27 @@ def simulate(base, li0, stop, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, me
     t = sv[V_T]
     seg = sv[V_SEG]
     seg_start = sv[V_SEG_START]
+    # working copies of the state's arrays: the loop is measurably faster on arrays of its own
+    reg_avail = reg_avail_s.copy()
+    ext_ready = ext_ready_s.copy()
+    wb_free = wb_free_s.copy()
+    seen = seen_s.copy()
+    pair_cache = pair_cache_s.copy()
+    btb_tag = btb_tag_s.copy()
+    btb_stamp = btb_stamp_s.copy()
+    btb_hist = btb_hist_s.copy()
+    btb_target = btb_target_s.copy()
+    pht = pht_s.copy()
+    iline_seen = iline_seen_s.copy()
+    # what counts instructions from the run's start, counted from the chunk's
+    first_l = stat_first - base
+    tl_first_l = tl_first - base
+    seg_end_l = seg_end - base
     nrdtsc = 0
-    li = li0
+    li = 0  # (from a constant: indexing with it needs no check for negative indices)
     while li < stop:
-        i = base + li
         a = dyn_sid[li]
-        pa = a if i >= stat_first else sink
+        pa = a if li >= first_l else sink
         pc_a = np.int64(dyn_pc[li])
         # a later element of a REP string instruction: the same PC again
         if s_rep[a] != REP_NONE:
@@ -270,9 +285,9 @@ def simulate(base, li0, stop, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, me
         reason = R_BRANCH
         rreg = -1
         group = 1
-        pc_b = np.int64(dyn_pc[li + 1]) if li + 1 < n else next_pc  # -1: the run ends here
-        if pc_b >= 0 and s_branch[a] == BR_NONE and pc_b == pc_a + s_len[a] and \
-                not (seg < seg_end.shape[0] and i + 1 == seg_end[seg]):
+        # (next_pc -1, the run's end, is no instruction's successor)
+        if s_branch[a] == BR_NONE and (np.int64(dyn_pc[li + 1]) if li + 1 < n else next_pc) == pc_a + s_len[a] and \
+                not (seg < seg_end_l.shape[0] and li + 1 == seg_end_l[seg]):
             first_ok = 1 if (P[P_FIRST_PASS] == 1 or seen[a] > 0 or s_len[a] == 1) else 0
             code = pair_cache[a, first_ok]
             if code < 0:
@@ -393,7 +408,7 @@ def simulate(base, li0, stop, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, me
         u_hi = np.int64(-2)
         for k in range(group):
             s = dyn_sid[li + k]
-            ps = s if i + k >= stat_first else sink
+            ps = s if li + k >= first_l else sink
             for q in range(acc_start[li + k], acc_start[li + k] + acc_count[li + k]):
                 addr = np.int64(mem_addr[q])
                 sz = np.int64(mem_size[q])
@@ -500,7 +515,7 @@ def simulate(base, li0, stop, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, me
         # ---- branches -----------------------------------------------------------------------
         last = li + group - 1
         sb = dyn_sid[last]
-        psb = sb if base + last >= stat_first else sink
+        psb = sb if last >= first_l else sink
         if s_branch[sb] != BR_NONE:
             counters[seg, C_BRANCHES] += 1
             pc = np.int64(dyn_pc[last])
@@ -524,18 +539,18 @@ def simulate(base, li0, stop, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, me
                     mispredicted = predict != taken or (taken and pred_target != nxt)
                     pht[bset, way, h] = min(3, cnt + 1) if taken else max(0, cnt - 1)
                     btb_hist[bset, way] = ((h << 1) | (1 if taken else 0)) & ((1 << hist_bits) - 1)
-                    btb_stamp[bset, way] = i
+                    btb_stamp[bset, way] = base + li
                 else:
                     mispredicted = taken  # not in the BTB: predicted not taken
                     if taken:
-                        way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, i)
+                        way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, base + li)
                         btb_hist[bset, way] = 1 & ((1 << hist_bits) - 1)
                         for h in range(1 << hist_bits):
                             pht[bset, way, h] = 3  # ESTIMATES["btb_new_entry"] in p5.py
             else:
                 mispredicted = way < 0 or btb_target[bset, way] != nxt
                 if way < 0:
-                    way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, i)
+                    way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, base + li)
                 if s_branch[sb] == BR_RET and last + 1 >= n and next_pc < 0:
                     mispredicted = False  # the return to the harness ends the stream
             if way >= 0 and taken:
@@ -552,7 +567,7 @@ def simulate(base, li0, stop, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, me
             counters[seg, C_PAIRS] += 1
             counters[seg, C_U] += 1
             counters[seg, C_V] += 1
-            pb = dyn_sid[li + 1] if i + 1 >= stat_first else sink
+            pb = dyn_sid[li + 1] if li + 1 >= first_l else sink
             per_static[pa, S_U] += 1
             per_static[pa, S_PAIRED_U] += 1
             per_static[pb, S_V] += 1
@@ -568,14 +583,14 @@ def simulate(base, li0, stop, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, me
         for k in range(group):
             s = dyn_sid[li + k]
             seen[s] += 1
-            ps = s if i + k >= stat_first else sink
+            ps = s if li + k >= first_l else sink
             per_static[ps, S_EXEC] += 1
             if nrdtsc < rdtsc_out.shape[0] and rdtsc_sid[s] == 1:
                 rdtsc_out[nrdtsc] = start
                 nrdtsc += 1
-            if tl_first <= i + k < tl_first + timeline.shape[0]:
-                row = timeline[i + k - tl_first]
-                row[0] = i + k
+            if tl_first_l <= li + k < tl_first_l + timeline.shape[0]:
+                row = timeline[li + k - tl_first_l]
+                row[0] = base + li + k
                 row[1] = s
                 row[2] = t
                 row[3] = start
@@ -587,12 +602,12 @@ def simulate(base, li0, stop, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, me
             counters[seg, C_UOPS] += 1
         t = end
         li += group
-        while seg < seg_end.shape[0] and base + li >= seg_end[seg]:
+        while seg < seg_end_l.shape[0] and li >= seg_end_l[seg]:
             counters[seg, C_CYCLES] = t - seg_start
             seg_start = t
             seg += 1
 
-    if li > li0:
+    if li > 0:
         sv[V_PREV_PC] = np.int64(dyn_pc[li - 1])
     sv[V_STOPPED] = li
     sv[V_ESP_AGI] = esp_agi
@@ -607,5 +622,16 @@ def simulate(base, li0, stop, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, me
     sv[V_T] = t
     sv[V_SEG] = seg
     sv[V_SEG_START] = seg_start
+    reg_avail_s[:] = reg_avail
+    ext_ready_s[:] = ext_ready
+    wb_free_s[:] = wb_free
+    seen_s[:] = seen
+    pair_cache_s[:] = pair_cache
+    btb_tag_s[:] = btb_tag
+    btb_stamp_s[:] = btb_stamp
+    btb_hist_s[:] = btb_hist
+    btb_target_s[:] = btb_target
+    pht_s[:] = pht
+    iline_seen_s[:] = iline_seen
     return t
 
