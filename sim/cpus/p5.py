@@ -407,9 +407,9 @@ class P5Session(CoreSession):
 
     Pairing looks one instruction ahead, so a chunk's last instruction may need the next chunk's
     first (its V partner, or its static to decide). The core then leaves it untimed and it is
-    held here; the next chunk times it first, in a call on just the two instructions that stops
-    after one group (it takes the new chunk's first instruction along when they pair), and the
-    rest of the chunk follows: the groups are those of the whole trace."""
+    held here; the next chunk times it first, in a call on just the two instructions (the held
+    one and the new chunk's first, which goes with it into the V pipe, or is timed alone, or is
+    held back in turn), then the rest of the chunk: the groups are those of the whole trace."""
 
     NC, NS, NT = core.NC, core.NS, core.NT
 
@@ -425,9 +425,9 @@ class P5Session(CoreSession):
         self.static = self.model.rules.static(program)
         self.state = core.grow_statics(self.state, len(program.records))
 
-    def _simulate(self, base, stop, next_pc, index, pc, acc_start, acc_count, chunk, rdtsc_sid, rdtsc_out) -> int:
+    def _simulate(self, base, next_pc, index, pc, acc_start, acc_count, chunk, rdtsc_sid, rdtsc_out) -> int:
         model = self.model
-        return core.simulate(base, stop, next_pc, index, pc, acc_start, acc_count, chunk.mem_addr, chunk.mem_size,
+        return core.simulate(base, next_pc, index, pc, acc_start, acc_count, chunk.mem_addr, chunk.mem_size,
                              chunk.mem_write, self.seg_end, *self.static.arrays, model.params,
                              *model.dside.arrays(), self.dstats, *model.iside.arrays(), self.istats, self.counters,
                              self.per_static, self.stat_first, self.timeline, self.tl_first, rdtsc_sid, rdtsc_out,
@@ -441,16 +441,17 @@ class P5Session(CoreSession):
             held, sid = self.held
             self.held = None
             two = Trace.concatenate([held, chunk.part(0, 1)])
-            self._simulate(self.base - 1, 1, int(chunk.pc[1]) if n > 1 else next_pc,
+            self._simulate(self.base - 1, int(chunk.pc[1]) if n > 1 else next_pc,
                            np.array([sid, index[0]], index.dtype), two.pc, *access_spans(two.mem_insn, 2), two,
-                           rdtsc_sid, np.zeros(0, np.int64))
-            first = int(sv[core.V_STOPPED]) - 1  # 1: the chunk's first instruction went with it (V pipe)
+                           rdtsc_sid, rdtsc_out)
+            first = int(sv[core.V_STOPPED]) - 1  # 1: the chunk's first instruction was timed too
+            rdtsc_out = rdtsc_out[int(sv[core.V_NRDTSC]):]
         acc_start, acc_count = access_spans(chunk.mem_insn, n)
-        # the rest as views from `first` (the core counts from its arrays' start)
-        total = self._simulate(self.base + first, n - first, next_pc, index[first:], chunk.pc[first:],
+        # the rest as views from `first` (the core's loop index starts at 0: see p5_core.simulate)
+        total = self._simulate(self.base + first, next_pc, index[first:], chunk.pc[first:],
                                acc_start[first:], acc_count[first:], chunk, rdtsc_sid, rdtsc_out)
         stopped = first + int(sv[core.V_STOPPED])
-        if stopped < n:  # the core's hold-back: only the last instruction, never an RDTSC (NP)
+        if stopped < n:  # held back: only ever the last instruction, never an RDTSC (NP)
             self.held = (chunk.part(stopped, n), int(index[stopped]))
             assert stopped == n - 1 and not rdtsc_sid[index[stopped]]
         return total

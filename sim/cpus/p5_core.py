@@ -175,8 +175,8 @@ def _load_miss(r, lvl, now, P, bus_free, ctr):
 # Loop-carried scalar state: kept in an int64 vector between calls, so a trace can be timed in
 # chunks (a streamed emulation) exactly as in one call (see :func:`new_state`).
 (V_ESP_AGI, V_FP_TOP, V_FP_FREE, V_FMUL_FREE, V_FP_DONE, V_WB_POS, V_BUS_FREE, V_REP_PREV_STORE, V_LAST_ILINE,
- V_T, V_SEG, V_SEG_START, V_PREV_PC, V_STOPPED) = range(14)
-NSTATE = 14
+ V_T, V_SEG, V_SEG_START, V_PREV_PC, V_STOPPED, V_NRDTSC) = range(15)
+NSTATE = 15
 
 
 def new_state(P: np.ndarray, nstatic: int) -> tuple:
@@ -220,19 +220,21 @@ def grow_statics(state: tuple, nstatic: int) -> tuple:
 
 
 @njit(cache=True, nogil=True)
-def simulate(base, stop, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_write, seg_end,
+def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_cls, s_cyc, s_pfx, s_pfxv, s_immdisp, s_addr, s_stack, s_esp_agi, s_rmask, s_wmask, s_rflags,
              s_wflags, s_jcc, s_branch, s_fp, s_fplat, s_fpnext, s_fmul, s_waitfpu, s_mmx, s_mmx_u, s_mmxlat,
              s_rep, s_repstart, s_rep0, s_nsrc, s_src, s_ndst, s_dst, s_fpdelta, s_memkind, s_fstore, P,
              dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
              counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out,
-             sv, reg_avail_s, ext_ready_s, wb_free_s, seen_s, pair_cache_s, btb_tag_s, btb_stamp_s, btb_hist_s,
-             btb_target_s, pht_s, iline_seen_s):
-    """Time the groups that start at the chunk's instructions 0 .. stop - 1 (run instructions
-    base ...), continuing from the state (`sv` and the arrays after it, from :func:`new_state`)
-    and leaving it for the next call. The chunk's arrays are its own (``acc_start`` indexes its
-    accesses); everything else counts instructions from the run's start. `next_pc`: the PC of the
-    instruction after the chunk, -1 at the end of the run.
+             sv, reg_avail, ext_ready, wb_free, seen, pair_cache, btb_tag, btb_stamp, btb_hist,
+             btb_target, pht, iline_seen):
+    """Time the chunk's instructions (run instructions base, base + 1, ...), continuing from the
+    state (`sv` and the arrays after it, from :func:`new_state`) and leaving it for the next call.
+    The chunk's arrays are its own (``acc_start`` indexes its accesses); everything else counts
+    instructions from the run's start. `next_pc`: the PC of the instruction after the chunk, -1 at
+    the end of the run. (The loop index starts at the constant 0 and the caller passes views for a
+    later start: from an argument, every array index would need a check for negative values, a
+    few per cent slower.)
 
     Pairing looks one instruction ahead: the chunk's last instruction may need the next chunk's
     first as its V partner (or, its pairing not yet known, that instruction's static). Then the
@@ -254,25 +256,13 @@ def simulate(base, stop, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_add
     t = sv[V_T]
     seg = sv[V_SEG]
     seg_start = sv[V_SEG_START]
-    # working copies of the state's arrays: the loop is measurably faster on arrays of its own
-    reg_avail = reg_avail_s.copy()
-    ext_ready = ext_ready_s.copy()
-    wb_free = wb_free_s.copy()
-    seen = seen_s.copy()
-    pair_cache = pair_cache_s.copy()
-    btb_tag = btb_tag_s.copy()
-    btb_stamp = btb_stamp_s.copy()
-    btb_hist = btb_hist_s.copy()
-    btb_target = btb_target_s.copy()
-    pht = pht_s.copy()
-    iline_seen = iline_seen_s.copy()
     # what counts instructions from the run's start, counted from the chunk's
     first_l = stat_first - base
     tl_first_l = tl_first - base
     seg_end_l = seg_end - base
     nrdtsc = 0
     li = 0  # (from a constant: indexing with it needs no check for negative indices)
-    while li < stop:
+    while li < n:
         a = dyn_sid[li]
         pa = a if li >= first_l else sink
         pc_a = np.int64(dyn_pc[li])
@@ -610,6 +600,7 @@ def simulate(base, stop, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_add
     if li > 0:
         sv[V_PREV_PC] = np.int64(dyn_pc[li - 1])
     sv[V_STOPPED] = li
+    sv[V_NRDTSC] = nrdtsc  # RDTSC values written (outputs, not state)
     sv[V_ESP_AGI] = esp_agi
     sv[V_FP_TOP] = fp_top
     sv[V_FP_FREE] = fp_free
@@ -622,16 +613,5 @@ def simulate(base, stop, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_add
     sv[V_T] = t
     sv[V_SEG] = seg
     sv[V_SEG_START] = seg_start
-    reg_avail_s[:] = reg_avail
-    ext_ready_s[:] = ext_ready
-    wb_free_s[:] = wb_free
-    seen_s[:] = seen
-    pair_cache_s[:] = pair_cache
-    btb_tag_s[:] = btb_tag
-    btb_stamp_s[:] = btb_stamp
-    btb_hist_s[:] = btb_hist
-    btb_target_s[:] = btb_target
-    pht_s[:] = pht
-    iline_seen_s[:] = iline_seen
     return t
 
