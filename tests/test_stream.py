@@ -129,6 +129,22 @@ def test_a_kernel_reading_rdtsc_is_timed_with_its_answers():
     assert np.array_equal(streamed.run.rdtsc, classic.run.rdtsc) and streamed.calls == classic.calls
 
 
+@pytest.mark.parametrize("cut", ["before the first", "every instruction", "mixed"])
+def test_p5_rdtsc_answers_survive_any_cut(cut):
+    # PUSH EDX; RDTSC: the PUSH, first run, waits for its successor's static (held back), and
+    # the RDTSC after it is timed with it: later RDTSCs of that chunk still get their own answers
+    from sim import texture
+
+    emu = emulate(kernels_root() / texture.FDIV_KERNEL, "timesnap", None, repeat=2)
+    model = make_model("pentium-mmx-233")
+    whole = model.run(emu.trace, emu.decoder(), emu.bounds, (0, 0), emu.last_call)
+    assert whole.rdtsc.size == 4
+    records, index = emu.decoder().decode_trace(emu.trace.pc)
+    first = int(np.flatnonzero(np.isin(index, [s for s, r in enumerate(records) if r.mnemonic == "rdtsc"]))[0])
+    sizes = {"before the first": [first, 1000], "every instruction": [1], "mixed": [3, 1]}[cut]
+    _same(_chunked(model, emu, sizes), whole)
+
+
 def test_a_fault_in_a_streamed_run_is_reported_and_leaves_no_thread(tmp_path):
     import threading
 
