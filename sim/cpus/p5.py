@@ -326,7 +326,7 @@ class P5Model:
         session.feed(trace, -1)
         return session.finish()
 
-    def session(self, decoder: Decoder, segments: list[int], stat_first: int = 0, check=None) -> "P5Session":
+    def session(self, decoder: Decoder, segments: list[int], stat_first: int = 0, check=None) -> P5Session:
         """A run fed in chunks (sim/stream.py), as :meth:`sim.cpus.p6.P6Model.session`."""
         return P5Session(self, decoder, segments, (0, 0), stat_first, check)
 
