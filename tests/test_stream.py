@@ -25,10 +25,9 @@ def _span_setup(n=3000):
 
 def _chunked(model, emu, sizes, timeline=(0, 0)):
     """The emulation's trace fed to a session in parts of the given sizes (cycled)."""
-    from sim.cpus.p6 import P6Session
-
     trace = emu.trace
-    session = P6Session(model, emu.decoder(), emu.bounds, timeline, emu.last_call)
+    family_session = type(model.session(emu.decoder(), emu.bounds))  # the family's session class
+    session = family_session(model, emu.decoder(), emu.bounds, timeline, emu.last_call)
     cuts, at, k = [0], 0, 0
     while at < trace.instructions:
         at = min(trace.instructions, at + sizes[k % len(sizes)])
@@ -49,8 +48,8 @@ def _same(a, b):
     assert np.array_equal(a.program.u_lat, b.program.u_lat)
 
 
-@pytest.mark.parametrize("cpu", ["pentium2-233", "celeron-266"])
-@pytest.mark.parametrize("sizes", [[1], [7, 1000, 3], [4096]])
+@pytest.mark.parametrize("cpu", ["pentium2-233", "celeron-266", "pentium-mmx-233", "pentium-133"])
+@pytest.mark.parametrize("sizes", [[1], [2], [7, 1000, 3], [4096]])
 def test_a_trace_fed_in_chunks_times_as_the_whole_trace(cpu, sizes):
     emu = emulate(ZBUF / "fp16z.S", "fp16z_span", _span_setup(), repeat=2)
     model = make_model(cpu)
@@ -60,24 +59,62 @@ def test_a_trace_fed_in_chunks_times_as_the_whole_trace(cpu, sizes):
     _same(_chunked(model, emu, sizes, tl), whole)
 
 
-def test_precision_variants_met_early_are_reported_in_whole_trace_order():
+@pytest.mark.parametrize("cpu", ["pentium-mmx-233", "pentium-133"])
+@pytest.mark.parametrize("sizes", [[1], [3], [5, 2]])
+def test_p5_pairs_across_chunk_boundaries_as_in_the_whole_trace(cpu, sizes):
+    # the P5 pairs an instruction with the next one (U and V pipes): cut between the two, the
+    # pair must still form, REP string elements still follow their first, branches still resolve
+    from sim.cpus.p5_core import C_PAIRS
+
+    emu = emulate(ZBUF / "z16.S", "z16_span", _span_setup(), repeat=2)
+    model = make_model(cpu)
+    whole = model.run(emu.trace, emu.decoder(), emu.bounds, (0, emu.trace.instructions), emu.last_call)
+    assert whole.counters[:, C_PAIRS].sum() > 0
+    chunked = _chunked(model, emu, sizes, (0, emu.trace.instructions))
+    _same(chunked, whole)
+    assert chunked.static.arrays[1].tolist() == whole.static.arrays[1].tolist()  # pairing classes
+
+
+@pytest.mark.parametrize("cpu", ["pentium-mmx-233", "pentium-133"])
+@pytest.mark.parametrize("sizes", [[1], [2], [3, 1]])
+def test_p5_rep_strings_and_x87_pairs_cut_anywhere_time_as_whole(tmp_path, cpu, sizes):
+    # a REP MOVS element knows it is a later one by the PC before it, and the P54C's bank clash by
+    # the previous element's store; FLD/FXCH pairs and a store miss's write buffers span the cuts
+    src = tmp_path / "mix.S"
+    src.write_text(".intel_syntax noprefix\n.text\n.globl k\nk:\n    push esi\n    push edi\n"
+                   "    mov esi, [esp+12]\n    lea edi, [esi+36]\n    mov ecx, 40\n    cld\n    rep movsd\n"
+                   "    mov esi, [esp+12]\n    mov edx, 6\n    fldz\n1:  fld dword ptr [esi]\n    fxch st(1)\n"
+                   "    faddp st(1), st(0)\n    mov [esi+4096+8*edx], eax\n    add esi, 4\n"
+                   "    dec edx\n    jnz 1b\n    fstp st(0)\n    pop edi\n    pop esi\n    ret\n")
+    buf = np.zeros(16384, np.uint8)
+    emu = emulate(src, "k", lambda m: [m.arena.put(buf, align=4096)], repeat=2)
+    model = make_model(cpu)
+    whole = model.run(emu.trace, emu.decoder(), emu.bounds, (0, emu.trace.instructions), emu.last_call)
+    assert whole.segment()["pairs"] > 0 and whole.segment()["bus_writes"] > 0
+    _same(_chunked(model, emu, sizes, (0, emu.trace.instructions)), whole)
+
+
+@pytest.mark.parametrize("cpu", ["pentium2-233", "pentium-mmx-233", "pentium-133"])
+@pytest.mark.parametrize("sizes", [[9], [1]])
+def test_precision_variants_met_early_are_reported_in_whole_trace_order(cpu, sizes):
     # the first chunks run FDIV at 24, 53 and 64 bits before the loop's reset path and the epilogue
     # first appear: the chunked run numbers those statics differently until it finishes
     emu = emulate(MICRO / "x87_precision.S", "cw_cycle", lambda m: [m.arena.put(CWS), 12], repeat=1)
-    model = make_model("pentium2-233")
+    model = make_model(cpu)
     tl = (0, emu.trace.instructions)
     whole = model.run(emu.trace, emu.decoder(), emu.bounds, tl, 0)
     assert len(whole.program.records) > len({r.pc for r in whole.program.records})  # variants exist
-    chunked = _chunked(model, emu, [9], tl)
+    chunked = _chunked(model, emu, sizes, tl)
     _same(chunked, whole)
 
 
-def test_time_kernel_streams_and_matches_the_classic_path():
+@pytest.mark.parametrize("cpu", ["pentium2-233", "pentium-mmx-233"])
+def test_time_kernel_streams_and_matches_the_classic_path(cpu):
     setup = _span_setup(20000)
-    streamed = time_kernel(ZBUF / "fp16z.S", "fp16z_span", setup, cpu="pentium2-233", repeat=3)
+    streamed = time_kernel(ZBUF / "fp16z.S", "fp16z_span", setup, cpu=cpu, repeat=3)
     assert streamed.trace is None  # the trace was never held whole
-    emu = emulate(ZBUF / "fp16z.S", "fp16z_span", setup, repeat=3, isa_cpu="pentium2-233")
-    classic = time_emulation(emu, "pentium2-233")
+    emu = emulate(ZBUF / "fp16z.S", "fp16z_span", setup, repeat=3, isa_cpu=cpu)
+    classic = time_emulation(emu, cpu)
     assert streamed.calls == classic.calls
     assert np.array_equal(streamed.run.per_static, classic.run.per_static)
 
@@ -90,6 +127,22 @@ def test_a_kernel_reading_rdtsc_is_timed_with_its_answers():
     classic = time_emulation(emu, "pentium2-233")
     assert streamed.run.rdtsc.size > 0
     assert np.array_equal(streamed.run.rdtsc, classic.run.rdtsc) and streamed.calls == classic.calls
+
+
+@pytest.mark.parametrize("cut", ["before the first", "every instruction", "mixed"])
+def test_p5_rdtsc_answers_survive_any_cut(cut):
+    # PUSH EDX; RDTSC: the PUSH, first run, waits for its successor's static (held back), and
+    # the RDTSC after it is timed with it: later RDTSCs of that chunk still get their own answers
+    from sim import texture
+
+    emu = emulate(kernels_root() / texture.FDIV_KERNEL, "timesnap", None, repeat=2)
+    model = make_model("pentium-mmx-233")
+    whole = model.run(emu.trace, emu.decoder(), emu.bounds, (0, 0), emu.last_call)
+    assert whole.rdtsc.size == 4
+    records, index = emu.decoder().decode_trace(emu.trace.pc)
+    first = int(np.flatnonzero(np.isin(index, [s for s, r in enumerate(records) if r.mnemonic == "rdtsc"]))[0])
+    sizes = {"before the first": [first, 1000], "every instruction": [1], "mixed": [3, 1]}[cut]
+    _same(_chunked(model, emu, sizes), whole)
 
 
 def test_a_fault_in_a_streamed_run_is_reported_and_leaves_no_thread(tmp_path):

@@ -37,8 +37,8 @@ from .k6 import dram_cost as socket7_dram_cost
 from .locking import lock_cost, locked_match
 from .lowering import COMPUTE, DEC_SIMPLE, GPRS, PART_MASK, StaticProgram, lower
 from .p6 import CoreRun
-from .precision import split_by_precision
 from .presets import CpuPreset, model_by_cpuid
+from .session import CoreSession
 from .table import TABLES, InstructionTable, Match, load_table
 
 CLASSES = {"NP": core.NP, "UV": core.UV, "PU": core.PU, "PV": core.PV, "FX": core.FX, "FXCH": core.FXCH,
@@ -322,25 +322,13 @@ class P5Model:
             timeline: tuple[int, int] = (0, 0), stat_first: int = 0, access_logs=None) -> P5CoreRun:
         """Time `trace` from a cold machine (the arguments and result are those of P6Model.run;
         `access_logs` is accepted and not used: the P5 core walks its caches on every run)."""
-        records, index = decoder.decode_trace(trace.pc)
-        records, index, precisions = split_by_precision(records, index, trace, self.table)
-        program = self.lower(records, precisions)
-        static = self.rules.static(program)
-        n = trace.instructions
-        acc_start, acc_count = access_spans(trace.mem_insn, n)
-        cuts = np.asarray(segments or [n], dtype=np.int64)
-        is_rdtsc = np.array([int(r.mnemonic == "rdtsc") for r in records], np.int64)
-        executed = np.flatnonzero(is_rdtsc)
-        rdtsc = np.zeros(int(np.isin(index, executed).sum()) if executed.size else 0, np.int64)
-        counters = np.zeros((cuts.size, core.NC), np.int64)
-        per_static = np.zeros((len(records) + 1, core.NS), np.int64)
-        rows = np.zeros((timeline[1], core.NT), np.int64)
-        self.reset()
-        dcounts, icounts = self.dside.new_counts(), self.iside.new_counts()
-        end = core.simulate(index, trace.pc, acc_start, acc_count, trace.mem_addr, trace.mem_size, trace.mem_write,
-                            cuts, *static.arrays, self.params, *self.dside.arrays(), dcounts, *self.iside.arrays(),
-                            icounts, counters, per_static, stat_first, rows, timeline[0], is_rdtsc, rdtsc)
-        return P5CoreRun(program, counters, per_static[:-1], rows, rdtsc, int(end), static)
+        session = P5Session(self, decoder, segments if segments else [trace.instructions], timeline, stat_first)
+        session.feed(trace, -1)
+        return session.finish()
+
+    def session(self, decoder: Decoder, segments: list[int], stat_first: int = 0, check=None) -> P5Session:
+        """A run fed in chunks (sim/stream.py), as :meth:`sim.cpus.p6.P6Model.session`."""
+        return P5Session(self, decoder, segments, (0, 0), stat_first, check)
 
     # ---- vocabulary for the views ---------------------------------------------------------------
     def summary_rows(self, s: dict) -> list[tuple[str, str, str]]:
@@ -412,3 +400,63 @@ class P5Model:
                 f"{r['v_pipe']:,}", z(r["group_cycles"]), z(r["stall_agi"]), z(r["stall_prefix"]), z(r["stall_fpu"]),
                 z(r["stall_memory"]), z(r["stall_misaligned"]), z(r["stall_bank"]), z(r["stall_write_buffer"]),
                 z(r["mispredict_rate"]), r["alone_because"], r["row"] + (" (est.)" if r["estimated"] else "")]
+
+
+class P5Session(CoreSession):
+    """One P5 run fed in order, chunk by chunk (the core's state is kept between chunks).
+
+    Pairing looks one instruction ahead, so a chunk's last instruction may need the next chunk's
+    first (its V partner, or its static to decide). The core then leaves it untimed and it is
+    held here; the next chunk times it first, in a call on just the two instructions (the held
+    one and the new chunk's first, which goes with it into the V pipe, or is timed alone, or is
+    held back in turn), then the rest of the chunk: the groups are those of the whole trace."""
+
+    NC, NS, NT = core.NC, core.NS, core.NT
+
+    def __init__(self, model: P5Model, decoder: Decoder, segments: list[int], timeline: tuple[int, int] = (0, 0),
+                 stat_first: int = 0, check=None):
+        super().__init__(model, decoder, segments, timeline, stat_first, check)
+        self.dstats, self.istats = model.dside.new_counts(), model.iside.new_counts()
+        self.state = core.new_state(model.params, 0)
+        self.static = model.rules.static(self.program)
+        self.held: tuple[Trace, int] | None = None  # an instruction waiting for its successor, and its static id
+
+    def grown(self, program) -> None:
+        self.static = self.model.rules.static(program)
+        self.state = core.grow_statics(self.state, len(program.records))
+
+    def _simulate(self, base, next_pc, index, pc, acc_start, acc_count, chunk, rdtsc_sid, rdtsc_out) -> int:
+        model = self.model
+        return core.simulate(base, next_pc, index, pc, acc_start, acc_count, chunk.mem_addr, chunk.mem_size,
+                             chunk.mem_write, self.seg_end, *self.static.arrays, model.params,
+                             *model.dside.arrays(), self.dstats, *model.iside.arrays(), self.istats, self.counters,
+                             self.per_static, self.stat_first, self.timeline, self.tl_first, rdtsc_sid, rdtsc_out,
+                             *self.state)
+
+    def time_chunk(self, chunk, index, next_pc, rdtsc_sid, rdtsc_out, access_logs) -> int:
+        n = chunk.instructions
+        sv = self.state[0]
+        first = 0  # the chunk's first instruction not yet timed
+        if self.held is not None and n:
+            held, sid = self.held
+            self.held = None
+            two = Trace.concatenate([held, chunk.part(0, 1)])
+            self._simulate(self.base - 1, int(chunk.pc[1]) if n > 1 else next_pc,
+                           np.array([sid, index[0]], index.dtype), two.pc, *access_spans(two.mem_insn, 2), two,
+                           rdtsc_sid, rdtsc_out)
+            first = int(sv[core.V_STOPPED]) - 1  # 1: the chunk's first instruction was timed too
+            rdtsc_out = rdtsc_out[int(sv[core.V_NRDTSC]):]
+        acc_start, acc_count = access_spans(chunk.mem_insn, n)
+        # the rest as views from `first` (the core's loop index starts at 0: see p5_core.simulate)
+        total = self._simulate(self.base + first, next_pc, index[first:], chunk.pc[first:],
+                               acc_start[first:], acc_count[first:], chunk, rdtsc_sid, rdtsc_out)
+        stopped = first + int(sv[core.V_STOPPED])
+        if stopped < n:  # held back: only ever the last instruction, never an RDTSC (NP)
+            self.held = (chunk.part(stopped, n), int(index[stopped]))
+            assert stopped == n - 1 and not rdtsc_sid[index[stopped]]
+        return total
+
+    def result(self, program, counters, per_static, timeline, rdtsc, total) -> P5CoreRun:
+        assert self.held is None, "the run's last chunk was fed with a next PC"
+        static = self.static if program is self.program else self.model.rules.static(program)
+        return P5CoreRun(program, counters, per_static, timeline, rdtsc, total, static)

@@ -172,58 +172,121 @@ def _load_miss(r, lvl, now, P, bus_free, ctr):
     return done - now, bus_free
 
 
+# Loop-carried scalar state: kept in an int64 vector between calls, so a trace can be timed in
+# chunks (a streamed emulation) exactly as in one call (see :func:`new_state`).
+(V_ESP_AGI, V_FP_TOP, V_FP_FREE, V_FMUL_FREE, V_FP_DONE, V_WB_POS, V_BUS_FREE, V_REP_PREV_STORE, V_LAST_ILINE,
+ V_T, V_SEG, V_SEG_START, V_PREV_PC, V_STOPPED, V_NRDTSC) = range(15)
+NSTATE = 15
+
+
+def new_state(P: np.ndarray, nstatic: int) -> tuple:
+    """The machine at reset, for :func:`simulate`: the scalar vector, then the arrays in the order
+    simulate takes them. `nstatic`: static instructions so far; :func:`grow_statics` makes room
+    for more between calls."""
+    sv = np.zeros(NSTATE, np.int64)
+    sv[V_REP_PREV_STORE] = -1   # the previous REP MOVS element's store address
+    sv[V_LAST_ILINE] = -1
+    sv[V_PREV_PC] = -1          # the PC of the instruction before the chunk (-1: none)
+    btb_sets, btb_ways, hist_bits = int(P[P_BTB_SETS]), int(P[P_BTB_WAYS]), int(P[P_HIST_BITS])
+    return (sv,
+            np.zeros(8, np.int64),                      # reg_avail: cycle a GPR's value reaches the execute stage
+            np.zeros(40, np.int64),                     # ext_ready: x87 slots (physical) and MMX registers
+            np.zeros(max(1, int(P[P_NWB])), np.int64),  # wb_free: write buffers
+            np.zeros(nstatic, np.int64),                # seen: executions so far, per static
+            # pairing depends only on the two statics (and whether the first has run before): the
+            # static after a non-branch is always the same one, so each answer is computed once
+            np.full((nstatic, 2), -1, np.int64),        # pair_cache: [a, first_ok] -> reason * 16 + register + 1
+            np.full((btb_sets, btb_ways), -1, np.int64),  # btb_tag
+            np.zeros((btb_sets, btb_ways), np.int64),     # btb_stamp
+            np.zeros((btb_sets, btb_ways), np.int64),     # btb_hist
+            np.zeros((btb_sets, btb_ways), np.int64),     # btb_target
+            np.full((btb_sets, btb_ways, 1 << hist_bits), 2, np.int64),  # pht
+            np.full(16, -1, np.int64))                  # iline_seen: lines fetched since the last L1I miss
+
+
+SEEN, PAIR_CACHE = 4, 5  # positions in new_state's tuple of the arrays with a row per static
+
+
+def grow_statics(state: tuple, nstatic: int) -> tuple:
+    """`state` with room for `nstatic` static instructions (a later chunk brought new ones)."""
+    seen, cache = state[SEEN], state[PAIR_CACHE]
+    if seen.shape[0] >= nstatic:
+        return state
+    grown_seen = np.zeros(nstatic, np.int64)
+    grown_seen[:seen.shape[0]] = seen
+    grown_cache = np.full((nstatic, 2), -1, np.int64)
+    grown_cache[:cache.shape[0]] = cache
+    return state[:SEEN] + (grown_seen, grown_cache) + state[PAIR_CACHE + 1:]
+
+
 @njit(cache=True, nogil=True)
-def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_write, seg_end,
+def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_cls, s_cyc, s_pfx, s_pfxv, s_immdisp, s_addr, s_stack, s_esp_agi, s_rmask, s_wmask, s_rflags,
              s_wflags, s_jcc, s_branch, s_fp, s_fplat, s_fpnext, s_fmul, s_waitfpu, s_mmx, s_mmx_u, s_mmxlat,
              s_rep, s_repstart, s_rep0, s_nsrc, s_src, s_ndst, s_dst, s_fpdelta, s_memkind, s_fstore, P,
              dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
-             counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out):
+             counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out,
+             sv, reg_avail, ext_ready, wb_free, seen, pair_cache, btb_tag, btb_stamp, btb_hist,
+             btb_target, pht, iline_seen):
+    """Time the chunk's instructions (run instructions base, base + 1, ...), continuing from the
+    state (`sv` and the arrays after it, from :func:`new_state`) and leaving it for the next call.
+    The chunk's arrays are its own (``acc_start`` indexes its accesses); everything else counts
+    instructions from the run's start. `next_pc`: the PC of the instruction after the chunk, -1 at
+    the end of the run. (The loop index starts at the constant 0 and the caller passes views for a
+    later start: from an argument, every array index would need a check for negative values, a
+    few per cent slower.)
+
+    Pairing looks one instruction ahead: the chunk's last instruction may need the next chunk's
+    first as its V partner (or, its pairing not yet known, that instruction's static). Then the
+    call stops before it (sv[V_STOPPED] = its index, else the index after the last group) and the
+    caller times it with its successor first (p5.P5Session). Such an instruction is never NP, so
+    never an RDTSC. Returns the cycle the last group ended."""
     n = dyn_sid.shape[0]
-    nstatic = s_len.shape[0]
-    reg_avail = np.zeros(8, np.int64)     # cycle a GPR's value reaches the execute stage
-    esp_agi = 0                            # same for ESP written by a non-stack instruction
-    ext_ready = np.zeros(40, np.int64)     # x87 slots (physical) and MMX registers, by lowering's ids
-    fp_top = 0
-    fp_free = 0
-    fmul_free = 0
-    fp_done = 0
-    wb_free = np.zeros(max(1, P[P_NWB]), np.int64)
-    wb_pos = 0
-    bus_free = 0
-    seen = np.zeros(nstatic, np.int64)
-    # pairing depends only on the two statics (and whether the first has run before): the static
-    # after a non-branch is always the same one, so each answer is computed once
-    pair_cache = np.full((nstatic, 2), -1, np.int64)   # [a, first_ok] -> reason * 16 + register + 1
+    sink = per_static.shape[0] - 1  # per-static sums only from stat_first: earlier ones go to this row
     btb_sets, btb_ways, hist_bits = P[P_BTB_SETS], P[P_BTB_WAYS], P[P_HIST_BITS]
-    btb_tag = np.full((btb_sets, btb_ways), -1, np.int64)
-    btb_stamp = np.zeros((btb_sets, btb_ways), np.int64)
-    btb_hist = np.zeros((btb_sets, btb_ways), np.int64)
-    btb_target = np.zeros((btb_sets, btb_ways), np.int64)
-    pht = np.full((btb_sets, btb_ways, 1 << hist_bits), 2, np.int64)
-    rep_prev_store = np.int64(-1)         # the previous REP MOVS element's store address
-    last_iline = -1
-    iline_seen = np.full(16, -1, np.int64)  # lines fetched since the last L1I miss: still resident
-    t = 0
-    seg = 0
-    seg_start = 0
+    esp_agi = sv[V_ESP_AGI]          # cycle ESP written by a non-stack instruction reaches execute
+    fp_top = sv[V_FP_TOP]
+    fp_free = sv[V_FP_FREE]
+    fmul_free = sv[V_FMUL_FREE]
+    fp_done = sv[V_FP_DONE]
+    wb_pos = sv[V_WB_POS]
+    bus_free = sv[V_BUS_FREE]
+    rep_prev_store = sv[V_REP_PREV_STORE]
+    last_iline = sv[V_LAST_ILINE]
+    t = sv[V_T]
+    seg = sv[V_SEG]
+    seg_start = sv[V_SEG_START]
+    # what counts instructions from the run's start, counted from the chunk's
+    first_l = stat_first - base
+    tl_first_l = tl_first - base
+    seg_end_l = seg_end - base
     nrdtsc = 0
-    i = 0
-    while i < n:
-        a = dyn_sid[i]
-        pa = a if i >= stat_first else nstatic
+    li = 0  # (from a constant: indexing with it needs no check for negative indices)
+    while li < n:
+        a = dyn_sid[li]
+        pa = a if li >= first_l else sink
+        pc_a = np.int64(dyn_pc[li])
         # a later element of a REP string instruction: the same PC again
-        rep_later = s_rep[a] != REP_NONE and i > 0 and np.int64(dyn_pc[i - 1]) == np.int64(dyn_pc[i])
+        if s_rep[a] != REP_NONE:
+            rep_later = (np.int64(dyn_pc[li - 1]) if li > 0 else sv[V_PREV_PC]) == pc_a
+        else:
+            rep_later = False
         # ---- pairing ----------------------------------------------------------------------
         reason = R_BRANCH
         rreg = -1
         group = 1
-        if i + 1 < n and s_branch[a] == BR_NONE and np.int64(dyn_pc[i + 1]) == np.int64(dyn_pc[i]) + s_len[a] and \
-                not (seg < seg_end.shape[0] and i + 1 == seg_end[seg]):
-            b = dyn_sid[i + 1]
+        # (next_pc -1, the run's end, is no instruction's successor)
+        if s_branch[a] == BR_NONE and (np.int64(dyn_pc[li + 1]) if li + 1 < n else next_pc) == pc_a + s_len[a] and \
+                not (seg < seg_end_l.shape[0] and li + 1 == seg_end_l[seg]):
             first_ok = 1 if (P[P_FIRST_PASS] == 1 or seen[a] > 0 or s_len[a] == 1) else 0
             code = pair_cache[a, first_ok]
             if code < 0:
+                if li + 1 < n:
+                    b = dyn_sid[li + 1]
+                elif s_cls[a] == NP or s_cls[a] == PV or s_cls[a] == FXCH:
+                    b = a  # the answer does not depend on the next instruction (_pair_reason)
+                else:
+                    break  # the next instruction's static is in the next chunk: hold this one back
                 reason, rreg = _pair_reason(a, b, s_cls, s_len, s_rmask, s_wmask, s_rflags, s_wflags, s_jcc,
                                             s_stack, s_immdisp, s_pfxv, s_mmx, s_mmx_u, P[P_IMMDISP_MODE],
                                             P[P_PFX_V], first_ok)
@@ -232,6 +295,8 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
             reason = code // 16
             rreg = code % 16 - 1
             if reason == R_PAIRED:
+                if li + 1 >= n:
+                    break  # its V partner is in the next chunk: hold this one back
                 group = 2
         elif s_cls[a] == NP:
             reason = R_NP
@@ -241,9 +306,9 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         # ---- code fetch (L1I) ------------------------------------------------------------
         stall_fetch = 0
         for k in range(group):
-            pc = np.int64(dyn_pc[i + k])
+            pc = np.int64(dyn_pc[li + k])
             for half in range(2):
-                line = (pc >> 5) if half == 0 else ((pc + s_len[dyn_sid[i + k]] - 1) >> 5)
+                line = (pc >> 5) if half == 0 else ((pc + s_len[dyn_sid[li + k]] - 1) >> 5)
                 if line != last_iline and iline_seen[line & 15] != line:
                     # (a line fetched since the last miss is still resident: its lookup is a hit, and
                     # only its LRU refresh is lost, which matters only for code larger than the L1I)
@@ -259,14 +324,14 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         # ---- decode: prefixes --------------------------------------------------------------
         pfx = 0 if rep_later else s_pfx[a]
         if group == 2:
-            pfx += s_pfx[dyn_sid[i + 1]]
+            pfx += s_pfx[dyn_sid[li + 1]]
         start += pfx
         counters[seg, C_PREFIX] += pfx
         per_static[pa, S_PREFIX] += pfx
         # ---- AGI: an address register written in the preceding clock ------------------------
         agi = 0
         for k in range(0 if rep_later else group):
-            s = dyn_sid[i + k]
+            s = dyn_sid[li + k]
             m = s_addr[s]
             r = 0
             while m != 0:
@@ -285,7 +350,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         # ---- x87 and MMX readiness -----------------------------------------------------------
         fp_wait = 0
         for k in range(group):
-            s = dyn_sid[i + k]
+            s = dyn_sid[li + k]
             if s_fp[s] == 0 and s_mmx[s] == 0:
                 continue
             ready = start
@@ -310,7 +375,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         # ---- execute: duration, memory --------------------------------------------------------
         dur = s_cyc[a]
         if group == 2:
-            b = dyn_sid[i + 1]
+            b = dyn_sid[li + 1]
             if s_cyc[b] > dur:
                 dur = s_cyc[b]
             # a read/modify/write in U with a read/modify or read/modify/write in V overlaps it
@@ -319,7 +384,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
             if pc2 > dur:
                 dur = pc2
         if s_rep[a] != REP_NONE:
-            if acc_count[i] == 0:
+            if acc_count[li] == 0:
                 dur = 0 if rep_later else s_rep0[a]  # closing count check / ECX = 0 on entry
             elif not rep_later:
                 dur += s_repstart[a]
@@ -332,9 +397,9 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         u_lo = np.int64(-1)   # dword range of the U instruction's accesses
         u_hi = np.int64(-2)
         for k in range(group):
-            s = dyn_sid[i + k]
-            ps = s if i + k >= stat_first else nstatic
-            for q in range(acc_start[i + k], acc_start[i + k] + acc_count[i + k]):
+            s = dyn_sid[li + k]
+            ps = s if li + k >= first_l else sink
+            for q in range(acc_start[li + k], acc_start[li + k] + acc_count[li + k]):
                 addr = np.int64(mem_addr[q])
                 sz = np.int64(mem_size[q])
                 span = 8 if sz > 4 else 4
@@ -399,7 +464,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
         end = start + dur + mem + mis + bank + wbw
         # ---- results --------------------------------------------------------------------------
         for k in range(group):
-            s = dyn_sid[i + k]
+            s = dyn_sid[li + k]
             done = start + (dur if group == 1 else s_cyc[s]) + mem + mis
             w = s_wmask[s]
             r = 0
@@ -438,13 +503,16 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                     ext_ready[rid] = start + (fplat if s_fp[s] == 1 else s_mmxlat[s])
             fp_top = top_after
         # ---- branches -----------------------------------------------------------------------
-        last = i + group - 1
+        last = li + group - 1
         sb = dyn_sid[last]
-        psb = sb if last >= stat_first else nstatic
+        psb = sb if last >= first_l else sink
         if s_branch[sb] != BR_NONE:
             counters[seg, C_BRANCHES] += 1
             pc = np.int64(dyn_pc[last])
-            nxt = np.int64(dyn_pc[last + 1]) if last + 1 < n else pc + s_len[sb]
+            if last + 1 < n:
+                nxt = np.int64(dyn_pc[last + 1])
+            else:
+                nxt = next_pc if next_pc >= 0 else pc + s_len[sb]
             taken = nxt != pc + s_len[sb]
             bset = pc % btb_sets
             way = -1
@@ -461,19 +529,19 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                     mispredicted = predict != taken or (taken and pred_target != nxt)
                     pht[bset, way, h] = min(3, cnt + 1) if taken else max(0, cnt - 1)
                     btb_hist[bset, way] = ((h << 1) | (1 if taken else 0)) & ((1 << hist_bits) - 1)
-                    btb_stamp[bset, way] = i
+                    btb_stamp[bset, way] = base + li
                 else:
                     mispredicted = taken  # not in the BTB: predicted not taken
                     if taken:
-                        way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, i)
+                        way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, base + li)
                         btb_hist[bset, way] = 1 & ((1 << hist_bits) - 1)
                         for h in range(1 << hist_bits):
                             pht[bset, way, h] = 3  # ESTIMATES["btb_new_entry"] in p5.py
             else:
                 mispredicted = way < 0 or btb_target[bset, way] != nxt
                 if way < 0:
-                    way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, i)
-                if s_branch[sb] == BR_RET and last + 1 >= n:
+                    way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, base + li)
+                if s_branch[sb] == BR_RET and last + 1 >= n and next_pc < 0:
                     mispredicted = False  # the return to the harness ends the stream
             if way >= 0 and taken:
                 btb_target[bset, way] = nxt
@@ -489,7 +557,7 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
             counters[seg, C_PAIRS] += 1
             counters[seg, C_U] += 1
             counters[seg, C_V] += 1
-            pb = dyn_sid[i + 1] if i + 1 >= stat_first else nstatic
+            pb = dyn_sid[li + 1] if li + 1 >= first_l else sink
             per_static[pa, S_U] += 1
             per_static[pa, S_PAIRED_U] += 1
             per_static[pb, S_V] += 1
@@ -503,16 +571,16 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
                 per_static[pa, S_REASON_REG] = rreg
         per_static[pa, S_CYCLES] += end - t
         for k in range(group):
-            s = dyn_sid[i + k]
+            s = dyn_sid[li + k]
             seen[s] += 1
-            ps = s if i + k >= stat_first else nstatic
+            ps = s if li + k >= first_l else sink
             per_static[ps, S_EXEC] += 1
             if nrdtsc < rdtsc_out.shape[0] and rdtsc_sid[s] == 1:
                 rdtsc_out[nrdtsc] = start
                 nrdtsc += 1
-            if tl_first <= i + k < tl_first + timeline.shape[0]:
-                row = timeline[i + k - tl_first]
-                row[0] = i + k
+            if tl_first_l <= li + k < tl_first_l + timeline.shape[0]:
+                row = timeline[li + k - tl_first_l]
+                row[0] = base + li + k
                 row[1] = s
                 row[2] = t
                 row[3] = start
@@ -523,10 +591,27 @@ def simulate(dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_writ
             counters[seg, C_INSTRUCTIONS] += 1
             counters[seg, C_UOPS] += 1
         t = end
-        i += group
-        while seg < seg_end.shape[0] and i >= seg_end[seg]:
+        li += group
+        while seg < seg_end_l.shape[0] and li >= seg_end_l[seg]:
             counters[seg, C_CYCLES] = t - seg_start
             seg_start = t
             seg += 1
+
+    if li > 0:
+        sv[V_PREV_PC] = np.int64(dyn_pc[li - 1])
+    sv[V_STOPPED] = li
+    sv[V_NRDTSC] = nrdtsc  # RDTSC values written (outputs, not state)
+    sv[V_ESP_AGI] = esp_agi
+    sv[V_FP_TOP] = fp_top
+    sv[V_FP_FREE] = fp_free
+    sv[V_FMUL_FREE] = fmul_free
+    sv[V_FP_DONE] = fp_done
+    sv[V_WB_POS] = wb_pos
+    sv[V_BUS_FREE] = bus_free
+    sv[V_REP_PREV_STORE] = rep_prev_store
+    sv[V_LAST_ILINE] = last_iline
+    sv[V_T] = t
+    sv[V_SEG] = seg
+    sv[V_SEG_START] = seg_start
     return t
 
