@@ -1,8 +1,10 @@
 """Speed benchmark: the same Z-buffer workload emulated three ways, measured in one run.
 
-End to end (emulate with the native trace, decode, time on a CPU model) is compared with the native
-trace alone; `model_only` is the timing model alone on an emulated trace (decode included), the part
-of end to end that emulation does not explain.
+End to end (emulate with the native trace, decode, time on a CPU model: `sim.timing.time_kernel`,
+which runs the model beside the emulator on the streamed trace, sim/stream.py) is compared with the
+native trace alone; `model_only` is the timing model alone on an emulated trace (decode included),
+the part of end to end that emulation does not hide. `cores` says how many host cores the run could
+use: with one, streaming cannot overlap the two.
 
 Figures are ratios of one run on one machine; absolute numbers vary between machines, which is
 why nothing here is asserted in tests.
@@ -43,7 +45,9 @@ def run_bench(pixels: int = 1 << 20, progress=None) -> dict:
         r = m.call("fp16z_span", zb, fb, n, z, dz, colour, trace=trace, budget=0)
         return time.perf_counter() - start, r
 
-    results: dict = {"pixels": pixels}
+    from .parallel import default_jobs
+
+    results: dict = {"pixels": pixels, "cores": default_jobs()}
     for mode, trace in (("unicorn_bare", False), ("python_hook", "python"), ("native_trace", True)):
         if progress is not None:
             progress.print(f"[dim]measuring {mode.replace('_', ' ')} ...[/]")

@@ -280,17 +280,17 @@ def bench_cmd(pixels: int, as_json: bool):
         click.echo(json.dumps(result, indent=2))
         return
     table = Table(title=f"retrosim bench: fp16z_span over {pixels:,} pixels, "
-                        f"{result['instructions']:,} guest instructions")
+                        f"{result['instructions']:,} guest instructions, {result['cores']} core(s)")
     table.add_column("mode")
     table.add_column("seconds", justify="right")
     table.add_column("guest instr/s", justify="right")
     table.add_column("vs bare", justify="right")
     for mode, key in (("Unicorn, no hooks", "unicorn_bare"), ("Python hooks (code + memory)", "python_hook"),
                       ("native trace (numba cfuncs)", "native_trace"),
-                      ("end to end: trace + P6 model (pentium2-233)", "end_to_end"),
+                      ("end to end, streamed: trace + P6 model (pentium2-233)", "end_to_end"),
                       ("P6 model alone on the trace (pentium2-233)", "model_only"),
-                      ("end to end: trace + K6 model (k6-233)", "k6_end_to_end"),
-                      ("end to end: trace + P5 model (pentium-mmx-233)", "p5_end_to_end")):
+                      ("end to end, streamed: trace + K6 model (k6-233)", "k6_end_to_end"),
+                      ("end to end, streamed: trace + P5 model (pentium-mmx-233)", "p5_end_to_end")):
         ips = result[f"{key}_ips"]
         table.add_row(mode, f"{result[f'{key}_seconds']:.3f}", f"{ips / 1e6:,.1f} M",
                       f"{result['unicorn_bare_ips'] / ips:,.1f}x slower" if key != "unicorn_bare" else "1x")
