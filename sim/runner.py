@@ -207,7 +207,9 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
             while pending:  # the previous variant's timings ran while this one was emulated
                 collect(pending.pop(0))
             pool = SharedPool(shared, jobs)
-            for f in futures:
+            # the machines with claims' re-timings (many times the work of one timing) start first,
+            # so that no core is left waiting on one long task at the end; results keep their order
+            for f in sorted(futures, key=lambda f: not f[2][2]):
                 f[2] = pool.submit(_time_task, *f[2])
             pool.release()  # only the workers keep this variant's trace now
             pending.append((variant, run.pixels, pool, futures))
