@@ -140,7 +140,7 @@ def _slot_of(rid, top, rel):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _k6_miss(r, lvl, start, P, bus, wb1, wb2, ctr):
+def _k6_miss(r, lvl, start, P, bus, wb1, wb2, counters, cs):
     """Extra cycles beyond an L1 hit for an L1 miss served by level `lvl` (service() levels:
     1 = L2, ..., the last = memory). `bus[0]`: the front-side bus (board cache and DRAM), free from
     that cycle; `bus[1]`: the K6-III's on-die L2 port. `wb1`/`wb2`: dirty victims the access made
@@ -150,12 +150,12 @@ def _k6_miss(r, lvl, start, P, bus, wb1, wb2, ctr):
     t = start
     board_wb = wb1
     if P[P_ONDIE] == 1:
-        ctr[C_L2_ACCESSES] += 1
+        counters[cs, C_L2_ACCESSES] += 1
         s = max(t, bus[1])
         bus[1] = s + P[P_L2_BUS] * (1 + wb1)
         if lvl == 1:
             return s + P[P_L2_LAT] - P[P_L1_LAT] - start
-        ctr[C_L2_MISSES] += 1
+        counters[cs, C_L2_MISSES] += 1
         t = s + P[P_L2_LAT] - P[P_L1_LAT]  # the miss is known when a hit would have delivered
         board_wb = wb2
     fills = memory_fills(r)
@@ -166,16 +166,16 @@ def _k6_miss(r, lvl, start, P, bus, wb1, wb2, ctr):
     if board > 0:
         busy += board_wb * P[P_BOARD_BUSY]
         c_acc = C_L2_ACCESSES if board == 1 else C_L3_ACCESSES
-        ctr[c_acc] += 1
+        counters[cs, c_acc] += 1
         if lvl == board:
             busy += P[P_BOARD_BUSY]
             done = start + P[P_BOARD_LAT] - P[P_L1_LAT] + (s - t)
         else:
-            ctr[c_acc + 1] += 1  # C_L2_MISSES / C_L3_MISSES
+            counters[cs, c_acc + 1] += 1  # C_L2_MISSES / C_L3_MISSES
     bus[0] = s + busy
-    ctr[C_DRAM_FILLS] += fills
-    ctr[C_DRAM_WRITEBACKS] += wbs
-    ctr[C_DRAM_BUS_CYCLES] += fills * P[P_DRAM_LINE] + wbs * P[P_DRAM_WB]
+    counters[cs, C_DRAM_FILLS] += fills
+    counters[cs, C_DRAM_WRITEBACKS] += wbs
+    counters[cs, C_DRAM_BUS_CYCLES] += fills * P[P_DRAM_LINE] + wbs * P[P_DRAM_WB]
     return max(0, done - start)
 
 
@@ -254,7 +254,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
         u0 = s_uop0[sid]
         cyc = s_cyc[sid]
         psid = sid if i >= stat_first else nstatic
-        ctr = counters[min(seg, last_seg)]
+        cs = min(seg, last_seg)
 
         # ---- fetch: the L1I ----------------------------------------------------------------------
         # Only code fills the L1I, so a line that hit stays resident until the next miss: `known`
@@ -266,7 +266,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             if served_level(service(itags, istamps, idirty, iconfig, iclock, istats, pc, 1, False)) > 0:
                 known[:] = -1
                 known[iline & 63] = iline
-                ctr[C_L1I_MISSES] += 1
+                counters[cs, C_L1I_MISSES] += 1
                 t = max(dec_free, fe_ready) + P[P_IMISS]
                 if t > fe_ready:
                     fe_ready = t
@@ -279,7 +279,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
         if new_quad:
             d = dec_free
             if fe_ready > d:
-                ctr[C_STALL_MISPREDICT if fe_cause == 1 else C_STALL_FETCH] += fe_ready - d
+                counters[cs, C_STALL_MISPREDICT if fe_cause == 1 else C_STALL_FETCH] += fe_ready - d
                 if fe_cause == 1:
                     per_static[psid, S_STALL_MISPREDICT] += fe_ready - d
                 d = fe_ready
@@ -287,7 +287,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             free_at = qring[q_slot] if nq >= quads else 0
             entry = max(d + 1, free_at)
             if free_at > d + 1:
-                ctr[C_STALL_ROB] += free_at - (d + 1)
+                counters[cs, C_STALL_ROB] += free_at - (d + 1)
                 per_static[psid, S_STALL_WINDOW] += free_at - (d + 1)
                 cause_alloc = 2
             if nq > 0:
@@ -295,7 +295,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                 # charged to the multi-clock decode that held the decoders, if any, else to this one
                 starved = min(d, dec_free) + 1 - max(prev_entry + 1, free_at)
                 if starved > 0:
-                    ctr[C_STALL_DECODE] += starved
+                    counters[cs, C_STALL_DECODE] += starved
                     held = min(starved, hold_cycles) if hold_psid >= 0 else 0
                     if held > 0:
                         per_static[hold_psid, S_STALL_DECODE] += held
@@ -310,23 +310,23 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             dec_free = max(d + max(cyc, 1), entry)  # the decoder holds its group until it enters
             grp_cycle = d
             grp_open = cyc == 0
-            ctr[C_DECODE_GROUPS] += 1
-            ctr[C_NOP_SLOTS] += 4 - nu
+            counters[cs, C_DECODE_GROUPS] += 1
+            counters[cs, C_NOP_SLOTS] += 4 - nu
             slot = 0
         else:
             d = grp_cycle
             entry = q_entry
             grp_open = False
-            ctr[C_NOP_SLOTS] -= nu
+            counters[cs, C_NOP_SLOTS] -= nu
             slot = 1
         if s_dec[sid] == DEC_MSROM:
-            ctr[C_MSROM_UOPS] += nu
-            ctr[C_VECTOR_CYCLES] += cyc
+            counters[cs, C_MSROM_UOPS] += nu
+            counters[cs, C_VECTOR_CYCLES] += cyc
             per_static[psid, S_MSROM] += 1
         else:
-            ctr[C_DECODER0 + slot] += 1
+            counters[cs, C_DECODER0 + slot] += 1
             per_static[psid, S_DECODER0 + slot] += 1
-        ctr[C_LCP_STALLS] += s_pfx[sid]
+        counters[cs, C_LCP_STALLS] += s_pfx[sid]
 
         # ---- ops: issue, execute ---------------------------------------------------------------
         top_before = fp_top
@@ -363,7 +363,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             dep_wait = ready - (entry + 1)
             if kind == STA and nstores >= sq_n and sq_ring[sq_pos] > ready:
                 w = sq_ring[sq_pos]
-                ctr[C_STALL_STORE_BUFFER] += w - ready
+                counters[cs, C_STALL_STORE_BUFFER] += w - ready
                 ready = w
             unit = u_unit[u]
             ports = u_ports[u]
@@ -389,25 +389,25 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                     a, sz = np.int64(mem_addr[j]), np.int64(mem_size[j])
                     e = _queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
                     if e >= 0:  # the queued store's data, with the ordinary load latency
-                        ctr[C_STORE_FORWARDS] += 1
+                        counters[cs, C_STORE_FORWARDS] += 1
                         fwd_wait = max(0, fw_ready[e] - disp)
-                        ctr[C_STALL_STORE_FORWARD] += fwd_wait
+                        counters[cs, C_STALL_STORE_FORWARD] += fwd_wait
                         per_static[psid, S_STALL_STORE_FORWARD] += fwd_wait
                     r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False) if dlog[0] == LOG_OFF else
                          logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False))
                     lvl = served_level(r)
-                    ctr[C_L1D_LOADS] += 1
+                    counters[cs, C_L1D_LOADS] += 1
                     if lvl > 0:
-                        ctr[C_L1D_LOAD_MISSES] += 1
+                        counters[cs, C_L1D_LOAD_MISSES] += 1
                         per_static[psid, S_L1D_MISSES] += 1
                         wb1 = _new_writebacks(dstats, wb_seen, 0)
                         wb2 = _new_writebacks(dstats, wb_seen, 1)
                         l1_fill_seen = dstats[0, S_FILLS]
-                        mem_wait = _k6_miss(r, lvl, disp, P, bus, wb1, wb2, ctr)
+                        mem_wait = _k6_miss(r, lvl, disp, P, bus, wb1, wb2, counters, cs)
                         if lvl == d_levels:
                             per_static[psid, S_L2_MISSES] += 1
                         if fwd_wait == 0:
-                            ctr[C_STALL_MEMORY] += mem_wait
+                            counters[cs, C_STALL_MEMORY] += mem_wait
                             per_static[psid, S_STALL_MEMORY] += mem_wait
             complete = disp + lat + max(mem_wait, fwd_wait)
             if kind == STA:
@@ -421,23 +421,23 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                     continue
                 reg_ready[_slot_of(s_dst[sid, j, 0], top_after, s_dst[sid, j, 3])] = complete
             if port >= 0:
-                ctr[C_PORT0 + port] += 1
+                counters[cs, C_PORT0 + port] += 1
                 per_static[psid, S_PORT0 + port] += 1
             elif unit == U_FPU:
-                ctr[C_FPU_OPS] += 1
+                counters[cs, C_FPU_OPS] += 1
                 per_static[psid, S_FPU] += 1
             if k == 0:
                 first_dispatch = disp
             if partial > 0:
-                ctr[C_STALL_PARTIAL_REGISTER] += partial
+                counters[cs, C_STALL_PARTIAL_REGISTER] += partial
                 per_static[psid, S_STALL_PARTIAL] += partial
                 cause_disp = max(cause_disp, 3)
             if dep_wait - partial > 0:
-                ctr[C_STALL_DEPENDENCY] += dep_wait - partial
+                counters[cs, C_STALL_DEPENDENCY] += dep_wait - partial
                 per_static[psid, S_STALL_DEPENDENCY] += dep_wait - partial
                 cause_disp = max(cause_disp, 4)
             if disp - ready > 0:
-                ctr[C_STALL_PORT] += disp - ready
+                counters[cs, C_STALL_PORT] += disp - ready
                 per_static[psid, S_STALL_PORT] += disp - ready
                 cause_disp = max(cause_disp, 5)
             if mem_wait > 0:
@@ -469,21 +469,21 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                 r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True) if dlog[0] == LOG_OFF else
                      logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True))
                 lvl = served_level(r)
-                ctr[C_L1D_STORES] += 1
+                counters[cs, C_L1D_STORES] += 1
                 if lvl > 0 or dstats[0, S_FILLS] != l1_fill_seen:
-                    ctr[C_L1D_STORE_MISSES] += 1
+                    counters[cs, C_L1D_STORE_MISSES] += 1
                     per_static[psid, S_L1D_MISSES] += 1
                     wb1 = _new_writebacks(dstats, wb_seen, 0)
                     wb2 = _new_writebacks(dstats, wb_seen, 1)
                     if dstats[0, S_FILLS] != l1_fill_seen:  # write-allocate: fetch the line first
                         l1_fill_seen = dstats[0, S_FILLS]
-                        commit += _k6_miss(r, max(lvl, 1), commit, P, bus, wb1, wb2, ctr)
+                        commit += _k6_miss(r, max(lvl, 1), commit, P, bus, wb1, wb2, counters, cs)
                     else:  # not allocated: one write on the front-side bus
                         s = max(commit, bus[0])
                         extra = memory_fills(r) * P[P_DRAM_LINE] + memory_writebacks(r) * P[P_DRAM_WB]
                         bus[0] = s + P[P_BUS_WRITE] + extra + wb1 * P[P_BOARD_BUSY]
                         commit = s + P[P_BUS_WRITE]
-                        ctr[C_BUS_WRITES] += 1
+                        counters[cs, C_BUS_WRITES] += 1
                     if lvl == d_levels:
                         per_static[psid, S_L2_MISSES] += 1
                 fw_n = _remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_ready, commit)
@@ -495,7 +495,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
         # ---- branches: predicted at decode, resolved by the branch op ---------------------------
         br = s_branch[sid]
         if br != BR_NONE:
-            ctr[C_BRANCHES] += 1
+            counters[cs, C_BRANCHES] += 1
             fall = pc + s_len[sid]
             nxt = dyn_pc[i + 1] if i + 1 < n else fall
             taken = nxt != fall
@@ -534,7 +534,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                     way = _btb_alloc(btc_tag, btc_stamp, 0, btc_ways, pc, i)
                 btc_target[way] = nxt
             if mispredicted:
-                ctr[C_MISPREDICTS] += 1
+                counters[cs, C_MISPREDICTS] += 1
                 per_static[psid, S_MISPREDICTS] += 1
                 restart = (branch_done if branch_done > 0 else inst_complete) + P[P_MISPREDICT]
                 if restart > fe_ready:
@@ -552,8 +552,8 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
         if rdtsc_sid[sid] == 1 and nrdtsc < rdtsc_out.shape[0]:
             rdtsc_out[nrdtsc] = first_dispatch  # what the guest's RDTSC reads in the replay
             nrdtsc += 1
-        ctr[C_INSTRUCTIONS] += 1
-        ctr[C_UOPS] += nu
+        counters[cs, C_INSTRUCTIONS] += 1
+        counters[cs, C_UOPS] += nu
         per_static[psid, S_EXECUTIONS] += 1
         per_static[psid, S_UOPS] += nu
         per_static[psid, S_ISSUE_TO_RETIRE] += rt - first_dispatch
@@ -564,7 +564,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             for col, v in enumerate((i, np.int64(sid), d, entry, first_dispatch, inst_complete, rt, cause)):
                 timeline[k, col] = v
         if seg < seg_end.shape[0] and i + 1 == seg_end[seg]:
-            ctr[C_CYCLES] = last_retire - seg_start
+            counters[cs, C_CYCLES] = last_retire - seg_start
             seg_start = last_retire
             seg += 1
     return last_retire
