@@ -56,8 +56,9 @@ from .p6_core import (C_BRANCHES, C_DECODE_GROUPS, C_DECODER0, C_DRAM_BUS_CYCLES
                       CAUSES, NT, S_DECODE_TO_RETIRE, S_DECODER0, S_EXECUTIONS, S_ISSUE_TO_RETIRE, S_L1D_MISSES,
                       S_L2_MISSES, S_MISPREDICTS, S_MSROM, S_NAMES as P6_S_NAMES, S_PORT0, S_STALL_DECODE,
                       S_STALL_DEPENDENCY, S_STALL_MEMORY, S_STALL_MISPREDICT, S_STALL_PARTIAL, S_STALL_PORT,
-                      S_STALL_STORE_FORWARD, S_STALL_WINDOW, S_UOPS, T_NAMES, WINDOW, _book_port, _btb_alloc,
-                      FW, _queued_store, _remember_store)
+                      S_STALL_STORE_FORWARD, S_STALL_WINDOW, S_UOPS, T_NAMES, WINDOW, _book_port as _p6_book_port,
+                      _btb_alloc, FW, _queued_store, _remember_store)
+from ..memory.cache import HOT
 
 __all__ = ["C_NAMES", "S_NAMES", "T_NAMES", "CAUSES", "NC", "NS", "NT", "simulate"]
 
@@ -88,7 +89,12 @@ S_FPU = len(P6_S_NAMES)
 
 
 
-@njit(cache=True, nogil=True, inline="always")
+# The P6 core's port calendar, compiled as an ordinary call (which LLVM inlines) rather than inlined
+# into numba's IR (inline="always"): IR inlining increfs and decrefs the array argument at each call.
+_book_port = njit(**HOT)(_p6_book_port.py_func)
+
+
+@njit(**HOT)
 def _book_run(book, ports, c, occ):
     """Earliest cycle >= c at which one allowed issue slot is free for `occ` consecutive cycles
     (a non-pipelined multiply or divide holds Integer X); books all of them. Same calendar as
