@@ -87,6 +87,13 @@ S_NAMES = P6_S_NAMES + ("fpu",)
 NS = len(S_NAMES)
 S_FPU = len(P6_S_NAMES)
 
+# columns of simulate's per-static and per-op fact rows (copies of the lowering's arrays, row-major)
+(F_NUOPS, F_UOP0, F_CYC, F_FIRST, F_DEC, F_PFX, F_FPDELTA, F_NSRC, F_NDST, F_BRANCH, F_LEN, F_TARGET,
+ F_RDTSC) = range(13)
+NF = 16
+UF_KIND, UF_PORTS, UF_LAT, UF_UNIT, UF_OCC = range(5)
+NUF = 8
+
 
 
 # The P6 core's port calendar, compiled as an ordinary call (which LLVM inlines) rather than inlined
@@ -193,6 +200,18 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out, dlog):
     n = dyn_sid.shape[0]
     nstatic = s_len.shape[0]
+    # the facts the loop reads per instruction and per op, one row each: one array instead of a
+    # dozen keeps fewer values live in the loop
+    sf = np.zeros((nstatic, NF), np.int64)
+    for s in range(nstatic):
+        sf[s, F_NUOPS], sf[s, F_UOP0], sf[s, F_CYC], sf[s, F_FIRST] = s_nuops[s], s_uop0[s], s_cyc[s], s_first[s]
+        sf[s, F_DEC], sf[s, F_PFX], sf[s, F_FPDELTA], sf[s, F_NSRC] = s_dec[s], s_pfx[s], s_fpdelta[s], s_nsrc[s]
+        sf[s, F_NDST], sf[s, F_BRANCH], sf[s, F_LEN], sf[s, F_TARGET] = s_ndst[s], s_branch[s], s_len[s], s_target[s]
+        sf[s, F_RDTSC] = rdtsc_sid[s]
+    uf = np.zeros((u_kind.shape[0], NUF), np.int64)
+    for u in range(u_kind.shape[0]):
+        uf[u, UF_KIND], uf[u, UF_PORTS], uf[u, UF_LAT], uf[u, UF_UNIT], uf[u, UF_OCC] = (
+            u_kind[u], u_ports[u], u_lat[u], u_unit[u], u_occ[u])
     quads, sq_n = P[P_QUADS], P[P_SQ]
     d_levels = dconfig.shape[0]
     n_acc = mem_insn.shape[0]
@@ -256,9 +275,9 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
     for i in range(n):
         sid = dyn_sid[i]
         pc = dyn_pc[i]
-        nu = s_nuops[sid]
-        u0 = s_uop0[sid]
-        cyc = s_cyc[sid]
+        nu = sf[sid, F_NUOPS]
+        u0 = sf[sid, F_UOP0]
+        cyc = sf[sid, F_CYC]
         psid = sid if i >= stat_first else nstatic
         cs = min(seg, last_seg)
 
@@ -280,7 +299,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                 grp_open = False
 
         # ---- decode: join the open group in the second short decoder, or start an opquad -------
-        new_quad = not (cyc == 0 and grp_open and s_first[sid] == 0)
+        new_quad = not (cyc == 0 and grp_open and sf[sid, F_FIRST] == 0)
         cause_alloc = 0
         if new_quad:
             d = dec_free
@@ -325,18 +344,18 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             grp_open = False
             counters[cs, C_NOP_SLOTS] -= nu
             slot = 1
-        if s_dec[sid] == DEC_MSROM:
+        if sf[sid, F_DEC] == DEC_MSROM:
             counters[cs, C_MSROM_UOPS] += nu
             counters[cs, C_VECTOR_CYCLES] += cyc
             per_static[psid, S_MSROM] += 1
         else:
             counters[cs, C_DECODER0 + slot] += 1
             per_static[psid, S_DECODER0 + slot] += 1
-        counters[cs, C_LCP_STALLS] += s_pfx[sid]
+        counters[cs, C_LCP_STALLS] += sf[sid, F_PFX]
 
         # ---- ops: issue, execute ---------------------------------------------------------------
         top_before = fp_top
-        top_after = (fp_top - s_fpdelta[sid]) & 7
+        top_after = (fp_top - sf[sid, F_FPDELTA]) & 7
         acc = acc_next
         acc_end = acc
         while acc_end < n_acc and mem_insn[acc_end] == i:
@@ -350,10 +369,10 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
         cause_disp = 0
         for k in range(nu):
             u = u0 + k
-            kind = u_kind[u]
+            kind = uf[u, UF_KIND]
             ready = entry + 1
             partial = 0
-            for j in range(s_nsrc[sid]):
+            for j in range(sf[sid, F_NSRC]):
                 if s_src[sid, j, 2] != k:
                     continue
                 rid = _slot_of(s_src[sid, j, 0], top_before, s_src[sid, j, 3])
@@ -371,21 +390,21 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                 w = sq_ring[sq_pos]
                 counters[cs, C_STALL_STORE_BUFFER] += w - ready
                 ready = w
-            unit = u_unit[u]
-            ports = u_ports[u]
+            unit = uf[u, UF_UNIT]
+            ports = uf[u, UF_PORTS]
             rdy_u = ready
             if unit != U_NONE and unit != U_HOLD and unit_free[unit] > rdy_u:
                 rdy_u = unit_free[unit]
             port = -1
             if ports == 0:
                 disp = rdy_u if unit != U_NONE else entry  # MOV r,imm and NOP complete at decode
-            elif unit == U_HOLD and u_occ[u] > 1:
-                disp, port = _book_run(book, ports, rdy_u, u_occ[u])
+            elif unit == U_HOLD and uf[u, UF_OCC] > 1:
+                disp, port = _book_run(book, ports, rdy_u, uf[u, UF_OCC])
             else:
                 disp, port = _book_port(book, ports, rdy_u)
             if unit != U_NONE and unit != U_HOLD:
-                unit_free[unit] = disp + u_occ[u]
-            lat = u_lat[u]
+                unit_free[unit] = disp + uf[u, UF_OCC]
+            lat = uf[u, UF_LAT]
             mem_wait = 0
             fwd_wait = 0
             if kind == LOAD:
@@ -422,7 +441,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                 intra = max(intra, complete)
             if kind == BRANCH:
                 branch_done = complete
-            for j in range(s_ndst[sid]):
+            for j in range(sf[sid, F_NDST]):
                 if s_dst[sid, j, 2] != k:
                     continue
                 reg_ready[_slot_of(s_dst[sid, j, 0], top_after, s_dst[sid, j, 3])] = complete
@@ -460,7 +479,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             rt = floor
         last_retire = rt
         qring[cur_slot] = rt
-        for j in range(s_ndst[sid]):
+        for j in range(sf[sid, F_NDST]):
             rid = s_dst[sid, j, 0]
             if rid < 8:
                 reg_pmask[rid] = s_dst[sid, j, 1]
@@ -499,10 +518,10 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             last_commit = commit
 
         # ---- branches: predicted at decode, resolved by the branch op ---------------------------
-        br = s_branch[sid]
+        br = sf[sid, F_BRANCH]
         if br != BR_NONE:
             counters[cs, C_BRANCHES] += 1
-            fall = pc + s_len[sid]
+            fall = pc + sf[sid, F_LEN]
             nxt = dyn_pc[i + 1] if i + 1 < n else fall
             taken = nxt != fall
             predict_taken = True
@@ -523,7 +542,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                 if br == BR_CALL:
                     rsb[rsb_top % rsb_n] = fall
                     rsb_top += 1
-                if s_target[sid] < 0 or br == BR_INDIRECT:  # target unknown at decode: the BTC's guess
+                if sf[sid, F_TARGET] < 0 or br == BR_INDIRECT:  # target unknown at decode: the BTC's guess
                     mispredicted = True
                     for w in range(btc_ways):
                         if btc_tag[0, w] == pc and btc_target[w] == nxt:
@@ -555,7 +574,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                 grp_open = False
 
         # ---- RDTSC values, timeline, per-static sums, segments ---------------------------------
-        if rdtsc_sid[sid] == 1 and nrdtsc < rdtsc_out.shape[0]:
+        if sf[sid, F_RDTSC] == 1 and nrdtsc < rdtsc_out.shape[0]:
             rdtsc_out[nrdtsc] = first_dispatch  # what the guest's RDTSC reads in the replay
             nrdtsc += 1
         counters[cs, C_INSTRUCTIONS] += 1
