@@ -271,6 +271,8 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
     last_seg = counters.shape[0] - 1
     seg_start = 0
     nrdtsc = 0
+    log_off = dlog[0] == LOG_OFF  # no access log (a log, once on, stays on: replay.logged_service)
+    cs = 0  # the counters row: the segment's, the last row once every segment has ended
 
     for i in range(n):
         sid = dyn_sid[i]
@@ -279,7 +281,6 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
         u0 = sf[sid, F_UOP0]
         cyc = sf[sid, F_CYC]
         psid = sid if i >= stat_first else nstatic
-        cs = min(seg, last_seg)
 
         # ---- fetch: the L1I ----------------------------------------------------------------------
         # Only code fills the L1I, so a line that hit stays resident until the next miss: `known`
@@ -418,7 +419,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                         fwd_wait = max(0, fw_ready[e] - disp)
                         counters[cs, C_STALL_STORE_FORWARD] += fwd_wait
                         per_static[psid, S_STALL_STORE_FORWARD] += fwd_wait
-                    r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False) if dlog[0] == LOG_OFF else
+                    r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False) if log_off else
                          logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False))
                     lvl = served_level(r)
                     counters[cs, C_L1D_LOADS] += 1
@@ -491,7 +492,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             j = _access_of(mem_write, acc, acc_end, True)
             if j >= 0:
                 a, sz = np.int64(mem_addr[j]), np.int64(mem_size[j])
-                r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True) if dlog[0] == LOG_OFF else
+                r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True) if log_off else
                      logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True))
                 lvl = served_level(r)
                 counters[cs, C_L1D_STORES] += 1
@@ -592,4 +593,5 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             counters[cs, C_CYCLES] = last_retire - seg_start
             seg_start = last_retire
             seg += 1
+            cs = min(seg, last_seg)
     return last_retire
