@@ -87,11 +87,12 @@ S_NAMES = P6_S_NAMES + ("fpu",)
 NS = len(S_NAMES)
 S_FPU = len(P6_S_NAMES)
 
-# columns of simulate's per-static and per-op fact rows (copies of the lowering's arrays, row-major)
-(F_NUOPS, F_UOP0, F_CYC, F_FIRST, F_DEC, F_PFX, F_FPDELTA, F_NSRC, F_NDST, F_BRANCH, F_LEN, F_TARGET,
+# columns of simulate's per-static and per-op fact rows (copies of the lowering's arrays, row-major;
+# F_GPRS.., UF_SRCS..: row ranges of its operand table)
+(F_NUOPS, F_UOP0, F_CYC, F_FIRST, F_DEC, F_PFX, F_FPDELTA, F_GPRS, F_GPRS_END, F_BRANCH, F_LEN, F_TARGET,
  F_RDTSC) = range(13)
 NF = 16
-UF_KIND, UF_PORTS, UF_LAT, UF_UNIT, UF_OCC = range(5)
+UF_KIND, UF_PORTS, UF_LAT, UF_UNIT, UF_OCC, UF_SRCS, UF_DSTS, UF_DSTS_END = range(8)
 NUF = 8
 
 
@@ -205,13 +206,41 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
     sf = np.zeros((nstatic, NF), np.int64)
     for s in range(nstatic):
         sf[s, F_NUOPS], sf[s, F_UOP0], sf[s, F_CYC], sf[s, F_FIRST] = s_nuops[s], s_uop0[s], s_cyc[s], s_first[s]
-        sf[s, F_DEC], sf[s, F_PFX], sf[s, F_FPDELTA], sf[s, F_NSRC] = s_dec[s], s_pfx[s], s_fpdelta[s], s_nsrc[s]
-        sf[s, F_NDST], sf[s, F_BRANCH], sf[s, F_LEN], sf[s, F_TARGET] = s_ndst[s], s_branch[s], s_len[s], s_target[s]
-        sf[s, F_RDTSC] = rdtsc_sid[s]
+        sf[s, F_DEC], sf[s, F_PFX], sf[s, F_FPDELTA] = s_dec[s], s_pfx[s], s_fpdelta[s]
+        sf[s, F_BRANCH], sf[s, F_LEN], sf[s, F_TARGET], sf[s, F_RDTSC] = s_branch[s], s_len[s], s_target[s], rdtsc_sid[s]
     uf = np.zeros((u_kind.shape[0], NUF), np.int64)
     for u in range(u_kind.shape[0]):
         uf[u, UF_KIND], uf[u, UF_PORTS], uf[u, UF_LAT], uf[u, UF_UNIT], uf[u, UF_OCC] = (
             u_kind[u], u_ports[u], u_lat[u], u_unit[u], u_occ[u])
+    # the register operands regrouped per op (the lowering lists them per instruction, each naming
+    # its op), in the lowering's order: op u reads rows uf[u, UF_SRCS] .. uf[u, UF_DSTS] - 1 and
+    # writes rows .. uf[u, UF_DSTS_END] - 1 (register id, byte/flag mask, x87 relative index); rows
+    # sf[s, F_GPRS] .. sf[s, F_GPRS_END] - 1 are static s's GPR destinations (id, bytes written)
+    nrows = 0
+    for s in range(nstatic):
+        nrows += s_nsrc[s] + 2 * s_ndst[s]
+    opnd = np.zeros((nrows, 3), np.int64)
+    row = 0
+    for s in range(nstatic):
+        for k in range(s_nuops[s]):
+            u = s_uop0[s] + k
+            uf[u, UF_SRCS] = row
+            for j in range(s_nsrc[s]):
+                if s_src[s, j, 2] == k:
+                    opnd[row, 0], opnd[row, 1], opnd[row, 2] = s_src[s, j, 0], s_src[s, j, 1], s_src[s, j, 3]
+                    row += 1
+            uf[u, UF_DSTS] = row
+            for j in range(s_ndst[s]):
+                if s_dst[s, j, 2] == k:
+                    opnd[row, 0], opnd[row, 1], opnd[row, 2] = s_dst[s, j, 0], s_dst[s, j, 1], s_dst[s, j, 3]
+                    row += 1
+            uf[u, UF_DSTS_END] = row
+        sf[s, F_GPRS] = row
+        for j in range(s_ndst[s]):
+            if s_dst[s, j, 0] < 8:
+                opnd[row, 0], opnd[row, 1] = s_dst[s, j, 0], s_dst[s, j, 1]
+                row += 1
+        sf[s, F_GPRS_END] = row
     quads, sq_n = P[P_QUADS], P[P_SQ]
     d_levels = dconfig.shape[0]
     n_acc = mem_insn.shape[0]
@@ -373,12 +402,10 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             kind = uf[u, UF_KIND]
             ready = entry + 1
             partial = 0
-            for j in range(sf[sid, F_NSRC]):
-                if s_src[sid, j, 2] != k:
-                    continue
-                rid = _slot_of(s_src[sid, j, 0], top_before, s_src[sid, j, 3])
+            for j in range(uf[u, UF_SRCS], uf[u, UF_DSTS]):
+                rid = _slot_of(opnd[j, 0], top_before, opnd[j, 2])
                 r = reg_ready[rid]
-                if rid < 8 and (s_src[sid, j, 1] & ~reg_pmask[rid]) != 0:
+                if rid < 8 and (opnd[j, 1] & ~reg_pmask[rid]) != 0:
                     r += P[P_PARTIAL]  # merge a partial write (k6_machine.toml [partial_register])
                     if r > ready:
                         partial = max(partial, min(P[P_PARTIAL], r - ready))
@@ -442,10 +469,8 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                 intra = max(intra, complete)
             if kind == BRANCH:
                 branch_done = complete
-            for j in range(sf[sid, F_NDST]):
-                if s_dst[sid, j, 2] != k:
-                    continue
-                reg_ready[_slot_of(s_dst[sid, j, 0], top_after, s_dst[sid, j, 3])] = complete
+            for j in range(uf[u, UF_DSTS], uf[u, UF_DSTS_END]):
+                reg_ready[_slot_of(opnd[j, 0], top_after, opnd[j, 2])] = complete
             if port >= 0:
                 counters[cs, C_PORT0 + port] += 1
                 per_static[psid, S_PORT0 + port] += 1
@@ -480,10 +505,8 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             rt = floor
         last_retire = rt
         qring[cur_slot] = rt
-        for j in range(sf[sid, F_NDST]):
-            rid = s_dst[sid, j, 0]
-            if rid < 8:
-                reg_pmask[rid] = s_dst[sid, j, 1]
+        for j in range(sf[sid, F_GPRS], sf[sid, F_GPRS_END]):
+            reg_pmask[opnd[j, 0]] = opnd[j, 1]
         fp_top = top_after
 
         # ---- stores: commit to L1 after retirement, in order -----------------------------------
