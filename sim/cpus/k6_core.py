@@ -569,8 +569,9 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                 if sf[sid, F_TARGET] < 0 or br == BR_INDIRECT:  # target unknown at decode: the BTC's guess
                     mispredicted = True
                     for w in range(btc_ways):
-                        if btc_tag[0, w] == pc and btc_target[w] == nxt:
-                            mispredicted = False
+                        if btc_tag[0, w] == pc:  # a branch has at most one entry (allocated on a miss)
+                            mispredicted = btc_target[w] != nxt
+                            break
             way = -1
             hit = False
             if taken:
@@ -578,6 +579,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                     if btc_tag[0, w] == pc:
                         way = w
                         btc_stamp[0, w] = i
+                        break
                 hit = way >= 0
                 if not hit:
                     way = _btb_alloc(btc_tag, btc_stamp, 0, btc_ways, pc, i)
