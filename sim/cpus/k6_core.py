@@ -56,8 +56,9 @@ from .p6_core import (C_BRANCHES, C_DECODE_GROUPS, C_DECODER0, C_DRAM_BUS_CYCLES
                       CAUSES, NT, S_DECODE_TO_RETIRE, S_DECODER0, S_EXECUTIONS, S_ISSUE_TO_RETIRE, S_L1D_MISSES,
                       S_L2_MISSES, S_MISPREDICTS, S_MSROM, S_NAMES as P6_S_NAMES, S_PORT0, S_STALL_DECODE,
                       S_STALL_DEPENDENCY, S_STALL_MEMORY, S_STALL_MISPREDICT, S_STALL_PARTIAL, S_STALL_PORT,
-                      S_STALL_STORE_FORWARD, S_STALL_WINDOW, S_UOPS, T_NAMES, WINDOW, _book_port, _btb_alloc,
-                      FW, _queued_store, _remember_store)
+                      S_STALL_STORE_FORWARD, S_STALL_WINDOW, S_UOPS, T_NAMES, WINDOW, _book_port as _p6_book_port,
+                      _btb_alloc, FW, _queued_store, _remember_store)
+from ..memory.cache import HOT
 
 __all__ = ["C_NAMES", "S_NAMES", "T_NAMES", "CAUSES", "NC", "NS", "NT", "simulate"]
 
@@ -86,9 +87,22 @@ S_NAMES = P6_S_NAMES + ("fpu",)
 NS = len(S_NAMES)
 S_FPU = len(P6_S_NAMES)
 
+# columns of simulate's per-static and per-op fact rows (copies of the lowering's arrays, row-major;
+# F_GPRS.., UF_SRCS..: row ranges of its operand table)
+(F_NUOPS, F_UOP0, F_CYC, F_FIRST, F_DEC, F_PFX, F_FPDELTA, F_GPRS, F_GPRS_END, F_BRANCH, F_LEN, F_TARGET,
+ F_RDTSC) = range(13)
+NF = 16
+UF_KIND, UF_PORTS, UF_LAT, UF_UNIT, UF_OCC, UF_SRCS, UF_DSTS, UF_DSTS_END = range(8)
+NUF = 8
 
 
-@njit(cache=True, nogil=True, inline="always")
+
+# The P6 core's port calendar, compiled as an ordinary call (which LLVM inlines) rather than inlined
+# into numba's IR (inline="always"): IR inlining increfs and decrefs the array argument at each call.
+_book_port = njit(**HOT)(_p6_book_port.py_func)
+
+
+@njit(**HOT)
 def _book_run(book, ports, c, occ):
     """Earliest cycle >= c at which one allowed issue slot is free for `occ` consecutive cycles
     (a non-pipelined multiply or divide holds Integer X); books all of them. Same calendar as
@@ -140,7 +154,7 @@ def _slot_of(rid, top, rel):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _k6_miss(r, lvl, start, P, bus, wb1, wb2, ctr):
+def _k6_miss(r, lvl, start, P, bus, wb1, wb2, counters, cs):
     """Extra cycles beyond an L1 hit for an L1 miss served by level `lvl` (service() levels:
     1 = L2, ..., the last = memory). `bus[0]`: the front-side bus (board cache and DRAM), free from
     that cycle; `bus[1]`: the K6-III's on-die L2 port. `wb1`/`wb2`: dirty victims the access made
@@ -150,12 +164,12 @@ def _k6_miss(r, lvl, start, P, bus, wb1, wb2, ctr):
     t = start
     board_wb = wb1
     if P[P_ONDIE] == 1:
-        ctr[C_L2_ACCESSES] += 1
+        counters[cs, C_L2_ACCESSES] += 1
         s = max(t, bus[1])
         bus[1] = s + P[P_L2_BUS] * (1 + wb1)
         if lvl == 1:
             return s + P[P_L2_LAT] - P[P_L1_LAT] - start
-        ctr[C_L2_MISSES] += 1
+        counters[cs, C_L2_MISSES] += 1
         t = s + P[P_L2_LAT] - P[P_L1_LAT]  # the miss is known when a hit would have delivered
         board_wb = wb2
     fills = memory_fills(r)
@@ -166,16 +180,16 @@ def _k6_miss(r, lvl, start, P, bus, wb1, wb2, ctr):
     if board > 0:
         busy += board_wb * P[P_BOARD_BUSY]
         c_acc = C_L2_ACCESSES if board == 1 else C_L3_ACCESSES
-        ctr[c_acc] += 1
+        counters[cs, c_acc] += 1
         if lvl == board:
             busy += P[P_BOARD_BUSY]
             done = start + P[P_BOARD_LAT] - P[P_L1_LAT] + (s - t)
         else:
-            ctr[c_acc + 1] += 1  # C_L2_MISSES / C_L3_MISSES
+            counters[cs, c_acc + 1] += 1  # C_L2_MISSES / C_L3_MISSES
     bus[0] = s + busy
-    ctr[C_DRAM_FILLS] += fills
-    ctr[C_DRAM_WRITEBACKS] += wbs
-    ctr[C_DRAM_BUS_CYCLES] += fills * P[P_DRAM_LINE] + wbs * P[P_DRAM_WB]
+    counters[cs, C_DRAM_FILLS] += fills
+    counters[cs, C_DRAM_WRITEBACKS] += wbs
+    counters[cs, C_DRAM_BUS_CYCLES] += fills * P[P_DRAM_LINE] + wbs * P[P_DRAM_WB]
     return max(0, done - start)
 
 
@@ -187,6 +201,46 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out, dlog):
     n = dyn_sid.shape[0]
     nstatic = s_len.shape[0]
+    # the facts the loop reads per instruction and per op, one row each: one array instead of a
+    # dozen keeps fewer values live in the loop
+    sf = np.zeros((nstatic, NF), np.int64)
+    for s in range(nstatic):
+        sf[s, F_NUOPS], sf[s, F_UOP0], sf[s, F_CYC], sf[s, F_FIRST] = s_nuops[s], s_uop0[s], s_cyc[s], s_first[s]
+        sf[s, F_DEC], sf[s, F_PFX], sf[s, F_FPDELTA] = s_dec[s], s_pfx[s], s_fpdelta[s]
+        sf[s, F_BRANCH], sf[s, F_LEN], sf[s, F_TARGET], sf[s, F_RDTSC] = s_branch[s], s_len[s], s_target[s], rdtsc_sid[s]
+    uf = np.zeros((u_kind.shape[0], NUF), np.int64)
+    for u in range(u_kind.shape[0]):
+        uf[u, UF_KIND], uf[u, UF_PORTS], uf[u, UF_LAT], uf[u, UF_UNIT], uf[u, UF_OCC] = (
+            u_kind[u], u_ports[u], u_lat[u], u_unit[u], u_occ[u])
+    # the register operands regrouped per op (the lowering lists them per instruction, each naming
+    # its op), in the lowering's order: op u reads rows uf[u, UF_SRCS] .. uf[u, UF_DSTS] - 1 and
+    # writes rows .. uf[u, UF_DSTS_END] - 1 (register id, byte/flag mask, x87 relative index); rows
+    # sf[s, F_GPRS] .. sf[s, F_GPRS_END] - 1 are static s's GPR destinations (id, bytes written)
+    nrows = 0
+    for s in range(nstatic):
+        nrows += s_nsrc[s] + 2 * s_ndst[s]
+    opnd = np.zeros((nrows, 3), np.int64)
+    row = 0
+    for s in range(nstatic):
+        for k in range(s_nuops[s]):
+            u = s_uop0[s] + k
+            uf[u, UF_SRCS] = row
+            for j in range(s_nsrc[s]):
+                if s_src[s, j, 2] == k:
+                    opnd[row, 0], opnd[row, 1], opnd[row, 2] = s_src[s, j, 0], s_src[s, j, 1], s_src[s, j, 3]
+                    row += 1
+            uf[u, UF_DSTS] = row
+            for j in range(s_ndst[s]):
+                if s_dst[s, j, 2] == k:
+                    opnd[row, 0], opnd[row, 1], opnd[row, 2] = s_dst[s, j, 0], s_dst[s, j, 1], s_dst[s, j, 3]
+                    row += 1
+            uf[u, UF_DSTS_END] = row
+        sf[s, F_GPRS] = row
+        for j in range(s_ndst[s]):
+            if s_dst[s, j, 0] < 8:
+                opnd[row, 0], opnd[row, 1] = s_dst[s, j, 0], s_dst[s, j, 1]
+                row += 1
+        sf[s, F_GPRS_END] = row
     quads, sq_n = P[P_QUADS], P[P_SQ]
     d_levels = dconfig.shape[0]
     n_acc = mem_insn.shape[0]
@@ -246,15 +300,16 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
     last_seg = counters.shape[0] - 1
     seg_start = 0
     nrdtsc = 0
+    log_off = dlog[0] == LOG_OFF  # no access log (a log, once on, stays on: replay.logged_service)
+    cs = 0  # the counters row: the segment's, the last row once every segment has ended
 
     for i in range(n):
         sid = dyn_sid[i]
         pc = dyn_pc[i]
-        nu = s_nuops[sid]
-        u0 = s_uop0[sid]
-        cyc = s_cyc[sid]
+        nu = sf[sid, F_NUOPS]
+        u0 = sf[sid, F_UOP0]
+        cyc = sf[sid, F_CYC]
         psid = sid if i >= stat_first else nstatic
-        ctr = counters[min(seg, last_seg)]
 
         # ---- fetch: the L1I ----------------------------------------------------------------------
         # Only code fills the L1I, so a line that hit stays resident until the next miss: `known`
@@ -266,7 +321,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             if served_level(service(itags, istamps, idirty, iconfig, iclock, istats, pc, 1, False)) > 0:
                 known[:] = -1
                 known[iline & 63] = iline
-                ctr[C_L1I_MISSES] += 1
+                counters[cs, C_L1I_MISSES] += 1
                 t = max(dec_free, fe_ready) + P[P_IMISS]
                 if t > fe_ready:
                     fe_ready = t
@@ -274,12 +329,12 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                 grp_open = False
 
         # ---- decode: join the open group in the second short decoder, or start an opquad -------
-        new_quad = not (cyc == 0 and grp_open and s_first[sid] == 0)
+        new_quad = not (cyc == 0 and grp_open and sf[sid, F_FIRST] == 0)
         cause_alloc = 0
         if new_quad:
             d = dec_free
             if fe_ready > d:
-                ctr[C_STALL_MISPREDICT if fe_cause == 1 else C_STALL_FETCH] += fe_ready - d
+                counters[cs, C_STALL_MISPREDICT if fe_cause == 1 else C_STALL_FETCH] += fe_ready - d
                 if fe_cause == 1:
                     per_static[psid, S_STALL_MISPREDICT] += fe_ready - d
                 d = fe_ready
@@ -287,7 +342,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             free_at = qring[q_slot] if nq >= quads else 0
             entry = max(d + 1, free_at)
             if free_at > d + 1:
-                ctr[C_STALL_ROB] += free_at - (d + 1)
+                counters[cs, C_STALL_ROB] += free_at - (d + 1)
                 per_static[psid, S_STALL_WINDOW] += free_at - (d + 1)
                 cause_alloc = 2
             if nq > 0:
@@ -295,7 +350,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                 # charged to the multi-clock decode that held the decoders, if any, else to this one
                 starved = min(d, dec_free) + 1 - max(prev_entry + 1, free_at)
                 if starved > 0:
-                    ctr[C_STALL_DECODE] += starved
+                    counters[cs, C_STALL_DECODE] += starved
                     held = min(starved, hold_cycles) if hold_psid >= 0 else 0
                     if held > 0:
                         per_static[hold_psid, S_STALL_DECODE] += held
@@ -310,27 +365,27 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             dec_free = max(d + max(cyc, 1), entry)  # the decoder holds its group until it enters
             grp_cycle = d
             grp_open = cyc == 0
-            ctr[C_DECODE_GROUPS] += 1
-            ctr[C_NOP_SLOTS] += 4 - nu
+            counters[cs, C_DECODE_GROUPS] += 1
+            counters[cs, C_NOP_SLOTS] += 4 - nu
             slot = 0
         else:
             d = grp_cycle
             entry = q_entry
             grp_open = False
-            ctr[C_NOP_SLOTS] -= nu
+            counters[cs, C_NOP_SLOTS] -= nu
             slot = 1
-        if s_dec[sid] == DEC_MSROM:
-            ctr[C_MSROM_UOPS] += nu
-            ctr[C_VECTOR_CYCLES] += cyc
+        if sf[sid, F_DEC] == DEC_MSROM:
+            counters[cs, C_MSROM_UOPS] += nu
+            counters[cs, C_VECTOR_CYCLES] += cyc
             per_static[psid, S_MSROM] += 1
         else:
-            ctr[C_DECODER0 + slot] += 1
+            counters[cs, C_DECODER0 + slot] += 1
             per_static[psid, S_DECODER0 + slot] += 1
-        ctr[C_LCP_STALLS] += s_pfx[sid]
+        counters[cs, C_LCP_STALLS] += sf[sid, F_PFX]
 
         # ---- ops: issue, execute ---------------------------------------------------------------
         top_before = fp_top
-        top_after = (fp_top - s_fpdelta[sid]) & 7
+        top_after = (fp_top - sf[sid, F_FPDELTA]) & 7
         acc = acc_next
         acc_end = acc
         while acc_end < n_acc and mem_insn[acc_end] == i:
@@ -344,15 +399,13 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
         cause_disp = 0
         for k in range(nu):
             u = u0 + k
-            kind = u_kind[u]
+            kind = uf[u, UF_KIND]
             ready = entry + 1
             partial = 0
-            for j in range(s_nsrc[sid]):
-                if s_src[sid, j, 2] != k:
-                    continue
-                rid = _slot_of(s_src[sid, j, 0], top_before, s_src[sid, j, 3])
+            for j in range(uf[u, UF_SRCS], uf[u, UF_DSTS]):
+                rid = _slot_of(opnd[j, 0], top_before, opnd[j, 2])
                 r = reg_ready[rid]
-                if rid < 8 and (s_src[sid, j, 1] & ~reg_pmask[rid]) != 0:
+                if rid < 8 and (opnd[j, 1] & ~reg_pmask[rid]) != 0:
                     r += P[P_PARTIAL]  # merge a partial write (k6_machine.toml [partial_register])
                     if r > ready:
                         partial = max(partial, min(P[P_PARTIAL], r - ready))
@@ -363,23 +416,23 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             dep_wait = ready - (entry + 1)
             if kind == STA and nstores >= sq_n and sq_ring[sq_pos] > ready:
                 w = sq_ring[sq_pos]
-                ctr[C_STALL_STORE_BUFFER] += w - ready
+                counters[cs, C_STALL_STORE_BUFFER] += w - ready
                 ready = w
-            unit = u_unit[u]
-            ports = u_ports[u]
+            unit = uf[u, UF_UNIT]
+            ports = uf[u, UF_PORTS]
             rdy_u = ready
             if unit != U_NONE and unit != U_HOLD and unit_free[unit] > rdy_u:
                 rdy_u = unit_free[unit]
             port = -1
             if ports == 0:
                 disp = rdy_u if unit != U_NONE else entry  # MOV r,imm and NOP complete at decode
-            elif unit == U_HOLD and u_occ[u] > 1:
-                disp, port = _book_run(book, ports, rdy_u, u_occ[u])
+            elif unit == U_HOLD and uf[u, UF_OCC] > 1:
+                disp, port = _book_run(book, ports, rdy_u, uf[u, UF_OCC])
             else:
                 disp, port = _book_port(book, ports, rdy_u)
             if unit != U_NONE and unit != U_HOLD:
-                unit_free[unit] = disp + u_occ[u]
-            lat = u_lat[u]
+                unit_free[unit] = disp + uf[u, UF_OCC]
+            lat = uf[u, UF_LAT]
             mem_wait = 0
             fwd_wait = 0
             if kind == LOAD:
@@ -389,25 +442,25 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                     a, sz = np.int64(mem_addr[j]), np.int64(mem_size[j])
                     e = _queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
                     if e >= 0:  # the queued store's data, with the ordinary load latency
-                        ctr[C_STORE_FORWARDS] += 1
+                        counters[cs, C_STORE_FORWARDS] += 1
                         fwd_wait = max(0, fw_ready[e] - disp)
-                        ctr[C_STALL_STORE_FORWARD] += fwd_wait
+                        counters[cs, C_STALL_STORE_FORWARD] += fwd_wait
                         per_static[psid, S_STALL_STORE_FORWARD] += fwd_wait
-                    r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False) if dlog[0] == LOG_OFF else
+                    r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False) if log_off else
                          logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False))
                     lvl = served_level(r)
-                    ctr[C_L1D_LOADS] += 1
+                    counters[cs, C_L1D_LOADS] += 1
                     if lvl > 0:
-                        ctr[C_L1D_LOAD_MISSES] += 1
+                        counters[cs, C_L1D_LOAD_MISSES] += 1
                         per_static[psid, S_L1D_MISSES] += 1
                         wb1 = _new_writebacks(dstats, wb_seen, 0)
                         wb2 = _new_writebacks(dstats, wb_seen, 1)
                         l1_fill_seen = dstats[0, S_FILLS]
-                        mem_wait = _k6_miss(r, lvl, disp, P, bus, wb1, wb2, ctr)
+                        mem_wait = _k6_miss(r, lvl, disp, P, bus, wb1, wb2, counters, cs)
                         if lvl == d_levels:
                             per_static[psid, S_L2_MISSES] += 1
                         if fwd_wait == 0:
-                            ctr[C_STALL_MEMORY] += mem_wait
+                            counters[cs, C_STALL_MEMORY] += mem_wait
                             per_static[psid, S_STALL_MEMORY] += mem_wait
             complete = disp + lat + max(mem_wait, fwd_wait)
             if kind == STA:
@@ -416,28 +469,26 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                 intra = max(intra, complete)
             if kind == BRANCH:
                 branch_done = complete
-            for j in range(s_ndst[sid]):
-                if s_dst[sid, j, 2] != k:
-                    continue
-                reg_ready[_slot_of(s_dst[sid, j, 0], top_after, s_dst[sid, j, 3])] = complete
+            for j in range(uf[u, UF_DSTS], uf[u, UF_DSTS_END]):
+                reg_ready[_slot_of(opnd[j, 0], top_after, opnd[j, 2])] = complete
             if port >= 0:
-                ctr[C_PORT0 + port] += 1
+                counters[cs, C_PORT0 + port] += 1
                 per_static[psid, S_PORT0 + port] += 1
             elif unit == U_FPU:
-                ctr[C_FPU_OPS] += 1
+                counters[cs, C_FPU_OPS] += 1
                 per_static[psid, S_FPU] += 1
             if k == 0:
                 first_dispatch = disp
             if partial > 0:
-                ctr[C_STALL_PARTIAL_REGISTER] += partial
+                counters[cs, C_STALL_PARTIAL_REGISTER] += partial
                 per_static[psid, S_STALL_PARTIAL] += partial
                 cause_disp = max(cause_disp, 3)
             if dep_wait - partial > 0:
-                ctr[C_STALL_DEPENDENCY] += dep_wait - partial
+                counters[cs, C_STALL_DEPENDENCY] += dep_wait - partial
                 per_static[psid, S_STALL_DEPENDENCY] += dep_wait - partial
                 cause_disp = max(cause_disp, 4)
             if disp - ready > 0:
-                ctr[C_STALL_PORT] += disp - ready
+                counters[cs, C_STALL_PORT] += disp - ready
                 per_static[psid, S_STALL_PORT] += disp - ready
                 cause_disp = max(cause_disp, 5)
             if mem_wait > 0:
@@ -454,10 +505,8 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             rt = floor
         last_retire = rt
         qring[cur_slot] = rt
-        for j in range(s_ndst[sid]):
-            rid = s_dst[sid, j, 0]
-            if rid < 8:
-                reg_pmask[rid] = s_dst[sid, j, 1]
+        for j in range(sf[sid, F_GPRS], sf[sid, F_GPRS_END]):
+            reg_pmask[opnd[j, 0]] = opnd[j, 1]
         fp_top = top_after
 
         # ---- stores: commit to L1 after retirement, in order -----------------------------------
@@ -466,24 +515,24 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             j = _access_of(mem_write, acc, acc_end, True)
             if j >= 0:
                 a, sz = np.int64(mem_addr[j]), np.int64(mem_size[j])
-                r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True) if dlog[0] == LOG_OFF else
+                r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True) if log_off else
                      logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True))
                 lvl = served_level(r)
-                ctr[C_L1D_STORES] += 1
+                counters[cs, C_L1D_STORES] += 1
                 if lvl > 0 or dstats[0, S_FILLS] != l1_fill_seen:
-                    ctr[C_L1D_STORE_MISSES] += 1
+                    counters[cs, C_L1D_STORE_MISSES] += 1
                     per_static[psid, S_L1D_MISSES] += 1
                     wb1 = _new_writebacks(dstats, wb_seen, 0)
                     wb2 = _new_writebacks(dstats, wb_seen, 1)
                     if dstats[0, S_FILLS] != l1_fill_seen:  # write-allocate: fetch the line first
                         l1_fill_seen = dstats[0, S_FILLS]
-                        commit += _k6_miss(r, max(lvl, 1), commit, P, bus, wb1, wb2, ctr)
+                        commit += _k6_miss(r, max(lvl, 1), commit, P, bus, wb1, wb2, counters, cs)
                     else:  # not allocated: one write on the front-side bus
                         s = max(commit, bus[0])
                         extra = memory_fills(r) * P[P_DRAM_LINE] + memory_writebacks(r) * P[P_DRAM_WB]
                         bus[0] = s + P[P_BUS_WRITE] + extra + wb1 * P[P_BOARD_BUSY]
                         commit = s + P[P_BUS_WRITE]
-                        ctr[C_BUS_WRITES] += 1
+                        counters[cs, C_BUS_WRITES] += 1
                     if lvl == d_levels:
                         per_static[psid, S_L2_MISSES] += 1
                 fw_n = _remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_ready, commit)
@@ -493,10 +542,10 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             last_commit = commit
 
         # ---- branches: predicted at decode, resolved by the branch op ---------------------------
-        br = s_branch[sid]
+        br = sf[sid, F_BRANCH]
         if br != BR_NONE:
-            ctr[C_BRANCHES] += 1
-            fall = pc + s_len[sid]
+            counters[cs, C_BRANCHES] += 1
+            fall = pc + sf[sid, F_LEN]
             nxt = dyn_pc[i + 1] if i + 1 < n else fall
             taken = nxt != fall
             predict_taken = True
@@ -517,11 +566,12 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                 if br == BR_CALL:
                     rsb[rsb_top % rsb_n] = fall
                     rsb_top += 1
-                if s_target[sid] < 0 or br == BR_INDIRECT:  # target unknown at decode: the BTC's guess
+                if sf[sid, F_TARGET] < 0 or br == BR_INDIRECT:  # target unknown at decode: the BTC's guess
                     mispredicted = True
                     for w in range(btc_ways):
-                        if btc_tag[0, w] == pc and btc_target[w] == nxt:
-                            mispredicted = False
+                        if btc_tag[0, w] == pc:  # a branch has at most one entry (allocated on a miss)
+                            mispredicted = btc_target[w] != nxt
+                            break
             way = -1
             hit = False
             if taken:
@@ -529,12 +579,13 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                     if btc_tag[0, w] == pc:
                         way = w
                         btc_stamp[0, w] = i
+                        break
                 hit = way >= 0
                 if not hit:
                     way = _btb_alloc(btc_tag, btc_stamp, 0, btc_ways, pc, i)
                 btc_target[way] = nxt
             if mispredicted:
-                ctr[C_MISPREDICTS] += 1
+                counters[cs, C_MISPREDICTS] += 1
                 per_static[psid, S_MISPREDICTS] += 1
                 restart = (branch_done if branch_done > 0 else inst_complete) + P[P_MISPREDICT]
                 if restart > fe_ready:
@@ -549,11 +600,11 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
                 grp_open = False
 
         # ---- RDTSC values, timeline, per-static sums, segments ---------------------------------
-        if rdtsc_sid[sid] == 1 and nrdtsc < rdtsc_out.shape[0]:
+        if sf[sid, F_RDTSC] == 1 and nrdtsc < rdtsc_out.shape[0]:
             rdtsc_out[nrdtsc] = first_dispatch  # what the guest's RDTSC reads in the replay
             nrdtsc += 1
-        ctr[C_INSTRUCTIONS] += 1
-        ctr[C_UOPS] += nu
+        counters[cs, C_INSTRUCTIONS] += 1
+        counters[cs, C_UOPS] += nu
         per_static[psid, S_EXECUTIONS] += 1
         per_static[psid, S_UOPS] += nu
         per_static[psid, S_ISSUE_TO_RETIRE] += rt - first_dispatch
@@ -564,7 +615,8 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             for col, v in enumerate((i, np.int64(sid), d, entry, first_dispatch, inst_complete, rt, cause)):
                 timeline[k, col] = v
         if seg < seg_end.shape[0] and i + 1 == seg_end[seg]:
-            ctr[C_CYCLES] = last_retire - seg_start
+            counters[cs, C_CYCLES] = last_retire - seg_start
             seg_start = last_retire
             seg += 1
+            cs = min(seg, last_seg)
     return last_retire
