@@ -48,7 +48,8 @@ def _same(a, b):
     assert np.array_equal(a.program.u_lat, b.program.u_lat)
 
 
-@pytest.mark.parametrize("cpu", ["pentium2-233", "celeron-266", "pentium-mmx-233", "pentium-133"])
+@pytest.mark.parametrize("cpu", ["pentium2-233", "celeron-266", "pentium-mmx-233", "pentium-133", "k6-233", "k6-2-300",
+                                 "k6-3-450"])
 @pytest.mark.parametrize("sizes", [[1], [2], [7, 1000, 3], [4096]])
 def test_a_trace_fed_in_chunks_times_as_the_whole_trace(cpu, sizes):
     emu = emulate(ZBUF / "fp16z.S", "fp16z_span", _span_setup(), repeat=2)
@@ -94,7 +95,7 @@ def test_p5_rep_strings_and_x87_pairs_cut_anywhere_time_as_whole(tmp_path, cpu, 
     _same(_chunked(model, emu, sizes, (0, emu.trace.instructions)), whole)
 
 
-@pytest.mark.parametrize("cpu", ["pentium2-233", "pentium-mmx-233", "pentium-133"])
+@pytest.mark.parametrize("cpu", ["pentium2-233", "pentium-mmx-233", "pentium-133", "k6-233"])
 @pytest.mark.parametrize("sizes", [[9], [1]])
 def test_precision_variants_met_early_are_reported_in_whole_trace_order(cpu, sizes):
     # the first chunks run FDIV at 24, 53 and 64 bits before the loop's reset path and the epilogue
@@ -108,7 +109,7 @@ def test_precision_variants_met_early_are_reported_in_whole_trace_order(cpu, siz
     _same(chunked, whole)
 
 
-@pytest.mark.parametrize("cpu", ["pentium2-233", "pentium-mmx-233"])
+@pytest.mark.parametrize("cpu", ["pentium2-233", "pentium-mmx-233", "k6-2-300"])
 def test_time_kernel_streams_and_matches_the_classic_path(cpu):
     setup = _span_setup(20000)
     streamed = time_kernel(ZBUF / "fp16z.S", "fp16z_span", setup, cpu=cpu, repeat=3)

@@ -57,8 +57,8 @@ from .locking import lock_cost, locked_match
 from .lowering import BRANCH, COMPUTE, DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE, LOAD, STA, StaticProgram, lower
 from .p6 import CoreRun, DramCost
 from . import vocabulary
-from .precision import split_by_precision
 from .presets import CpuPreset, dram_overhead, model_by_cpuid
+from .session import CoreSession
 from .table import TABLES, InstructionTable, Match, load_table
 
 # Model choices with no figure in the sources (each says why it is what it is).
@@ -364,25 +364,43 @@ class K6Model:
     def run(self, trace: Trace, decoder: Decoder, segments: list[int] | None = None,
             timeline: tuple[int, int] = (0, 0), stat_first: int = 0, access_logs: AccessLogs | None = None) -> K6CoreRun:
         """Time `trace` from a cold machine (the arguments and result are those of P6Model.run)."""
-        records, index = decoder.decode_trace(trace.pc)
-        records, index, precisions = split_by_precision(records, index, trace, self.table)
-        program = self.lower(records, precisions)
-        k6_static = self.rules.decode_arrays(program)
-        cuts = np.asarray(segments or [trace.instructions], dtype=np.int64)
-        is_rdtsc = np.array([r.mnemonic == "rdtsc" for r in records], np.int64)
-        executed = np.flatnonzero(is_rdtsc)
-        rdtsc = np.zeros(int(np.isin(index, executed).sum()) if executed.size else 0, np.int64)
-        counters = np.zeros((cuts.size, core.NC), np.int64)
-        per_static = np.zeros((len(records) + 1, core.NS), np.int64)  # the last row is a sink
-        rows = np.zeros((timeline[1], core.NT), np.int64)
-        self.reset()
-        data_counts, code_counts = self.dside.new_counts(), self.iside.new_counts()
-        darrays = self.dside.arrays()
-        dlog = access_logs.start(self.family, trace, program, darrays[3]) if access_logs is not None else NO_LOG
-        end = core.simulate(index, trace.pc, trace.mem_insn, trace.mem_addr, trace.mem_size,
-                            trace.mem_write, cuts, *program.arrays(), *k6_static, self.params,
-                            *darrays, data_counts, *self.iside.arrays(), code_counts,
-                            counters, per_static, stat_first, rows, timeline[0], is_rdtsc, rdtsc, dlog)
+        session = K6Session(self, decoder, segments if segments else [trace.instructions], timeline, stat_first)
+        session.feed(trace, -1, access_logs)
+        return session.finish()
+
+    def session(self, decoder: Decoder, segments: list[int], stat_first: int = 0, check=None) -> "K6Session":
+        """A run fed in chunks (sim/stream.py), as :meth:`sim.cpus.p6.P6Model.session`."""
+        return K6Session(self, decoder, segments, (0, 0), stat_first, check)
+
+
+class K6Session(CoreSession):
+    """One K6 run fed in order, chunk by chunk (the core's state is kept between chunks)."""
+
+    NC, NS, NT = core.NC, core.NS, core.NT
+
+    def __init__(self, model: K6Model, decoder: Decoder, segments: list[int], timeline: tuple[int, int] = (0, 0),
+                 stat_first: int = 0, check=None):
+        super().__init__(model, decoder, segments, timeline, stat_first, check)
+        self.dstats, self.istats = model.dside.new_counts(), model.iside.new_counts()
+        self.state = core.new_state(model.params, 0)
+        self.k6_static = model.rules.decode_arrays(self.program)
+
+    def grown(self, program) -> None:
+        self.k6_static = self.model.rules.decode_arrays(program)
+        self.state = core.grow_units(self.state, int(program.u_unit.max(initial=0)))
+
+    def time_chunk(self, chunk, index, next_pc, rdtsc_sid, rdtsc_out, access_logs) -> int:
+        model, program = self.model, self.program
+        darrays = model.dside.arrays()
+        dlog = access_logs.start(model.family, chunk, program, darrays[3]) if access_logs is not None else NO_LOG
+        total = core.simulate(self.base, next_pc, index, chunk.pc, chunk.mem_insn, chunk.mem_addr, chunk.mem_size,
+                              chunk.mem_write, self.seg_end, *program.arrays(), *self.k6_static, model.params,
+                              *darrays, self.dstats, *model.iside.arrays(), self.istats,
+                              self.counters, self.per_static, self.stat_first, self.timeline, self.tl_first,
+                              rdtsc_sid, rdtsc_out, dlog, *self.state)
         if access_logs is not None:
             access_logs.finish(dlog)
-        return K6CoreRun(program, counters, per_static[:-1], rows, rdtsc, int(end))
+        return total
+
+    def result(self, program, counters, per_static, timeline, rdtsc, total) -> K6CoreRun:
+        return K6CoreRun(program, counters, per_static, timeline, rdtsc, total)

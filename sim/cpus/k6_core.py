@@ -193,14 +193,73 @@ def _k6_miss(r, lvl, start, P, bus, wb1, wb2, counters, cs):
     return max(0, done - start)
 
 
+# Loop-carried scalar state, kept in an int64 vector between calls so that a trace can be timed in
+# chunks exactly as in one call (sim/cpus/session.py; new_state gives the machine at reset).
+(V_FP_TOP, V_NQ, V_Q_SLOT, V_Q_ENTRY, V_PREV_ENTRY, V_NSTORES, V_SQ_POS, V_LAST_COMMIT, V_FW_N, V_L1_FILL_SEEN, V_GHIST, V_RSB_TOP, V_DEC_FREE, V_FE_READY, V_FE_CAUSE, V_GRP_CYCLE, V_GRP_OPEN, V_HOLD_PSID, V_HOLD_CYCLES, V_LAST_RETIRE, V_CUR_SLOT, V_SEG, V_SEG_START) = range(23)
+NSTATE = 23
+HOLD_SINK = -2  # hold_psid naming the sink row (whose index grows with the statics)
+
+
+def new_state(P: np.ndarray, units: int) -> tuple:
+    """The machine at reset: the scalar vector, then the arrays in the order simulate takes them.
+    `units`: the largest resource id the program uses (:func:`grow_units` makes room for more)."""
+    sv = np.zeros(NSTATE, np.int64)
+    sv[V_PREV_ENTRY] = -1
+    sv[V_HOLD_PSID] = -1  # per-static row of the last group's multi-clock decode (vector, prefixes)
+    sv[V_RSB_TOP] = 1
+    rsb = np.zeros(int(P[P_RSB]), np.int64)
+    rsb[0] = P[P_EXIT_ADDR]  # the harness's call into the kernel: its return is predictable
+    btc_ways = int(P[P_BTC])
+    return (sv,
+            np.zeros(NREGS, np.int64),               # reg_ready
+            np.full(NREGS, 15, np.int64),            # reg_pmask: bytes written by the last writer (15 = whole)
+            np.full(WINDOW, -1 << 5, np.int64),      # book: the issue-slot calendar
+            # unit_free: ids from NUNITS on are resources held by single rows (k6.K6Rules._hold_unexplained)
+            np.zeros(max(NUNITS, units + 1), np.int64),
+            np.zeros(int(P[P_QUADS]), np.int64),     # qring: retire cycle of the last `quads` opquads
+            np.zeros(int(P[P_SQ]), np.int64),        # sq_ring: commit cycle of the last sq_n stores
+            np.zeros(2, np.int64),                   # bus
+            np.full(FW, -1, np.int64),               # fw_addr
+            np.zeros(FW, np.int64),                  # fw_size
+            np.zeros(FW, np.int64),                  # fw_ready
+            np.zeros(FW, np.int64),                  # fw_commit
+            np.zeros(2, np.int64),                   # wb_seen: L1 and L2 writebacks already charged
+            np.full(int(P[P_BHT]), 2, np.int64),     # bht
+            np.full((1, btc_ways), -1, np.int64),    # btc_tag
+            np.zeros((1, btc_ways), np.int64),       # btc_stamp
+            np.zeros(btc_ways, np.int64),            # btc_target
+            rsb,
+            np.full(64, -1, np.int64))               # known: L1I lines that hit since the last miss
+
+
+UNIT_FREE = 4  # position of unit_free in new_state's tuple
+
+
+def grow_units(state: tuple, units: int) -> tuple:
+    """`state` with room for resource ids up to `units` (a later chunk brought new instructions)."""
+    old = state[UNIT_FREE]
+    if old.shape[0] > units:
+        return state
+    grown = np.zeros(units + 1, np.int64)
+    grown[:old.shape[0]] = old
+    return state[:UNIT_FREE] + (grown,) + state[UNIT_FREE + 1:]
+
+
 @njit(cache=True, nogil=True)
-def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
+def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
              s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ, s_cyc, s_first, s_pfx,
              P, dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
-             counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out, dlog):
+             counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out, dlog,
+             sv, reg_ready, reg_pmask, book, unit_free, qring, sq_ring, bus, fw_addr,
+             fw_size, fw_ready, fw_commit, wb_seen, bht, btc_tag, btc_stamp, btc_target, rsb, known):
+    """Time instructions base .. base + len(dyn_sid) - 1 of a run, continuing from the state
+    (`sv` and the arrays after it, from :func:`new_state`) and leaving it for the next chunk; the
+    chunk's arrays are its own, everything else counts from the run's start (as
+    :func:`sim.cpus.p6_core.simulate`). `next_pc`: the PC after the chunk, -1 at the run's end."""
     n = dyn_sid.shape[0]
     nstatic = s_len.shape[0]
+    sink = per_static.shape[0] - 1  # per-static sums only from stat_first: earlier ones go to this row
     # the facts the loop reads per instruction and per op, one row each: one array instead of a
     # dozen keeps fewer values live in the loop
     sf = np.zeros((nstatic, NF), np.int64)
@@ -244,72 +303,48 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
     quads, sq_n = P[P_QUADS], P[P_SQ]
     d_levels = dconfig.shape[0]
     n_acc = mem_insn.shape[0]
-    acc_next = 0  # the first access of instruction i (accesses are in program order: mem_insn sorted)
-
-    reg_ready = np.zeros(NREGS, np.int64)
-    reg_pmask = np.full(NREGS, 15, np.int64)  # bytes written by the last writer (15 = whole register)
-    fp_top = 0
-    book = np.full(WINDOW, -1 << 5, np.int64)
-    nunits = NUNITS  # ids from NUNITS on: resources held by single rows (k6.K6Rules._hold_unexplained)
-    for u in range(u_unit.shape[0]):
-        if u_unit[u] + 1 > nunits:
-            nunits = u_unit[u] + 1
-    unit_free = np.zeros(nunits, np.int64)
-    qring = np.zeros(quads, np.int64)          # retire cycle of the last `quads` opquads
-    nq = 0
-    q_slot = 0
-    q_entry = 0
-    prev_entry = -1
-    sq_ring = np.zeros(sq_n, np.int64)         # commit cycle of the last sq_n stores
-    nstores = 0
-    sq_pos = 0  # nstores % sq_n, kept incrementally
-    last_commit = 0
-    bus = np.zeros(2, np.int64)
-    fw_addr = np.full(FW, -1, np.int64)
-    fw_size = np.zeros(FW, np.int64)
-    fw_ready = np.zeros(FW, np.int64)
-    fw_commit = np.zeros(FW, np.int64)
-    fw_n = 0
-    wb_seen = np.zeros(2, np.int64)  # L1 and L2 writebacks already charged
-    l1_fill_seen = 0
 
     bht_mask = P[P_BHT] - 1
     hist_mask = (1 << P[P_HIST_BITS]) - 1
-    bht = np.full(P[P_BHT], 2, np.int64)
-    ghist = 0
     btc_ways = P[P_BTC]
-    btc_tag = np.full((1, btc_ways), -1, np.int64)
-    btc_stamp = np.zeros((1, btc_ways), np.int64)
-    btc_target = np.zeros(btc_ways, np.int64)
     rsb_n = P[P_RSB]
-    rsb = np.zeros(rsb_n, np.int64)
-    rsb[0] = P[P_EXIT_ADDR]  # the harness's call into the kernel: its return is predictable
-    rsb_top = 1
-
-    dec_free = 0      # first cycle the decoders can start a new group
-    fe_ready = 0      # first cycle the front end has bytes after a redirect or an L1I miss
-    fe_cause = 0      # what set fe_ready: 1 mispredict, 2 fetch (L1I miss, BTC miss)
-    grp_cycle = 0
-    grp_open = False  # the current group has the second short decoder free
-    known = np.full(64, -1, np.int64)
-    hold_psid = -1    # per-static row of the last group's multi-clock decode (vector, prefixes)
-    hold_cycles = 0
-    last_retire = 0
-    cur_slot = 0
-    seg = 0
+    fp_top = sv[V_FP_TOP]
+    nq = sv[V_NQ]
+    q_slot = sv[V_Q_SLOT]
+    q_entry = sv[V_Q_ENTRY]
+    prev_entry = sv[V_PREV_ENTRY]
+    nstores = sv[V_NSTORES]
+    sq_pos = sv[V_SQ_POS]  # nstores % sq_n, kept incrementally
+    last_commit = sv[V_LAST_COMMIT]
+    fw_n = sv[V_FW_N]
+    l1_fill_seen = sv[V_L1_FILL_SEEN]
+    ghist = sv[V_GHIST]
+    rsb_top = sv[V_RSB_TOP]
+    dec_free = sv[V_DEC_FREE]    # first cycle the decoders can start a new group
+    fe_ready = sv[V_FE_READY]    # first cycle the front end has bytes after a redirect or an L1I miss
+    fe_cause = sv[V_FE_CAUSE]    # what set fe_ready: 1 mispredict, 2 fetch (L1I miss, BTC miss)
+    grp_cycle = sv[V_GRP_CYCLE]
+    grp_open = sv[V_GRP_OPEN] != 0  # the current group has the second short decoder free
+    hold_psid = sink if sv[V_HOLD_PSID] == HOLD_SINK else sv[V_HOLD_PSID]  # the sink row moves as statics grow
+    hold_cycles = sv[V_HOLD_CYCLES]
+    last_retire = sv[V_LAST_RETIRE]
+    cur_slot = sv[V_CUR_SLOT]
+    seg = sv[V_SEG]
+    seg_start = sv[V_SEG_START]
     last_seg = counters.shape[0] - 1
-    seg_start = 0
+    cs = min(seg, last_seg)  # the counters row: the segment's, the last row once every segment has ended
     nrdtsc = 0
     log_off = dlog[0] == LOG_OFF  # no access log (a log, once on, stays on: replay.logged_service)
-    cs = 0  # the counters row: the segment's, the last row once every segment has ended
+    acc_next = 0  # the chunk's first access of instruction li (accesses are in program order: mem_insn sorted)
 
-    for i in range(n):
-        sid = dyn_sid[i]
-        pc = dyn_pc[i]
+    for li in range(n):
+        i = base + li
+        sid = dyn_sid[li]
+        pc = dyn_pc[li]
         nu = sf[sid, F_NUOPS]
         u0 = sf[sid, F_UOP0]
         cyc = sf[sid, F_CYC]
-        psid = sid if i >= stat_first else nstatic
+        psid = sid if i >= stat_first else sink
 
         # ---- fetch: the L1I ----------------------------------------------------------------------
         # Only code fills the L1I, so a line that hit stays resident until the next miss: `known`
@@ -388,7 +423,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
         top_after = (fp_top - sf[sid, F_FPDELTA]) & 7
         acc = acc_next
         acc_end = acc
-        while acc_end < n_acc and mem_insn[acc_end] == i:
+        while acc_end < n_acc and mem_insn[acc_end] == li:
             acc_end += 1
         acc_next = acc_end
         intra = 0           # latest result of this instruction's earlier ops (the op chain)
@@ -546,7 +581,7 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
         if br != BR_NONE:
             counters[cs, C_BRANCHES] += 1
             fall = pc + sf[sid, F_LEN]
-            nxt = dyn_pc[i + 1] if i + 1 < n else fall
+            nxt = dyn_pc[li + 1] if li + 1 < n else (next_pc if next_pc >= 0 else fall)
             taken = nxt != fall
             predict_taken = True
             mispredicted = False
@@ -619,4 +654,28 @@ def simulate(dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
             seg_start = last_retire
             seg += 1
             cs = min(seg, last_seg)
+
+    sv[V_FP_TOP] = fp_top
+    sv[V_NQ] = nq
+    sv[V_Q_SLOT] = q_slot
+    sv[V_Q_ENTRY] = q_entry
+    sv[V_PREV_ENTRY] = prev_entry
+    sv[V_NSTORES] = nstores
+    sv[V_SQ_POS] = sq_pos
+    sv[V_LAST_COMMIT] = last_commit
+    sv[V_FW_N] = fw_n
+    sv[V_L1_FILL_SEEN] = l1_fill_seen
+    sv[V_GHIST] = ghist
+    sv[V_RSB_TOP] = rsb_top
+    sv[V_DEC_FREE] = dec_free
+    sv[V_FE_READY] = fe_ready
+    sv[V_FE_CAUSE] = fe_cause
+    sv[V_GRP_CYCLE] = grp_cycle
+    sv[V_GRP_OPEN] = 1 if grp_open else 0
+    sv[V_HOLD_PSID] = HOLD_SINK if hold_psid == sink else hold_psid
+    sv[V_HOLD_CYCLES] = hold_cycles
+    sv[V_LAST_RETIRE] = last_retire
+    sv[V_CUR_SLOT] = cur_slot
+    sv[V_SEG] = seg
+    sv[V_SEG_START] = seg_start
     return last_retire
