@@ -32,7 +32,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..memory.hierarchy import memory_fills, memory_writebacks, served_level, service
+from ..memory.cache import LOAD as CACHE_LOAD
+from ..memory.cache import LRU, STORE as CACHE_STORE
+from ..memory.hierarchy import (CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS, CFG_WRITE_BACK,
+                                memory_fills, memory_writebacks, served_level, service)
 from ..memory.replay import LOG_OFF, logged_service
 from .lowering import (BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM,
                        DEC_SIMPLE, LOAD, NREGS, OCC_SCALE, REG_FLAGS, REG_ST0, SIDE, STA, STD)
@@ -173,6 +176,25 @@ def _book_port(book, ports, c):
         c += 1
 
 
+# LOWEST_PORT[m]: the lowest set bit of a 5-bit port mask m (a table, not a data-dependent loop)
+LOWEST_PORT = np.array([0] + [(m & -m).bit_length() - 1 for m in range(1, 32)], np.int64)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _book_lowest(book, ports, c, lowest):
+    """_book_port with the port picked by table (`lowest` is LOWEST_PORT): the same booking."""
+    while True:
+        slot = c & (WINDOW - 1)
+        entry = book[slot]
+        used = entry & 31 if (entry >> 5) == c else 0
+        free = ports & ~used
+        if free != 0:
+            p = lowest[free & 31]
+            book[slot] = (c << 5) | used | (1 << p)
+            return c, p
+        c += 1
+
+
 # Loop-carried scalar state: kept in an int64 vector between calls, so a trace can be timed in
 # chunks (a streamed emulation) exactly as in one call (see :func:`new_state`).
 (V_FLAGS_MASK, V_FLAGS_RETIRE, V_FP_TOP, V_RS_PENDING, V_RS_TIME, V_NSTORES, V_SB_POS, V_LAST_COMMIT,
@@ -238,6 +260,95 @@ def grow_units(state: tuple, units: int) -> tuple:
     return state[:UNIT_FREE] + (grown,) + state[UNIT_FREE + 1:]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _l1_way(tags, addr, size, ob, row0, set_mask, ways):
+    """(row, way) of the first-level line holding [addr, addr + size), or (-1, -1) if it is not
+    there or the access crosses a line (the lookup of sim.memory.cache.lookup, without updates)."""
+    line = addr >> ob
+    if (addr + size - 1) >> ob == line:
+        s = row0 + (line & set_mask)
+        for w in range(ways):
+            if tags[s, w] == line:
+                return s, w
+    return -1, -1
+
+
+@njit(cache=True, nogil=True)
+def _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, is_write, start, P, mshr, bus_free,
+                 l2bus_free, counters, per_static, seg, psid):
+    """A data access that is not a plain L1 hit (see _l1_way), out of the cycle loop (which runs
+    faster without this code inline): the hierarchy walk, the miss counts and the miss's extra
+    cycles from `start`. Returns (extra, bus_free, l2bus_free)."""
+    r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, is_write) if dlog[0] == LOG_OFF
+         else logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, is_write))
+    lvl = served_level(r)
+    wait = 0
+    if lvl > 0:
+        levels = dconfig.shape[0]
+        counters[seg, C_L1D_STORE_MISSES if is_write else C_L1D_LOAD_MISSES] += 1
+        per_static[psid, S_L1D_MISSES] += 1
+        if lvl == levels:
+            per_static[psid, S_L2_MISSES] += 1
+        wait, bus_free, l2bus_free = _miss_latency(r, lvl, levels, start, P, mshr, bus_free, l2bus_free, counters[seg])
+        if not is_write:
+            counters[seg, C_STALL_MEMORY] += wait
+            per_static[psid, S_STALL_MEMORY] += wait
+    return wait, bus_free, l2bus_free
+
+
+@njit(cache=True, nogil=True)
+def _operand_lists(s_nuops, s_uop0, s_nsrc, s_src, s_ndst, s_dst, u_ports, nuops):
+    """Per-uop and per-instruction operand lists, so the loops over them touch only their own
+    operands (in the order of the instruction's lists, which some updates depend on):
+    - per uop u: its sources (register id, x87 relative index) and destinations, a destination
+      list without FXCH's two swapped slots and whether the uop is such a swap;
+    - per instruction: the sources and destinations that partial-register/flags tracking sees
+      (GPRs and flags), as (register id, mask)."""
+    nstatic = s_nuops.shape[0]
+    width = max(s_src.shape[1], 1)
+    u_nsrc = np.zeros(nuops, np.int64)
+    u_src = np.zeros((nuops, width, 2), np.int64)
+    u_ndst = np.zeros(nuops, np.int64)
+    u_dst = np.zeros((nuops, width, 2), np.int64)
+    u_swap = np.zeros(nuops, np.int64)
+    p_nsrc = np.zeros(nstatic, np.int64)
+    p_src = np.zeros((nstatic, width, 2), np.int64)
+    p_ndst = np.zeros(nstatic, np.int64)
+    p_dst = np.zeros((nstatic, width, 2), np.int64)
+    for sid in range(nstatic):
+        nu = s_nuops[sid]
+        u0 = s_uop0[sid]
+        for j in range(s_nsrc[sid]):
+            off = s_src[sid, j, 2]
+            if 0 <= off < nu:
+                u = u0 + off
+                u_src[u, u_nsrc[u], 0] = s_src[sid, j, 0]
+                u_src[u, u_nsrc[u], 1] = s_src[sid, j, 3]
+                u_nsrc[u] += 1
+            rid = s_src[sid, j, 0]
+            if rid < 8 or rid == REG_FLAGS:
+                p_src[sid, p_nsrc[sid], 0] = rid
+                p_src[sid, p_nsrc[sid], 1] = s_src[sid, j, 1]
+                p_nsrc[sid] += 1
+        st_pair = s_ndst[sid] >= 2 and s_dst[sid, 0, 0] == REG_ST0 and s_dst[sid, 1, 0] == REG_ST0
+        for k in range(nu):
+            u = u0 + k
+            swap = u_ports[u] == 0 and st_pair
+            u_swap[u] = 1 if swap else 0
+            for j in range(2 if swap else 0, s_ndst[sid]):
+                if s_dst[sid, j, 2] == k:
+                    u_dst[u, u_ndst[u], 0] = s_dst[sid, j, 0]
+                    u_dst[u, u_ndst[u], 1] = s_dst[sid, j, 3]
+                    u_ndst[u] += 1
+        for j in range(s_ndst[sid]):
+            rid = s_dst[sid, j, 0]
+            if rid < 8 or rid == REG_FLAGS:
+                p_dst[sid, p_ndst[sid], 0] = rid
+                p_dst[sid, p_ndst[sid], 1] = s_dst[sid, j, 1]
+                p_ndst[sid] += 1
+    return u_nsrc, u_src, u_ndst, u_dst, u_swap, p_nsrc, p_src, p_ndst, p_dst
+
+
 @njit(cache=True, nogil=True)
 def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
@@ -265,7 +376,11 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     s_bset = np.zeros(nstatic, np.int64)
     for s in range(nstatic):
         s_bset[s] = s_pc[s] % P[P_BTB_SETS]
+    lowest = LOWEST_PORT.copy()
+    s_way = np.zeros(nstatic, np.int64)  # per static instruction, the BTB way it was last found in
     btb_ways, hist_bits = P[P_BTB_WAYS], P[P_HIST_BITS]
+    u_nsrc, u_src, u_ndst, u_dst, u_swap, p_nsrc, p_src, p_ndst, p_dst = _operand_lists(
+        s_nuops, s_uop0, s_nsrc, s_src, s_ndst, s_dst, u_ports, u_kind.shape[0])
 
     flags_mask = sv[V_FLAGS_MASK]
     flags_retire = sv[V_FLAGS_RETIRE]
@@ -296,6 +411,16 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     seg = sv[V_SEG]
     seg_start_retire = sv[V_SEG_START_RETIRE]
     max_retire = sv[V_MAX_RETIRE]
+    # Plain L1 hits (the common case) are done here, not by sim.memory.hierarchy.service: the same
+    # updates (LRU clock and stamp, dirty bit, request and hit counts), with the clock and the
+    # counts kept in locals (written back around each service call and at the end)
+    l1_ob, l1_row0 = dconfig[0, CFG_OFFSET_BITS], dconfig[0, CFG_ROW0]
+    l1_set_mask, l1_ways = dconfig[0, CFG_SETS] - 1, dconfig[0, CFG_WAYS]
+    l1_lru = dconfig[0, CFG_REPLACEMENT] == LRU
+    l1_write_back = dconfig[0, CFG_WRITE_BACK] != 0
+    d_now = dclock[0]
+    l1_load_hits = 0
+    l1_store_hits = 0
     acc_next = 0  # the chunk's first access of instruction li (accesses are in program order: mem_insn sorted)
     nrdtsc = 0
 
@@ -381,9 +506,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             per_static[psid, S_STALL_DECODE] += inst_ready - rename_free
         cause_alloc = 0
         partial_wait = 0
-        for k in range(s_nsrc[sid]):
-            rid = s_src[sid, k, 0]
-            mask = s_src[sid, k, 1]
+        for k in range(p_nsrc[sid]):
+            rid = p_src[sid, k, 0]
+            mask = p_src[sid, k, 1]
             if rid < 8:
                 if (mask & ~reg_pmask[rid]) != 0 and reg_zeroed[rid] == 0:
                     partial_wait = max(partial_wait, reg_pretire[rid] + P[P_PARTIAL_EXTRA])
@@ -468,12 +593,10 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 first_alloc = alloc
             # sources
             ready = alloc + 1
-            for j in range(s_nsrc[sid]):
-                if s_src[sid, j, 2] != k:
-                    continue
-                rid = s_src[sid, j, 0]
+            for j in range(u_nsrc[u]):
+                rid = u_src[u, j, 0]
                 if rid == REG_ST0:
-                    rid = REG_ST0 + ((top_before + s_src[sid, j, 3]) & 7)
+                    rid = REG_ST0 + ((top_before + u_src[u, j, 1]) & 7)
                 if reg_ready[rid] > ready:
                     ready = reg_ready[rid]
             if kind == LOAD and last_sta_done > ready:
@@ -489,7 +612,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if u_ports[u] == 0:
                 disp, port = ready_unit, -1
             else:
-                disp, port = _book_port(book, u_ports[u], ready_unit)
+                disp, port = _book_lowest(book, u_ports[u], ready_unit, lowest)
             port_wait = disp - ready  # includes waiting for a busy non-pipelined unit
             if u_unit[u] != 0:
                 # a resource held for a fractional throughput (EMMS 5.67) averages it: the hold
@@ -508,10 +631,20 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     acc += 1
                     # store forwarding: newest older store still in the store buffer that overlaps
                     fwd = _queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
-                    r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False) if dlog[0] == LOG_OFF else
-                         logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False))
-                    lvl = served_level(r)
                     counters[seg, C_L1D_LOADS] += 1
+                    hit_row, hit_way = (_l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways)
+                                        if dlog[0] == LOG_OFF else (-1, -1))
+                    if hit_row >= 0:
+                        l1_load_hits += 1
+                        if l1_lru:
+                            dstamps[hit_row, hit_way] = d_now
+                        d_now += 1
+                    else:
+                        dclock[0] = d_now
+                        mem_wait, bus_free, l2bus_free = _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats,
+                                                                      a, sz, False, disp, P, mshr, bus_free, l2bus_free,
+                                                                      counters, per_static, seg, psid)
+                        d_now = dclock[0]
                     if fwd >= 0:
                         if fw_addr[fwd] == a and sz <= fw_size[fwd]:
                             counters[seg, C_STORE_FORWARDS] += 1
@@ -523,15 +656,6 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                             fwd_wait = max(0, max(fw_commit[fwd], disp) + P[P_FWD_FAIL] - (disp + lat))
                         counters[seg, C_STALL_STORE_FORWARD] += fwd_wait
                         per_static[psid, S_STALL_STORE_FORWARD] += fwd_wait
-                    if lvl > 0:
-                        counters[seg, C_L1D_LOAD_MISSES] += 1
-                        per_static[psid, S_L1D_MISSES] += 1
-                        mem_wait, bus_free, l2bus_free = _miss_latency(r, lvl, d_levels, disp, P, mshr, bus_free,
-                                                                       l2bus_free, counters[seg])
-                        if lvl == d_levels:
-                            per_static[psid, S_L2_MISSES] += 1
-                        counters[seg, C_STALL_MEMORY] += mem_wait
-                        per_static[psid, S_STALL_MEMORY] += mem_wait
             complete = disp + lat + max(mem_wait, fwd_wait)
             if kind == STA:
                 is_store = True
@@ -544,15 +668,12 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if kind == BRANCH:
                 branch_done = complete
             # destinations
-            swap = u_ports[u] == 0 and s_ndst[sid] >= 2 and s_dst[sid, 0, 0] == REG_ST0 and s_dst[sid, 1, 0] == REG_ST0
-            for j in range(2 if swap else 0, s_ndst[sid]):
-                if s_dst[sid, j, 2] != k:
-                    continue
-                rid = s_dst[sid, j, 0]
+            for j in range(u_ndst[u]):
+                rid = u_dst[u, j, 0]
                 if rid == REG_ST0:
-                    rid = REG_ST0 + ((top_after + s_dst[sid, j, 3]) & 7)
+                    rid = REG_ST0 + ((top_after + u_dst[u, j, 1]) & 7)
                 reg_ready[rid] = complete
-            if swap:
+            if u_swap[u] != 0:
                 # FXCH: done in the register renamer (AF29n note f), it swaps which stack slot holds
                 # which value without waiting for either: each value keeps its own ready time
                 ra = REG_ST0 + ((top_after + s_dst[sid, 0, 3]) & 7)
@@ -598,9 +719,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             u_global += 1
 
         # ---- after the instruction: register state, stores, branches --------------------------
-        for j in range(s_ndst[sid]):
-            rid = s_dst[sid, j, 0]
-            mask = s_dst[sid, j, 1]
+        for j in range(p_ndst[sid]):
+            rid = p_dst[sid, j, 0]
+            mask = p_dst[sid, j, 1]
             if rid < 8:
                 if mask == 15:
                     reg_pmask[rid] = 15
@@ -623,16 +744,21 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if acc < acc_end:
                 a = np.int64(mem_addr[acc])
                 sz = np.int64(mem_size[acc])
-                r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True) if dlog[0] == LOG_OFF else
-                     logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True))
-                lvl = served_level(r)
                 counters[seg, C_L1D_STORES] += 1
-                if lvl > 0:
-                    counters[seg, C_L1D_STORE_MISSES] += 1
-                    per_static[psid, S_L1D_MISSES] += 1
-                    if lvl == d_levels:
-                        per_static[psid, S_L2_MISSES] += 1
-                    w, bus_free, l2bus_free = _miss_latency(r, lvl, d_levels, commit, P, mshr, bus_free, l2bus_free, counters[seg])
+                hit_row, hit_way = (_l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways)
+                                    if dlog[0] == LOG_OFF and l1_write_back else (-1, -1))
+                if hit_row >= 0:
+                    l1_store_hits += 1
+                    if l1_lru:
+                        dstamps[hit_row, hit_way] = d_now
+                    d_now += 1
+                    ddirty[hit_row, hit_way] = 1
+                else:
+                    dclock[0] = d_now
+                    w, bus_free, l2bus_free = _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz,
+                                                           True, commit, P, mshr, bus_free, l2bus_free, counters,
+                                                           per_static, seg, psid)
+                    d_now = dclock[0]
                     commit += w
                 fw_n = _remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_std, commit)
             sb_ring[sb_pos] = commit
@@ -647,10 +773,14 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             mispredicted = False
             redirect = False
             bset = s_bset[sid]
-            way = -1
-            for w in range(btb_ways):
-                if btb_tag[bset, w] == pc:
-                    way = w
+            # a set never holds a PC twice (an entry is allocated only on a miss), so the way this
+            # branch was found in last time, if it still holds the PC, is the way; else search the set
+            way = s_way[sid]
+            if btb_tag[bset, way] != pc:
+                way = -1
+                for w in range(btb_ways):
+                    if btb_tag[bset, w] == pc:
+                        way = w
             if br == BR_COND:
                 if way >= 0:
                     h = btb_hist[bset, way]
@@ -689,6 +819,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, i)
             if way >= 0:
                 btb_target[bset, way] = nxt if taken else btb_target[bset, way]
+                s_way[sid] = way
             if mispredicted:
                 counters[seg, C_MISPREDICTS] += 1
                 per_static[psid, S_MISPREDICTS] += 1
@@ -734,6 +865,11 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             seg_start_retire = max_retire
             seg += 1
 
+    dclock[0] = d_now
+    dstats[0, 2 * CACHE_LOAD] += l1_load_hits  # requests
+    dstats[0, 2 * CACHE_LOAD + 1] += l1_load_hits  # hits
+    dstats[0, 2 * CACHE_STORE] += l1_store_hits
+    dstats[0, 2 * CACHE_STORE + 1] += l1_store_hits
     sv[V_FLAGS_MASK] = flags_mask
     sv[V_FLAGS_RETIRE] = flags_retire
     sv[V_FP_TOP] = fp_top
