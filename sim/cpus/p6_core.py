@@ -296,6 +296,20 @@ def _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size,
     return wait, bus_free, l2bus_free
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _add_counts(counters, seg, insns, uops, groups, stall_decode, stall_dep, stall_port, loads, stores, branches):
+    """Add the counts simulate keeps in locals to segment `seg`."""
+    counters[seg, C_INSTRUCTIONS] += insns
+    counters[seg, C_UOPS] += uops
+    counters[seg, C_DECODE_GROUPS] += groups
+    counters[seg, C_STALL_DECODE] += stall_decode
+    counters[seg, C_STALL_DEPENDENCY] += stall_dep
+    counters[seg, C_STALL_PORT] += stall_port
+    counters[seg, C_L1D_LOADS] += loads
+    counters[seg, C_L1D_STORES] += stores
+    counters[seg, C_BRANCHES] += branches
+
+
 @njit(cache=True, nogil=True)
 def _operand_lists(s_nuops, s_uop0, s_nsrc, s_src, s_ndst, s_dst, u_ports, nuops):
     """Per-uop and per-instruction operand lists, so the loops over them touch only their own
@@ -421,6 +435,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     d_now = dclock[0]
     l1_load_hits = 0
     l1_store_hits = 0
+    # the most frequent counts of the current segment, in locals (added to counters at its end)
+    n_insns = n_uops = n_groups = n_stall_decode = n_stall_dep = n_stall_port = n_loads = n_stores = 0
+    n_branches = 0
     acc_next = 0  # the chunk's first access of instruction li (accesses are in program order: mem_insn sorted)
     nrdtsc = 0
 
@@ -480,7 +497,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if block > 0:
                 dec_limit = (pc // block + 1) * block if fetch_restart else pc + block
             fetch_restart = False
-            counters[seg, C_DECODE_GROUPS] += 1
+            n_groups += 1
         slot = dec_pos
         if dec == DEC_MSROM:
             counters[seg, C_MSROM_UOPS] += nu
@@ -502,7 +519,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         inst_ready = decode_time + 1
         rename_free = ren_cycle if ren_count < rename_w else ren_cycle + 1
         if i > 0 and inst_ready > rename_free:  # rename idle, waiting for the front end
-            counters[seg, C_STALL_DECODE] += inst_ready - rename_free
+            n_stall_decode += inst_ready - rename_free
             per_static[psid, S_STALL_DECODE] += inst_ready - rename_free
         cause_alloc = 0
         partial_wait = 0
@@ -631,7 +648,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     acc += 1
                     # store forwarding: newest older store still in the store buffer that overlaps
                     fwd = _queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
-                    counters[seg, C_L1D_LOADS] += 1
+                    n_loads += 1
                     hit_row, hit_way = (_l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways)
                                         if dlog[0] == LOG_OFF else (-1, -1))
                     if hit_row >= 0:
@@ -703,11 +720,11 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if k == 0:
                 first_dispatch = disp
             if dep_wait > 0:
-                counters[seg, C_STALL_DEPENDENCY] += dep_wait
+                n_stall_dep += dep_wait
                 per_static[psid, S_STALL_DEPENDENCY] += dep_wait
                 cause_disp = max(cause_disp, 4)
             if port_wait > 0:
-                counters[seg, C_STALL_PORT] += port_wait
+                n_stall_port += port_wait
                 per_static[psid, S_STALL_PORT] += port_wait
                 cause_disp = max(cause_disp, 5)
             if mem_wait > 0:
@@ -744,7 +761,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if acc < acc_end:
                 a = np.int64(mem_addr[acc])
                 sz = np.int64(mem_size[acc])
-                counters[seg, C_L1D_STORES] += 1
+                n_stores += 1
                 hit_row, hit_way = (_l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways)
                                     if dlog[0] == LOG_OFF and l1_write_back else (-1, -1))
                 if hit_row >= 0:
@@ -767,7 +784,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             last_commit = commit
         br = s_branch[sid]
         if br != BR_NONE:
-            counters[seg, C_BRANCHES] += 1
+            n_branches += 1
             nxt = dyn_pc[li + 1] if li + 1 < n else (next_pc if next_pc >= 0 else pc + length)
             taken = nxt != pc + length
             mispredicted = False
@@ -839,8 +856,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         if nrdtsc < rdtsc_out.shape[0] and rdtsc_sid[sid] == 1:
             rdtsc_out[nrdtsc] = first_dispatch
             nrdtsc += 1
-        counters[seg, C_INSTRUCTIONS] += 1
-        counters[seg, C_UOPS] += nu
+        n_insns += 1
+        n_uops += nu
         per_static[psid, S_EXECUTIONS] += 1
         per_static[psid, S_UOPS] += nu
         per_static[psid, S_ISSUE_TO_RETIRE] += inst_retire - first_dispatch
@@ -862,9 +879,16 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             row[7] = cause
         if seg < seg_end.shape[0] and i + 1 == seg_end[seg]:
             counters[seg, C_CYCLES] = max_retire - seg_start_retire
+            _add_counts(counters, seg, n_insns, n_uops, n_groups, n_stall_decode, n_stall_dep, n_stall_port, n_loads,
+                        n_stores, n_branches)
+            n_insns = n_uops = n_groups = n_stall_decode = n_stall_dep = n_stall_port = n_loads = n_stores = 0
+            n_branches = 0
             seg_start_retire = max_retire
             seg += 1
 
+    if seg < counters.shape[0]:
+        _add_counts(counters, seg, n_insns, n_uops, n_groups, n_stall_decode, n_stall_dep, n_stall_port, n_loads,
+                    n_stores, n_branches)
     dclock[0] = d_now
     dstats[0, 2 * CACHE_LOAD] += l1_load_hits  # requests
     dstats[0, 2 * CACHE_LOAD + 1] += l1_load_hits  # hits
