@@ -297,7 +297,8 @@ def _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size,
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _add_counts(counters, seg, insns, uops, groups, stall_decode, stall_dep, stall_port, loads, stores, branches):
+def _add_counts(counters, seg, insns, uops, groups, stall_decode, stall_dep, stall_port, loads, stores, branches,
+                dec0, dec1, dec2, port0, port1, port2, port3, port4):
     """Add the counts simulate keeps in locals to segment `seg`."""
     counters[seg, C_INSTRUCTIONS] += insns
     counters[seg, C_UOPS] += uops
@@ -308,6 +309,14 @@ def _add_counts(counters, seg, insns, uops, groups, stall_decode, stall_dep, sta
     counters[seg, C_L1D_LOADS] += loads
     counters[seg, C_L1D_STORES] += stores
     counters[seg, C_BRANCHES] += branches
+    counters[seg, C_DECODER0] += dec0
+    counters[seg, C_DECODER1] += dec1
+    counters[seg, C_DECODER2] += dec2
+    counters[seg, C_PORT0] += port0
+    counters[seg, C_PORT1] += port1
+    counters[seg, C_PORT2] += port2
+    counters[seg, C_PORT3] += port3
+    counters[seg, C_PORT4] += port4
 
 
 @njit(cache=True, nogil=True)
@@ -437,7 +446,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     l1_store_hits = 0
     # the most frequent counts of the current segment, in locals (added to counters at its end)
     n_insns = n_uops = n_groups = n_stall_decode = n_stall_dep = n_stall_port = n_loads = n_stores = 0
-    n_branches = 0
+    n_branches = n_dec0 = n_dec1 = n_dec2 = n_port0 = n_port1 = n_port2 = n_port3 = n_port4 = 0
     acc_next = 0  # the chunk's first access of instruction li (accesses are in program order: mem_insn sorted)
     nrdtsc = 0
 
@@ -508,7 +517,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if dec != DEC_SIMPLE:
                 dec_pos = max(dec_pos, 1)
         if slot < 3 and dec != DEC_MSROM:
-            counters[seg, C_DECODER0 + slot] += 1
+            n_dec0 += slot == 0
+            n_dec1 += slot == 1
+            n_dec2 += slot == 2
             per_static[psid, S_DECODER0 + slot] += 1
         decode_time = d
         dec_cycle = d
@@ -715,7 +726,11 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 rs_by_cycle[disp & (WINDOW - 1)] += 1
                 rs_pending += 1
             if port >= 0:
-                counters[seg, C_PORT0 + port] += 1
+                n_port0 += port == 0
+                n_port1 += port == 1
+                n_port2 += port == 2
+                n_port3 += port == 3
+                n_port4 += port == 4
                 per_static[psid, S_PORT0 + port] += 1
             if k == 0:
                 first_dispatch = disp
@@ -880,15 +895,15 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         if seg < seg_end.shape[0] and i + 1 == seg_end[seg]:
             counters[seg, C_CYCLES] = max_retire - seg_start_retire
             _add_counts(counters, seg, n_insns, n_uops, n_groups, n_stall_decode, n_stall_dep, n_stall_port, n_loads,
-                        n_stores, n_branches)
+                        n_stores, n_branches, n_dec0, n_dec1, n_dec2, n_port0, n_port1, n_port2, n_port3, n_port4)
             n_insns = n_uops = n_groups = n_stall_decode = n_stall_dep = n_stall_port = n_loads = n_stores = 0
-            n_branches = 0
+            n_branches = n_dec0 = n_dec1 = n_dec2 = n_port0 = n_port1 = n_port2 = n_port3 = n_port4 = 0
             seg_start_retire = max_retire
             seg += 1
 
     if seg < counters.shape[0]:
         _add_counts(counters, seg, n_insns, n_uops, n_groups, n_stall_decode, n_stall_dep, n_stall_port, n_loads,
-                    n_stores, n_branches)
+                    n_stores, n_branches, n_dec0, n_dec1, n_dec2, n_port0, n_port1, n_port2, n_port3, n_port4)
     dclock[0] = d_now
     dstats[0, 2 * CACHE_LOAD] += l1_load_hits  # requests
     dstats[0, 2 * CACHE_LOAD + 1] += l1_load_hits  # hits
