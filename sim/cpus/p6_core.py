@@ -318,6 +318,8 @@ def _add_counts(counters, seg, insns, uops, groups, stall_decode, stall_dep, sta
     counters[seg, C_PORT3] += port3
     counters[seg, C_PORT4] += port4
 
+ALWAYS_SCAN = 1 << 8  # see _operand_lists: p_gpr_bits
+
 
 @njit(cache=True, nogil=True)
 def _operand_lists(s_nuops, s_uop0, s_nsrc, s_src, s_ndst, s_dst, u_ports, nuops):
@@ -338,6 +340,10 @@ def _operand_lists(s_nuops, s_uop0, s_nsrc, s_src, s_ndst, s_dst, u_ports, nuops
     p_src = np.zeros((nstatic, width, 2), np.int64)
     p_ndst = np.zeros(nstatic, np.int64)
     p_dst = np.zeros((nstatic, width, 2), np.int64)
+    # when the partial-source scan can find nothing: bits of the GPRs read (and "always scan" for a
+    # GPR mask beyond the 4 byte bits), the flags read
+    p_gpr_bits = np.zeros(nstatic, np.int64)
+    p_flags_read = np.zeros(nstatic, np.int64)
     for sid in range(nstatic):
         nu = s_nuops[sid]
         u0 = s_uop0[sid]
@@ -353,6 +359,10 @@ def _operand_lists(s_nuops, s_uop0, s_nsrc, s_src, s_ndst, s_dst, u_ports, nuops
                 p_src[sid, p_nsrc[sid], 0] = rid
                 p_src[sid, p_nsrc[sid], 1] = s_src[sid, j, 1]
                 p_nsrc[sid] += 1
+            if rid < 8:
+                p_gpr_bits[sid] |= (1 << rid) | (ALWAYS_SCAN if s_src[sid, j, 1] & ~15 else 0)
+            elif rid == REG_FLAGS:
+                p_flags_read[sid] |= s_src[sid, j, 1]
         st_pair = s_ndst[sid] >= 2 and s_dst[sid, 0, 0] == REG_ST0 and s_dst[sid, 1, 0] == REG_ST0
         for k in range(nu):
             u = u0 + k
@@ -369,7 +379,7 @@ def _operand_lists(s_nuops, s_uop0, s_nsrc, s_src, s_ndst, s_dst, u_ports, nuops
                 p_dst[sid, p_ndst[sid], 0] = rid
                 p_dst[sid, p_ndst[sid], 1] = s_dst[sid, j, 1]
                 p_ndst[sid] += 1
-    return u_nsrc, u_src, u_ndst, u_dst, u_swap, p_nsrc, p_src, p_ndst, p_dst
+    return u_nsrc, u_src, u_ndst, u_dst, u_swap, p_nsrc, p_src, p_ndst, p_dst, p_gpr_bits, p_flags_read
 
 
 @njit(cache=True, nogil=True)
@@ -402,7 +412,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     lowest = LOWEST_PORT.copy()
     s_way = np.zeros(nstatic, np.int64)  # per static instruction, the BTB way it was last found in
     btb_ways, hist_bits = P[P_BTB_WAYS], P[P_HIST_BITS]
-    u_nsrc, u_src, u_ndst, u_dst, u_swap, p_nsrc, p_src, p_ndst, p_dst = _operand_lists(
+    u_nsrc, u_src, u_ndst, u_dst, u_swap, p_nsrc, p_src, p_ndst, p_dst, p_gpr_bits, p_flags_read = _operand_lists(
         s_nuops, s_uop0, s_nsrc, s_src, s_ndst, s_dst, u_ports, u_kind.shape[0])
 
     flags_mask = sv[V_FLAGS_MASK]
@@ -442,6 +452,11 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     l1_lru = dconfig[0, CFG_REPLACEMENT] == LRU
     l1_write_back = dconfig[0, CFG_WRITE_BACK] != 0
     d_now = dclock[0]
+    # GPRs whose last writer was partial (reg_pmask != 15), as bits, plus ALWAYS_SCAN
+    partial_live = ALWAYS_SCAN
+    for r in range(8):
+        if reg_pmask[r] != 15:
+            partial_live |= 1 << r
     l1_load_hits = 0
     l1_store_hits = 0
     # the most frequent counts of the current segment, in locals (added to counters at its end)
@@ -534,7 +549,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             per_static[psid, S_STALL_DECODE] += inst_ready - rename_free
         cause_alloc = 0
         partial_wait = 0
-        for k in range(p_nsrc[sid]):
+        # the scan finds nothing unless a GPR read is partially written or a flag read is stale
+        scan = (p_gpr_bits[sid] & partial_live) != 0 or (p_flags_read[sid] & ~flags_mask) != 0
+        for k in range(p_nsrc[sid] if scan else 0):
             rid = p_src[sid, k, 0]
             mask = p_src[sid, k, 1]
             if rid < 8:
@@ -758,9 +775,11 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 if mask == 15:
                     reg_pmask[rid] = 15
                     reg_zeroed[rid] = s_zero[sid]
+                    partial_live &= ~(1 << rid)
                 else:
                     reg_pmask[rid] = mask
                     reg_pretire[rid] = inst_retire
+                    partial_live |= 1 << rid
             elif rid == REG_FLAGS:
                 # a writer of all six status flags leaves nothing to merge, control flags included:
                 # Agner Fog (PPro/PII/PIII partial flags stalls) lists NEG, ADD, CMP ... followed
