@@ -176,25 +176,6 @@ def _book_port(book, ports, c):
         c += 1
 
 
-# LOWEST_PORT[m]: the lowest set bit of a 5-bit port mask m (a table, not a data-dependent loop)
-LOWEST_PORT = np.array([0] + [(m & -m).bit_length() - 1 for m in range(1, 32)], np.int64)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _book_lowest(book, ports, c, lowest):
-    """_book_port with the port picked by table (`lowest` is LOWEST_PORT): the same booking."""
-    while True:
-        slot = c & (WINDOW - 1)
-        entry = book[slot]
-        used = entry & 31 if (entry >> 5) == c else 0
-        free = ports & ~used
-        if free != 0:
-            p = lowest[free & 31]
-            book[slot] = (c << 5) | used | (1 << p)
-            return c, p
-        c += 1
-
-
 # Loop-carried scalar state: kept in an int64 vector between calls, so a trace can be timed in
 # chunks (a streamed emulation) exactly as in one call (see :func:`new_state`).
 (V_FLAGS_MASK, V_FLAGS_RETIRE, V_FP_TOP, V_RS_PENDING, V_RS_TIME, V_NSTORES, V_SB_POS, V_LAST_COMMIT,
@@ -409,8 +390,6 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     s_bset = np.zeros(nstatic, np.int64)
     for s in range(nstatic):
         s_bset[s] = s_pc[s] % P[P_BTB_SETS]
-    lowest = LOWEST_PORT.copy()
-    s_way = np.zeros(nstatic, np.int64)  # per static instruction, the BTB way it was last found in
     btb_ways, hist_bits = P[P_BTB_WAYS], P[P_HIST_BITS]
     u_nsrc, u_src, u_ndst, u_dst, u_swap, p_nsrc, p_src, p_ndst, p_dst, p_gpr_bits, p_flags_read = _operand_lists(
         s_nuops, s_uop0, s_nsrc, s_src, s_ndst, s_dst, u_ports, u_kind.shape[0])
@@ -657,7 +636,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if u_ports[u] == 0:
                 disp, port = ready_unit, -1
             else:
-                disp, port = _book_lowest(book, u_ports[u], ready_unit, lowest)
+                disp, port = _book_port(book, u_ports[u], ready_unit)
             port_wait = disp - ready  # includes waiting for a busy non-pipelined unit
             if u_unit[u] != 0:
                 # a resource held for a fractional throughput (EMMS 5.67) averages it: the hold
@@ -824,14 +803,10 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             mispredicted = False
             redirect = False
             bset = s_bset[sid]
-            # a set never holds a PC twice (an entry is allocated only on a miss), so the way this
-            # branch was found in last time, if it still holds the PC, is the way; else search the set
-            way = s_way[sid]
-            if btb_tag[bset, way] != pc:
-                way = -1
-                for w in range(btb_ways):
-                    if btb_tag[bset, w] == pc:
-                        way = w
+            way = -1
+            for w in range(btb_ways):
+                if btb_tag[bset, w] == pc:
+                    way = w
             if br == BR_COND:
                 if way >= 0:
                     h = btb_hist[bset, way]
@@ -870,7 +845,6 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, i)
             if way >= 0:
                 btb_target[bset, way] = nxt if taken else btb_target[bset, way]
-                s_way[sid] = way
             if mispredicted:
                 counters[seg, C_MISPREDICTS] += 1
                 per_static[psid, S_MISPREDICTS] += 1
