@@ -363,7 +363,9 @@ def _operand_lists(s_nuops, s_uop0, s_nsrc, s_src, s_ndst, s_dst, u_ports, nuops
     return u_nsrc, u_src, u_ndst, u_dst, u_swap, p_nsrc, p_src, p_ndst, p_dst, p_gpr_bits, p_flags_read
 
 
-@njit(cache=True, nogil=True)
+# error_model="numpy": no zero-divisor checks on the loop's divisions (every divisor is a machine
+# size that lowering or new_state has already divided by or indexed with); measurably faster
+@njit(cache=True, nogil=True, error_model="numpy")
 def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
              s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ,
