@@ -32,7 +32,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..memory.hierarchy import memory_fills, memory_writebacks, served_level, service
+from ..memory.cache import LOAD as CACHE_LOAD
+from ..memory.cache import LRU, STORE as CACHE_STORE
+from ..memory.hierarchy import (CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS, CFG_WRITE_BACK,
+                                memory_fills, memory_writebacks, served_level, service)
 from ..memory.replay import LOG_OFF, logged_service
 from .lowering import (BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM,
                        DEC_SIMPLE, LOAD, NREGS, OCC_SCALE, REG_FLAGS, REG_ST0, SIDE, STA, STD)
@@ -238,7 +241,131 @@ def grow_units(state: tuple, units: int) -> tuple:
     return state[:UNIT_FREE] + (grown,) + state[UNIT_FREE + 1:]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _l1_way(tags, addr, size, ob, row0, set_mask, ways):
+    """(row, way) of the first-level line holding [addr, addr + size), or (-1, -1) if it is not
+    there or the access crosses a line (the lookup of sim.memory.cache.lookup, without updates)."""
+    line = addr >> ob
+    if (addr + size - 1) >> ob == line:
+        s = row0 + (line & set_mask)
+        for w in range(ways):
+            if tags[s, w] == line:
+                return s, w
+    return -1, -1
+
+
 @njit(cache=True, nogil=True)
+def _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, is_write, start, P, mshr, bus_free,
+                 l2bus_free, counters, per_static, seg, psid):
+    """A data access that is not a plain L1 hit (see _l1_way), out of the cycle loop (which runs
+    faster without this code inline): the hierarchy walk, the miss counts and the miss's extra
+    cycles from `start`. Returns (extra, bus_free, l2bus_free)."""
+    r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, is_write) if dlog[0] == LOG_OFF
+         else logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, is_write))
+    lvl = served_level(r)
+    wait = 0
+    if lvl > 0:
+        levels = dconfig.shape[0]
+        counters[seg, C_L1D_STORE_MISSES if is_write else C_L1D_LOAD_MISSES] += 1
+        per_static[psid, S_L1D_MISSES] += 1
+        if lvl == levels:
+            per_static[psid, S_L2_MISSES] += 1
+        wait, bus_free, l2bus_free = _miss_latency(r, lvl, levels, start, P, mshr, bus_free, l2bus_free, counters[seg])
+        if not is_write:
+            counters[seg, C_STALL_MEMORY] += wait
+            per_static[psid, S_STALL_MEMORY] += wait
+    return wait, bus_free, l2bus_free
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _add_counts(counters, seg, insns, uops, groups, stall_decode, stall_dep, stall_port, loads, stores, branches,
+                dec0, dec1, dec2, port0, port1, port2, port3, port4):
+    """Add the counts simulate keeps in locals to segment `seg`."""
+    counters[seg, C_INSTRUCTIONS] += insns
+    counters[seg, C_UOPS] += uops
+    counters[seg, C_DECODE_GROUPS] += groups
+    counters[seg, C_STALL_DECODE] += stall_decode
+    counters[seg, C_STALL_DEPENDENCY] += stall_dep
+    counters[seg, C_STALL_PORT] += stall_port
+    counters[seg, C_L1D_LOADS] += loads
+    counters[seg, C_L1D_STORES] += stores
+    counters[seg, C_BRANCHES] += branches
+    counters[seg, C_DECODER0] += dec0
+    counters[seg, C_DECODER1] += dec1
+    counters[seg, C_DECODER2] += dec2
+    counters[seg, C_PORT0] += port0
+    counters[seg, C_PORT1] += port1
+    counters[seg, C_PORT2] += port2
+    counters[seg, C_PORT3] += port3
+    counters[seg, C_PORT4] += port4
+
+ALWAYS_SCAN = 1 << 8  # see _operand_lists: p_gpr_bits
+
+
+@njit(cache=True, nogil=True)
+def _operand_lists(s_nuops, s_uop0, s_nsrc, s_src, s_ndst, s_dst, u_ports, nuops):
+    """Per-uop and per-instruction operand lists, so the loops over them touch only their own
+    operands (in the order of the instruction's lists, which some updates depend on):
+    - per uop u: its sources (register id, x87 relative index) and destinations, a destination
+      list without FXCH's two swapped slots and whether the uop is such a swap;
+    - per instruction: the sources and destinations that partial-register/flags tracking sees
+      (GPRs and flags), as (register id, mask)."""
+    nstatic = s_nuops.shape[0]
+    width = max(s_src.shape[1], 1)
+    u_nsrc = np.zeros(nuops, np.int64)
+    u_src = np.zeros((nuops, width, 2), np.int64)
+    u_ndst = np.zeros(nuops, np.int64)
+    u_dst = np.zeros((nuops, width, 2), np.int64)
+    u_swap = np.zeros(nuops, np.int64)
+    p_nsrc = np.zeros(nstatic, np.int64)
+    p_src = np.zeros((nstatic, width, 2), np.int64)
+    p_ndst = np.zeros(nstatic, np.int64)
+    p_dst = np.zeros((nstatic, width, 2), np.int64)
+    # when the partial-source scan can find nothing: bits of the GPRs read (and "always scan" for a
+    # GPR mask beyond the 4 byte bits), the flags read
+    p_gpr_bits = np.zeros(nstatic, np.int64)
+    p_flags_read = np.zeros(nstatic, np.int64)
+    for sid in range(nstatic):
+        nu = s_nuops[sid]
+        u0 = s_uop0[sid]
+        for j in range(s_nsrc[sid]):
+            off = s_src[sid, j, 2]
+            if 0 <= off < nu:
+                u = u0 + off
+                u_src[u, u_nsrc[u], 0] = s_src[sid, j, 0]
+                u_src[u, u_nsrc[u], 1] = s_src[sid, j, 3]
+                u_nsrc[u] += 1
+            rid = s_src[sid, j, 0]
+            if rid < 8 or rid == REG_FLAGS:
+                p_src[sid, p_nsrc[sid], 0] = rid
+                p_src[sid, p_nsrc[sid], 1] = s_src[sid, j, 1]
+                p_nsrc[sid] += 1
+            if rid < 8:
+                p_gpr_bits[sid] |= (1 << rid) | (ALWAYS_SCAN if s_src[sid, j, 1] & ~15 else 0)
+            elif rid == REG_FLAGS:
+                p_flags_read[sid] |= s_src[sid, j, 1]
+        st_pair = s_ndst[sid] >= 2 and s_dst[sid, 0, 0] == REG_ST0 and s_dst[sid, 1, 0] == REG_ST0
+        for k in range(nu):
+            u = u0 + k
+            swap = u_ports[u] == 0 and st_pair
+            u_swap[u] = 1 if swap else 0
+            for j in range(2 if swap else 0, s_ndst[sid]):
+                if s_dst[sid, j, 2] == k:
+                    u_dst[u, u_ndst[u], 0] = s_dst[sid, j, 0]
+                    u_dst[u, u_ndst[u], 1] = s_dst[sid, j, 3]
+                    u_ndst[u] += 1
+        for j in range(s_ndst[sid]):
+            rid = s_dst[sid, j, 0]
+            if rid < 8 or rid == REG_FLAGS:
+                p_dst[sid, p_ndst[sid], 0] = rid
+                p_dst[sid, p_ndst[sid], 1] = s_dst[sid, j, 1]
+                p_ndst[sid] += 1
+    return u_nsrc, u_src, u_ndst, u_dst, u_swap, p_nsrc, p_src, p_ndst, p_dst, p_gpr_bits, p_flags_read
+
+
+# error_model="numpy": no zero-divisor checks on the loop's divisions (every divisor is a machine
+# size that lowering or new_state has already divided by or indexed with); measurably faster
+@njit(cache=True, nogil=True, error_model="numpy")
 def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
              s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ,
@@ -266,6 +393,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     for s in range(nstatic):
         s_bset[s] = s_pc[s] % P[P_BTB_SETS]
     btb_ways, hist_bits = P[P_BTB_WAYS], P[P_HIST_BITS]
+    u_nsrc, u_src, u_ndst, u_dst, u_swap, p_nsrc, p_src, p_ndst, p_dst, p_gpr_bits, p_flags_read = _operand_lists(
+        s_nuops, s_uop0, s_nsrc, s_src, s_ndst, s_dst, u_ports, u_kind.shape[0])
 
     flags_mask = sv[V_FLAGS_MASK]
     flags_retire = sv[V_FLAGS_RETIRE]
@@ -296,6 +425,24 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     seg = sv[V_SEG]
     seg_start_retire = sv[V_SEG_START_RETIRE]
     max_retire = sv[V_MAX_RETIRE]
+    # Plain L1 hits (the common case) are done here, not by sim.memory.hierarchy.service: the same
+    # updates (LRU clock and stamp, dirty bit, request and hit counts), with the clock and the
+    # counts kept in locals (written back around each service call and at the end)
+    l1_ob, l1_row0 = dconfig[0, CFG_OFFSET_BITS], dconfig[0, CFG_ROW0]
+    l1_set_mask, l1_ways = dconfig[0, CFG_SETS] - 1, dconfig[0, CFG_WAYS]
+    l1_lru = dconfig[0, CFG_REPLACEMENT] == LRU
+    l1_write_back = dconfig[0, CFG_WRITE_BACK] != 0
+    d_now = dclock[0]
+    # GPRs whose last writer was partial (reg_pmask != 15), as bits, plus ALWAYS_SCAN
+    partial_live = ALWAYS_SCAN
+    for r in range(8):
+        if reg_pmask[r] != 15:
+            partial_live |= 1 << r
+    l1_load_hits = 0
+    l1_store_hits = 0
+    # the most frequent counts of the current segment, in locals (added to counters at its end)
+    n_insns = n_uops = n_groups = n_stall_decode = n_stall_dep = n_stall_port = n_loads = n_stores = 0
+    n_branches = n_dec0 = n_dec1 = n_dec2 = n_port0 = n_port1 = n_port2 = n_port3 = n_port4 = 0
     acc_next = 0  # the chunk's first access of instruction li (accesses are in program order: mem_insn sorted)
     nrdtsc = 0
 
@@ -355,7 +502,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if block > 0:
                 dec_limit = (pc // block + 1) * block if fetch_restart else pc + block
             fetch_restart = False
-            counters[seg, C_DECODE_GROUPS] += 1
+            n_groups += 1
         slot = dec_pos
         if dec == DEC_MSROM:
             counters[seg, C_MSROM_UOPS] += nu
@@ -366,7 +513,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if dec != DEC_SIMPLE:
                 dec_pos = max(dec_pos, 1)
         if slot < 3 and dec != DEC_MSROM:
-            counters[seg, C_DECODER0 + slot] += 1
+            n_dec0 += slot == 0
+            n_dec1 += slot == 1
+            n_dec2 += slot == 2
             per_static[psid, S_DECODER0 + slot] += 1
         decode_time = d
         dec_cycle = d
@@ -377,13 +526,15 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         inst_ready = decode_time + 1
         rename_free = ren_cycle if ren_count < rename_w else ren_cycle + 1
         if i > 0 and inst_ready > rename_free:  # rename idle, waiting for the front end
-            counters[seg, C_STALL_DECODE] += inst_ready - rename_free
+            n_stall_decode += inst_ready - rename_free
             per_static[psid, S_STALL_DECODE] += inst_ready - rename_free
         cause_alloc = 0
         partial_wait = 0
-        for k in range(s_nsrc[sid]):
-            rid = s_src[sid, k, 0]
-            mask = s_src[sid, k, 1]
+        # the scan finds nothing unless a GPR read is partially written or a flag read is stale
+        scan = (p_gpr_bits[sid] & partial_live) != 0 or (p_flags_read[sid] & ~flags_mask) != 0
+        for k in range(p_nsrc[sid] if scan else 0):
+            rid = p_src[sid, k, 0]
+            mask = p_src[sid, k, 1]
             if rid < 8:
                 if (mask & ~reg_pmask[rid]) != 0 and reg_zeroed[rid] == 0:
                     partial_wait = max(partial_wait, reg_pretire[rid] + P[P_PARTIAL_EXTRA])
@@ -468,12 +619,10 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 first_alloc = alloc
             # sources
             ready = alloc + 1
-            for j in range(s_nsrc[sid]):
-                if s_src[sid, j, 2] != k:
-                    continue
-                rid = s_src[sid, j, 0]
+            for j in range(u_nsrc[u]):
+                rid = u_src[u, j, 0]
                 if rid == REG_ST0:
-                    rid = REG_ST0 + ((top_before + s_src[sid, j, 3]) & 7)
+                    rid = REG_ST0 + ((top_before + u_src[u, j, 1]) & 7)
                 if reg_ready[rid] > ready:
                     ready = reg_ready[rid]
             if kind == LOAD and last_sta_done > ready:
@@ -508,10 +657,20 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     acc += 1
                     # store forwarding: newest older store still in the store buffer that overlaps
                     fwd = _queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
-                    r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False) if dlog[0] == LOG_OFF else
-                         logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False))
-                    lvl = served_level(r)
-                    counters[seg, C_L1D_LOADS] += 1
+                    n_loads += 1
+                    hit_row, hit_way = (_l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways)
+                                        if dlog[0] == LOG_OFF else (-1, -1))
+                    if hit_row >= 0:
+                        l1_load_hits += 1
+                        if l1_lru:
+                            dstamps[hit_row, hit_way] = d_now
+                        d_now += 1
+                    else:
+                        dclock[0] = d_now
+                        mem_wait, bus_free, l2bus_free = _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats,
+                                                                      a, sz, False, disp, P, mshr, bus_free, l2bus_free,
+                                                                      counters, per_static, seg, psid)
+                        d_now = dclock[0]
                     if fwd >= 0:
                         if fw_addr[fwd] == a and sz <= fw_size[fwd]:
                             counters[seg, C_STORE_FORWARDS] += 1
@@ -523,15 +682,6 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                             fwd_wait = max(0, max(fw_commit[fwd], disp) + P[P_FWD_FAIL] - (disp + lat))
                         counters[seg, C_STALL_STORE_FORWARD] += fwd_wait
                         per_static[psid, S_STALL_STORE_FORWARD] += fwd_wait
-                    if lvl > 0:
-                        counters[seg, C_L1D_LOAD_MISSES] += 1
-                        per_static[psid, S_L1D_MISSES] += 1
-                        mem_wait, bus_free, l2bus_free = _miss_latency(r, lvl, d_levels, disp, P, mshr, bus_free,
-                                                                       l2bus_free, counters[seg])
-                        if lvl == d_levels:
-                            per_static[psid, S_L2_MISSES] += 1
-                        counters[seg, C_STALL_MEMORY] += mem_wait
-                        per_static[psid, S_STALL_MEMORY] += mem_wait
             complete = disp + lat + max(mem_wait, fwd_wait)
             if kind == STA:
                 is_store = True
@@ -544,15 +694,12 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if kind == BRANCH:
                 branch_done = complete
             # destinations
-            swap = u_ports[u] == 0 and s_ndst[sid] >= 2 and s_dst[sid, 0, 0] == REG_ST0 and s_dst[sid, 1, 0] == REG_ST0
-            for j in range(2 if swap else 0, s_ndst[sid]):
-                if s_dst[sid, j, 2] != k:
-                    continue
-                rid = s_dst[sid, j, 0]
+            for j in range(u_ndst[u]):
+                rid = u_dst[u, j, 0]
                 if rid == REG_ST0:
-                    rid = REG_ST0 + ((top_after + s_dst[sid, j, 3]) & 7)
+                    rid = REG_ST0 + ((top_after + u_dst[u, j, 1]) & 7)
                 reg_ready[rid] = complete
-            if swap:
+            if u_swap[u] != 0:
                 # FXCH: done in the register renamer (AF29n note f), it swaps which stack slot holds
                 # which value without waiting for either: each value keeps its own ready time
                 ra = REG_ST0 + ((top_after + s_dst[sid, 0, 3]) & 7)
@@ -577,16 +724,20 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 rs_by_cycle[disp & (WINDOW - 1)] += 1
                 rs_pending += 1
             if port >= 0:
-                counters[seg, C_PORT0 + port] += 1
+                n_port0 += port == 0
+                n_port1 += port == 1
+                n_port2 += port == 2
+                n_port3 += port == 3
+                n_port4 += port == 4
                 per_static[psid, S_PORT0 + port] += 1
             if k == 0:
                 first_dispatch = disp
             if dep_wait > 0:
-                counters[seg, C_STALL_DEPENDENCY] += dep_wait
+                n_stall_dep += dep_wait
                 per_static[psid, S_STALL_DEPENDENCY] += dep_wait
                 cause_disp = max(cause_disp, 4)
             if port_wait > 0:
-                counters[seg, C_STALL_PORT] += port_wait
+                n_stall_port += port_wait
                 per_static[psid, S_STALL_PORT] += port_wait
                 cause_disp = max(cause_disp, 5)
             if mem_wait > 0:
@@ -598,16 +749,18 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             u_global += 1
 
         # ---- after the instruction: register state, stores, branches --------------------------
-        for j in range(s_ndst[sid]):
-            rid = s_dst[sid, j, 0]
-            mask = s_dst[sid, j, 1]
+        for j in range(p_ndst[sid]):
+            rid = p_dst[sid, j, 0]
+            mask = p_dst[sid, j, 1]
             if rid < 8:
                 if mask == 15:
                     reg_pmask[rid] = 15
                     reg_zeroed[rid] = s_zero[sid]
+                    partial_live &= ~(1 << rid)
                 else:
                     reg_pmask[rid] = mask
                     reg_pretire[rid] = inst_retire
+                    partial_live |= 1 << rid
             elif rid == REG_FLAGS:
                 # a writer of all six status flags leaves nothing to merge, control flags included:
                 # Agner Fog (PPro/PII/PIII partial flags stalls) lists NEG, ADD, CMP ... followed
@@ -623,16 +776,21 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if acc < acc_end:
                 a = np.int64(mem_addr[acc])
                 sz = np.int64(mem_size[acc])
-                r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True) if dlog[0] == LOG_OFF else
-                     logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True))
-                lvl = served_level(r)
-                counters[seg, C_L1D_STORES] += 1
-                if lvl > 0:
-                    counters[seg, C_L1D_STORE_MISSES] += 1
-                    per_static[psid, S_L1D_MISSES] += 1
-                    if lvl == d_levels:
-                        per_static[psid, S_L2_MISSES] += 1
-                    w, bus_free, l2bus_free = _miss_latency(r, lvl, d_levels, commit, P, mshr, bus_free, l2bus_free, counters[seg])
+                n_stores += 1
+                hit_row, hit_way = (_l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways)
+                                    if dlog[0] == LOG_OFF and l1_write_back else (-1, -1))
+                if hit_row >= 0:
+                    l1_store_hits += 1
+                    if l1_lru:
+                        dstamps[hit_row, hit_way] = d_now
+                    d_now += 1
+                    ddirty[hit_row, hit_way] = 1
+                else:
+                    dclock[0] = d_now
+                    w, bus_free, l2bus_free = _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz,
+                                                           True, commit, P, mshr, bus_free, l2bus_free, counters,
+                                                           per_static, seg, psid)
+                    d_now = dclock[0]
                     commit += w
                 fw_n = _remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_std, commit)
             sb_ring[sb_pos] = commit
@@ -641,7 +799,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             last_commit = commit
         br = s_branch[sid]
         if br != BR_NONE:
-            counters[seg, C_BRANCHES] += 1
+            n_branches += 1
             nxt = dyn_pc[li + 1] if li + 1 < n else (next_pc if next_pc >= 0 else pc + length)
             taken = nxt != pc + length
             mispredicted = False
@@ -708,8 +866,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         if nrdtsc < rdtsc_out.shape[0] and rdtsc_sid[sid] == 1:
             rdtsc_out[nrdtsc] = first_dispatch
             nrdtsc += 1
-        counters[seg, C_INSTRUCTIONS] += 1
-        counters[seg, C_UOPS] += nu
+        n_insns += 1
+        n_uops += nu
         per_static[psid, S_EXECUTIONS] += 1
         per_static[psid, S_UOPS] += nu
         per_static[psid, S_ISSUE_TO_RETIRE] += inst_retire - first_dispatch
@@ -731,9 +889,21 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             row[7] = cause
         if seg < seg_end.shape[0] and i + 1 == seg_end[seg]:
             counters[seg, C_CYCLES] = max_retire - seg_start_retire
+            _add_counts(counters, seg, n_insns, n_uops, n_groups, n_stall_decode, n_stall_dep, n_stall_port, n_loads,
+                        n_stores, n_branches, n_dec0, n_dec1, n_dec2, n_port0, n_port1, n_port2, n_port3, n_port4)
+            n_insns = n_uops = n_groups = n_stall_decode = n_stall_dep = n_stall_port = n_loads = n_stores = 0
+            n_branches = n_dec0 = n_dec1 = n_dec2 = n_port0 = n_port1 = n_port2 = n_port3 = n_port4 = 0
             seg_start_retire = max_retire
             seg += 1
 
+    if seg < counters.shape[0]:
+        _add_counts(counters, seg, n_insns, n_uops, n_groups, n_stall_decode, n_stall_dep, n_stall_port, n_loads,
+                    n_stores, n_branches, n_dec0, n_dec1, n_dec2, n_port0, n_port1, n_port2, n_port3, n_port4)
+    dclock[0] = d_now
+    dstats[0, 2 * CACHE_LOAD] += l1_load_hits  # requests
+    dstats[0, 2 * CACHE_LOAD + 1] += l1_load_hits  # hits
+    dstats[0, 2 * CACHE_STORE] += l1_store_hits
+    dstats[0, 2 * CACHE_STORE + 1] += l1_store_hits
     sv[V_FLAGS_MASK] = flags_mask
     sv[V_FLAGS_RETIRE] = flags_retire
     sv[V_FP_TOP] = fp_top
