@@ -156,6 +156,8 @@ class Machine:
         uc.hook_add(UC_HOOK_MEM_INVALID, self._on_invalid)
         uc.hook_add(UC_HOOK_INTR, self._on_interrupt)
         self._tracer: NativeTracer | None = None
+        # instructions per trace chunk (the tracer's buffer); a streamed run asks for smaller ones
+        self.trace_chunk = 1 << 20
         self._rdtsc_cb = _RDTSC_CB(self._on_rdtsc)  # keep a reference: Unicorn holds only the pointer
         handle = ctypes.c_size_t()
         uclib.uc_hook_add(uc._uch, ctypes.byref(handle), UC_HOOK_INSN, ctypes.cast(self._rdtsc_cb, ctypes.c_void_p),
@@ -287,7 +289,8 @@ class Machine:
 
     def _run_traced(self, start: int, budget: int, on_chunk=None) -> Trace | None:
         if self._tracer is None:
-            self._tracer = NativeTracer(self.uc, control_word_pcs=self.control_word_pcs())
+            self._tracer = NativeTracer(self.uc, instruction_capacity=self.trace_chunk,
+                                        control_word_pcs=self.control_word_pcs())
         tr = self._tracer
         tr.sink = on_chunk
         tr.attach()

@@ -186,7 +186,7 @@ class Trace:
         j1 = int(np.searchsorted(self.cw_at, stop, side="left"))
         later = slice(j0 + 1, max(j0 + 1, j1))
         return Trace(self.pc[start:stop], self.mem_addr[m0:m1], self.mem_size[m0:m1], self.mem_write[m0:m1],
-                     (self.mem_insn[m0:m1] - start).astype(np.uint32),
+                     self.mem_insn[m0:m1] if start == 0 else (self.mem_insn[m0:m1] - start).astype(np.uint32),
                      np.concatenate([[0], self.cw_at[later] - start]).astype(np.uint32),
                      np.concatenate([self.cw_value[j0:j0 + 1], self.cw_value[later]]).astype(np.uint16))
 

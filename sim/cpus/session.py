@@ -13,6 +13,8 @@ precisions), so a run fed in any number of chunks reports exactly what one fed w
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from ..decode import Decoder, InsnRecord
@@ -22,7 +24,8 @@ from .table import InstructionTable
 
 
 class Statics:
-    """Static instructions of a run, keyed by (PC, precision index or None), in order of first appearance."""
+    """Static instructions of a run, keyed by (PC, precision index or None), in order of first appearance.
+    One thread indexes chunks (:meth:`index`); another may read a consistent :meth:`snapshot`."""
 
     def __init__(self, decoder: Decoder, table: InstructionTable):
         self.decoder = decoder
@@ -31,6 +34,7 @@ class Statics:
         self.precisions: list[int | None] = []
         self._id: dict[tuple[int, int | None], int] = {}
         self._first_of_pc: dict[int, int] = {}  # pc -> the id of its first appearance
+        self._lock = threading.Lock()
 
     def __len__(self) -> int:
         return len(self.records)
@@ -46,14 +50,20 @@ class Statics:
             key = (rec.pc, prec)
             sid = self._id.get(key)
             if sid is None:
-                sid = self._id[key] = len(self.records)
-                self.records.append(rec)
-                self.precisions.append(prec)
+                with self._lock:
+                    sid = self._id[key] = len(self.records)
+                    self.records.append(rec)
+                    self.precisions.append(prec)
                 self._first_of_pc.setdefault(rec.pc, sid)
             ids[k] = sid
         if np.array_equal(ids, np.arange(ids.size)):
             return index, self.records[before:]  # the chunk's own order is the run's (one whole trace)
         return ids[index], self.records[before:]
+
+    def snapshot(self) -> tuple[list[InsnRecord], list[int | None]]:
+        """The records and precisions so far (a chunk being indexed meanwhile adds at the end)."""
+        with self._lock:
+            return list(self.records), list(self.precisions)
 
     def canonical(self) -> np.ndarray:
         """Permutation `order` such that ``[self.records[s] for s in order]`` is the order of one
@@ -106,22 +116,33 @@ class CoreSession:
         self.rdtsc: list[np.ndarray] = []
         self.base = 0  # instructions fed so far
         self.total = 0
+        self.rdtsc_sid = np.zeros(0, np.int64)
         model.reset()
 
     def end_segment(self, k: int, end: int) -> None:
         self.seg_end[k] = end
 
-    def feed(self, chunk: Trace, next_pc: int, access_logs=None) -> None:
+    def prepare(self, chunk: Trace) -> tuple[np.ndarray, list[InsnRecord]]:
+        """The chunk's static ids and the static instructions it adds: what :meth:`feed` needs first,
+        done ahead by whoever makes the chunks (sim/stream.py: the emulating thread), in chunk order."""
+        return self.statics.index(chunk)
+
+    def feed(self, chunk: Trace, next_pc: int, access_logs=None, prepared=None) -> None:
         """Time the chunk's instructions; `next_pc`: the PC that follows the chunk (-1: the run ends).
-        `access_logs` (sim.memory.replay) only for a run fed whole."""
-        index, added = self.statics.index(chunk)
+        `access_logs` (sim.memory.replay) only for a run fed whole; `prepared`: :meth:`prepare`'s
+        answer for this chunk, if it was asked already."""
+        index, added = prepared if prepared is not None else self.statics.index(chunk)
         if added:
             if self.check is not None:
                 self.check(added)
-            self.program = self.model.lower(self.statics.records, self.statics.precisions)
-            self.per_static = grow_rows(self.per_static, len(self.statics))
+            # every static a later chunk prepared meanwhile is lowered too: harmless, and it means
+            # a chunk that adds nothing finds its statics in the program
+            records, precisions = self.statics.snapshot()
+            self.program = self.model.lower(records, precisions)
+            self.per_static = grow_rows(self.per_static, len(records))
             self.grown(self.program)
-        rdtsc_sid = np.array([int(r.mnemonic == "rdtsc") for r in self.statics.records], np.int64)
+            self.rdtsc_sid = np.array([int(r.mnemonic == "rdtsc") for r in records], np.int64)
+        rdtsc_sid = self.rdtsc_sid
         rdtsc_out = np.zeros(int(rdtsc_sid[index].sum()) if rdtsc_sid.any() else 0, np.int64)
         self.total = self.time_chunk(chunk, index, next_pc, rdtsc_sid, rdtsc_out, access_logs)
         self.rdtsc.append(rdtsc_out)
