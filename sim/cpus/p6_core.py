@@ -35,8 +35,8 @@ from numba import njit
 from ..memory.cache import LOAD as CACHE_LOAD
 from ..memory.cache import LRU, STORE as CACHE_STORE
 from ..memory.hierarchy import (CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS, CFG_WRITE_BACK,
-                                memory_fills, memory_writebacks, served_level, service)
-from ..memory.replay import LOG_OFF, logged_service
+                                LINES_SHIFT, memory_fills, memory_writebacks, served_level, service)
+from ..memory.replay import LOG_HEADER, LOG_OFF, LOG_OVERFLOW, LOG_RECORD, LOG_REPLAY, logged_service
 from .lowering import (BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM,
                        DEC_SIMPLE, LOAD, NREGS, OCC_SCALE, REG_FLAGS, REG_ST0, SIDE, STA, STD)
 
@@ -254,6 +254,34 @@ def _l1_way(tags, addr, size, ob, row0, set_mask, ways):
     return -1, -1
 
 
+REPLAYED_HIT = -2  # _plain_hit: a plain L1 hit read back from an access log (the caches are not touched)
+LOGGED_HIT = 1 << LINES_SHIFT  # what service returns, and a log records, for a plain L1 hit
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _logged_hit(dlog, tags, addr, size, ob, row0, set_mask, ways):
+    """_l1_way with an access log on (sim/memory/replay.py): (row, way) of a plain L1 hit (the
+    caller makes service's updates; a log being recorded gets the entry service would have given
+    it), (REPLAYED_HIT, 0) when a replayed log says the access was one (the caches are not
+    touched in replay), or (-1, -1): the caller calls service through _access_slow."""
+    mode = dlog[0]
+    if mode == LOG_REPLAY:
+        k = dlog[1]
+        if dlog[LOG_HEADER + k] == LOGGED_HIT:
+            dlog[1] = k + 1
+            return REPLAYED_HIT, 0
+        return -1, -1
+    row, way = _l1_way(tags, addr, size, ob, row0, set_mask, ways)
+    if row >= 0 and mode == LOG_RECORD:
+        k = dlog[1]
+        if LOG_HEADER + k < dlog.shape[0]:
+            dlog[LOG_HEADER + k] = LOGGED_HIT
+            dlog[1] = k + 1
+        else:
+            dlog[0] = LOG_OVERFLOW  # as logged_service: the recording is dropped, the run unaffected
+    return row, way
+
+
 @njit(cache=True, nogil=True)
 def _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, is_write, start, P, mshr, bus_free,
                  l2bus_free, counters, per_static, seg, psid):
@@ -433,6 +461,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     l1_lru = dconfig[0, CFG_REPLACEMENT] == LRU
     l1_write_back = dconfig[0, CFG_WRITE_BACK] != 0
     d_now = dclock[0]
+    log_off = dlog[0] == LOG_OFF  # a log, once on, stays on (it may only overflow: replay.logged_service)
     # GPRs whose last writer was partial (reg_pmask != 15), as bits, plus ALWAYS_SCAN
     partial_live = ALWAYS_SCAN
     for r in range(8):
@@ -658,13 +687,15 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     # store forwarding: newest older store still in the store buffer that overlaps
                     fwd = _queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
                     n_loads += 1
-                    hit_row, hit_way = (_l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways)
-                                        if dlog[0] == LOG_OFF else (-1, -1))
+                    hit_row, hit_way = (_l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
+                                        _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
                     if hit_row >= 0:
                         l1_load_hits += 1
                         if l1_lru:
                             dstamps[hit_row, hit_way] = d_now
                         d_now += 1
+                    elif hit_row == REPLAYED_HIT:
+                        pass
                     else:
                         dclock[0] = d_now
                         mem_wait, bus_free, l2bus_free = _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats,
@@ -777,14 +808,17 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 a = np.int64(mem_addr[acc])
                 sz = np.int64(mem_size[acc])
                 n_stores += 1
-                hit_row, hit_way = (_l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways)
-                                    if dlog[0] == LOG_OFF and l1_write_back else (-1, -1))
+                hit_row, hit_way = ((-1, -1) if not l1_write_back else
+                                    _l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
+                                    _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
                 if hit_row >= 0:
                     l1_store_hits += 1
                     if l1_lru:
                         dstamps[hit_row, hit_way] = d_now
                     d_now += 1
                     ddirty[hit_row, hit_way] = 1
+                elif hit_row == REPLAYED_HIT:
+                    pass
                 else:
                     dclock[0] = d_now
                     w, bus_free, l2bus_free = _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz,
