@@ -35,8 +35,8 @@ from numba import njit
 from ..memory.cache import LOAD as CACHE_LOAD
 from ..memory.cache import LRU, STORE as CACHE_STORE
 from ..memory.hierarchy import (CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS, CFG_WRITE_BACK,
-                                LINES_SHIFT, memory_fills, memory_writebacks, served_level, service)
-from ..memory.replay import LOG_HEADER, LOG_OFF, LOG_OVERFLOW, LOG_RECORD, LOG_REPLAY, logged_service
+                                memory_fills, memory_writebacks, served_level, service)
+from ..memory.replay import LOG_HEADER, LOG_OFF, LOG_OVERFLOW, LOG_RECORD, LOG_REPLAY, LOGGED_HIT, logged_service
 from .lowering import (BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM,
                        DEC_SIMPLE, LOAD, NREGS, OCC_SCALE, REG_FLAGS, REG_ST0, SIDE, STA, STD)
 
@@ -254,8 +254,7 @@ def _l1_way(tags, addr, size, ob, row0, set_mask, ways):
     return -1, -1
 
 
-REPLAYED_HIT = -2  # _plain_hit: a plain L1 hit read back from an access log (the caches are not touched)
-LOGGED_HIT = 1 << LINES_SHIFT  # what service returns, and a log records, for a plain L1 hit
+REPLAYED_HIT = -2  # _logged_hit: a plain L1 hit read back from an access log (the caches are not touched)
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -20,10 +20,13 @@ import numpy as np
 from numba import njit
 
 from .cache import HOT
-from .hierarchy import S_FILLS, S_WRITEBACKS, service
+from .hierarchy import LINES_SHIFT, S_FILLS, S_WRITEBACKS, service
 
 LOG_OFF, LOG_RECORD, LOG_REPLAY, LOG_OVERFLOW = 0, 1, 2, 3
 LOG_HEADER = 2
+# the entry of a plain L1 hit (one line, nothing filled or written back): the cores take these
+# themselves, without calling logged_service
+LOGGED_HIT = 1 << LINES_SHIFT
 _RESULT_BITS = 40
 _FIELD = 0xFF
 
