@@ -58,7 +58,7 @@ from .lowering import BRANCH, COMPUTE, DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE, LOAD,
 from .p6 import CoreRun, DramCost
 from . import vocabulary
 from .presets import CpuPreset, dram_overhead, model_by_cpuid
-from .session import CoreSession
+from .session import CoreSession, grown_state
 from .table import TABLES, InstructionTable, Match, load_table
 
 # Model choices with no figure in the sources (each says why it is what it is).
@@ -376,18 +376,16 @@ class K6Model:
 class K6Session(CoreSession):
     """One K6 run fed in order, chunk by chunk (the core's state is kept between chunks)."""
 
-    NC, NS, NT = core.NC, core.NS, core.NT
+    CORE = core
 
     def __init__(self, model: K6Model, decoder: Decoder, segments: list[int], timeline: tuple[int, int] = (0, 0),
                  stat_first: int = 0, check=None):
         super().__init__(model, decoder, segments, timeline, stat_first, check)
-        self.dstats, self.istats = model.dside.new_counts(), model.iside.new_counts()
-        self.state = core.new_state(model.params, 0)
         self.k6_static = model.rules.decode_arrays(self.program)
 
     def grown(self, program) -> None:
         self.k6_static = self.model.rules.decode_arrays(program)
-        self.state = core.grow_units(self.state, int(program.u_unit.max(initial=0)))
+        self.state = grown_state(self.state, core.UNIT_FREE, int(program.u_unit.max(initial=0)) + 1)
 
     def time_chunk(self, chunk, index, next_pc, rdtsc_sid, rdtsc_out, access_logs) -> int:
         model, program = self.model, self.program

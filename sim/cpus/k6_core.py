@@ -205,14 +205,16 @@ def _k6_miss(r, lvl, start, P, bus, wb1, wb2, counters, cs):
 
 # Loop-carried scalar state, kept in an int64 vector between calls so that a trace can be timed in
 # chunks exactly as in one call (sim/cpus/session.py; new_state gives the machine at reset).
-(V_FP_TOP, V_NQ, V_Q_SLOT, V_Q_ENTRY, V_PREV_ENTRY, V_NSTORES, V_SQ_POS, V_LAST_COMMIT, V_FW_N, V_L1_FILL_SEEN, V_GHIST, V_RSB_TOP, V_DEC_FREE, V_FE_READY, V_FE_CAUSE, V_GRP_CYCLE, V_GRP_OPEN, V_HOLD_PSID, V_HOLD_CYCLES, V_LAST_RETIRE, V_CUR_SLOT, V_SEG, V_SEG_START) = range(23)
+(V_FP_TOP, V_NQ, V_Q_SLOT, V_Q_ENTRY, V_PREV_ENTRY, V_NSTORES, V_SQ_POS, V_LAST_COMMIT, V_FW_N,
+ V_L1_FILL_SEEN, V_GHIST, V_RSB_TOP, V_DEC_FREE, V_FE_READY, V_FE_CAUSE, V_GRP_CYCLE, V_GRP_OPEN, V_HOLD_PSID,
+ V_HOLD_CYCLES, V_LAST_RETIRE, V_CUR_SLOT, V_SEG, V_SEG_START) = range(23)
 NSTATE = 23
 HOLD_SINK = -2  # hold_psid naming the sink row (whose index grows with the statics)
 
 
 def new_state(P: np.ndarray, units: int) -> tuple:
     """The machine at reset: the scalar vector, then the arrays in the order simulate takes them.
-    `units`: the largest resource id the program uses (:func:`grow_units` makes room for more)."""
+    `units`: the largest resource id the program uses (sim.cpus.session.grown_state makes room for more)."""
     sv = np.zeros(NSTATE, np.int64)
     sv[V_PREV_ENTRY] = -1
     sv[V_HOLD_PSID] = -1  # per-static row of the last group's multi-clock decode (vector, prefixes)
@@ -243,16 +245,6 @@ def new_state(P: np.ndarray, units: int) -> tuple:
 
 
 UNIT_FREE = 4  # position of unit_free in new_state's tuple
-
-
-def grow_units(state: tuple, units: int) -> tuple:
-    """`state` with room for resource ids up to `units` (a later chunk brought new instructions)."""
-    old = state[UNIT_FREE]
-    if old.shape[0] > units:
-        return state
-    grown = np.zeros(units + 1, np.int64)
-    grown[:old.shape[0]] = old
-    return state[:UNIT_FREE] + (grown,) + state[UNIT_FREE + 1:]
 
 
 @njit(cache=True, nogil=True)

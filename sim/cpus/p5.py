@@ -38,7 +38,7 @@ from .locking import lock_cost, locked_match
 from .lowering import COMPUTE, DEC_SIMPLE, GPRS, PART_MASK, StaticProgram, lower
 from .p6 import CoreRun
 from .presets import CpuPreset, model_by_cpuid
-from .session import CoreSession
+from .session import CoreSession, grown_state
 from .table import TABLES, InstructionTable, Match, load_table
 
 CLASSES = {"NP": core.NP, "UV": core.UV, "PU": core.PU, "PV": core.PV, "FX": core.FX, "FXCH": core.FXCH,
@@ -411,19 +411,18 @@ class P5Session(CoreSession):
     one and the new chunk's first, which goes with it into the V pipe, or is timed alone, or is
     held back in turn), then the rest of the chunk: the groups are those of the whole trace."""
 
-    NC, NS, NT = core.NC, core.NS, core.NT
+    CORE = core
 
     def __init__(self, model: P5Model, decoder: Decoder, segments: list[int], timeline: tuple[int, int] = (0, 0),
                  stat_first: int = 0, check=None):
         super().__init__(model, decoder, segments, timeline, stat_first, check)
-        self.dstats, self.istats = model.dside.new_counts(), model.iside.new_counts()
-        self.state = core.new_state(model.params, 0)
         self.static = model.rules.static(self.program)
         self.held: tuple[Trace, int] | None = None  # an instruction waiting for its successor, and its static id
 
     def grown(self, program) -> None:
         self.static = self.model.rules.static(program)
-        self.state = core.grow_statics(self.state, len(program.records))
+        n = len(program.records)
+        self.state = grown_state(grown_state(self.state, core.SEEN, n), core.PAIR_CACHE, n, fill=-1)
 
     def _simulate(self, base, next_pc, index, pc, acc_start, acc_count, chunk, rdtsc_sid, rdtsc_out) -> int:
         model = self.model

@@ -181,7 +181,7 @@ NSTATE = 15
 
 def new_state(P: np.ndarray, nstatic: int) -> tuple:
     """The machine at reset, for :func:`simulate`: the scalar vector, then the arrays in the order
-    simulate takes them. `nstatic`: static instructions so far; :func:`grow_statics` makes room
+    simulate takes them. `nstatic`: static instructions so far; sim.cpus.session.grown_state makes room
     for more between calls."""
     sv = np.zeros(NSTATE, np.int64)
     sv[V_REP_PREV_STORE] = -1   # the previous REP MOVS element's store address
@@ -205,18 +205,6 @@ def new_state(P: np.ndarray, nstatic: int) -> tuple:
 
 
 SEEN, PAIR_CACHE = 4, 5  # positions in new_state's tuple of the arrays with a row per static
-
-
-def grow_statics(state: tuple, nstatic: int) -> tuple:
-    """`state` with room for `nstatic` static instructions (a later chunk brought new ones)."""
-    seen, cache = state[SEEN], state[PAIR_CACHE]
-    if seen.shape[0] >= nstatic:
-        return state
-    grown_seen = np.zeros(nstatic, np.int64)
-    grown_seen[:seen.shape[0]] = seen
-    grown_cache = np.full((nstatic, 2), -1, np.int64)
-    grown_cache[:cache.shape[0]] = cache
-    return state[:SEEN] + (grown_seen, grown_cache) + state[PAIR_CACHE + 1:]
 
 
 @njit(cache=True, nogil=True)

@@ -24,7 +24,7 @@ from . import vocabulary
 from .locking import lock_cost, locked_match
 from .lowering import P6Limits, StaticProgram, lower
 from .presets import CacheSpec, CpuPreset, dram_overhead
-from .session import CoreSession
+from .session import CoreSession, grown_state
 from .table import TABLES, InstructionTable, load_table
 
 # Model choices with no figure in the sources (each says why it is what it is).
@@ -173,16 +173,10 @@ class P6Model:
 class P6Session(CoreSession):
     """One P6 run fed in order, chunk by chunk (the core's state is kept between chunks)."""
 
-    NC, NS, NT = core.NC, core.NS, core.NT
-
-    def __init__(self, model: P6Model, decoder: Decoder, segments: list[int], timeline: tuple[int, int] = (0, 0),
-                 stat_first: int = 0, check=None):
-        super().__init__(model, decoder, segments, timeline, stat_first, check)
-        self.dstats, self.istats = model.dside.new_counts(), model.iside.new_counts()
-        self.state = core.new_state(model.params, 0)
+    CORE = core
 
     def grown(self, program) -> None:
-        self.state = core.grow_units(self.state, int(program.u_unit.max(initial=0)))
+        self.state = grown_state(self.state, core.UNIT_FREE, int(program.u_unit.max(initial=0)) + 1)
 
     def time_chunk(self, chunk, index, next_pc, rdtsc_sid, rdtsc_out, access_logs) -> int:
         model, program = self.model, self.program

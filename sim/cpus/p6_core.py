@@ -188,7 +188,7 @@ NSTATE = 29
 def new_state(P: np.ndarray, units: int) -> tuple:
     """The machine at reset, for :func:`simulate`: the scalar vector, then the arrays in the order
     simulate takes them. `units`: how many non-pipelined resources the program has (ids 1..units);
-    :func:`grow_units` makes room for more between calls."""
+    :func:`sim.cpus.session.grown_state` makes room for more between calls."""
     sv = np.zeros(NSTATE, np.int64)
     sv[V_FLAGS_MASK] = 0x1FF
     sv[V_DEC_POS] = 3         # slots used in the current decode group (3 = start a new group)
@@ -229,16 +229,6 @@ def new_state(P: np.ndarray, units: int) -> tuple:
 
 
 UNIT_FREE = 9  # position of unit_free in new_state's tuple
-
-
-def grow_units(state: tuple, units: int) -> tuple:
-    """`state` with room for resource ids up to `units` (a later chunk brought new instructions)."""
-    old = state[UNIT_FREE]
-    if old.shape[0] > units:
-        return state
-    grown = np.zeros(units + 1, np.int64)
-    grown[:old.shape[0]] = old
-    return state[:UNIT_FREE] + (grown,) + state[UNIT_FREE + 1:]
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -78,6 +78,17 @@ class Statics:
         return np.array(sorted(range(len(self.records)), key=key), np.int64)
 
 
+def grown_state(state: tuple, pos: int, rows: int, fill: int = 0) -> tuple:
+    """A core's state tuple whose array at `pos` has at least `rows` rows (contents kept, new rows
+    `fill`): room for the resources or static instructions a later chunk brought."""
+    old = state[pos]
+    if old.shape[0] >= rows:
+        return state
+    grown = np.full((rows,) + old.shape[1:], fill, old.dtype)
+    grown[:old.shape[0]] = old
+    return state[:pos] + (grown,) + state[pos + 1:]
+
+
 def grow_rows(a: np.ndarray, rows: int) -> np.ndarray:
     """`a` with at least `rows` rows plus its last (sink) row; grown geometrically, contents kept."""
     if a.shape[0] >= rows + 1:
@@ -98,11 +109,12 @@ class CoreSession:
     instructions from there on (settable until its chunk is fed). `check(records)` sees each
     chunk's new static instructions before they are lowered (the ISA check)."""
 
-    NC = NS = NT = 0  # the family core's counter, per-static and timeline widths
-    TL_STATIC = 1     # the timeline column holding the static id
+    CORE = None    # the family's core module: NC, NS, NT (counter, per-static, timeline widths), new_state
+    TL_STATIC = 1  # the timeline column holding the static id
 
     def __init__(self, model, decoder: Decoder, segments, timeline: tuple[int, int] = (0, 0),
                  stat_first: int = 0, check=None):
+        self.NC, self.NS, self.NT = self.CORE.NC, self.CORE.NS, self.CORE.NT
         self.model = model
         self.check = check
         self.statics = Statics(decoder, model.table)
@@ -118,6 +130,8 @@ class CoreSession:
         self.total = 0
         self.rdtsc_sid = np.zeros(0, np.int64)
         model.reset()
+        self.dstats, self.istats = model.dside.new_counts(), model.iside.new_counts()
+        self.state = self.CORE.new_state(model.params, 0)
 
     def end_segment(self, k: int, end: int) -> None:
         self.seg_end[k] = end
