@@ -1,11 +1,12 @@
 """Emulate and time at once: the timing model runs beside the emulator on the trace as it is made.
 
-The emulator records the trace in chunks (sim/trace.py; CHUNK instructions here); instead of
-joining them into one trace and then timing it, a worker thread times each chunk as soon as it
-arrives, all but its last instruction, which waits for the next chunk's first PC (a branch's
-outcome), and drops it. Both sides run without the GIL most of the time (Unicorn in C, the native trace hooks and
-the cores compiled with numba's nogil), so on two cores the run takes about as long as the slower
-of the two instead of their sum, and a trace is never held whole: at most QUEUE_CHUNKS chunks wait.
+The emulator records the trace in chunks (sim/trace.py; CHUNK instructions here) and finds each
+chunk's static instructions; instead of joining the chunks into one trace and then timing it, a
+worker thread times each chunk as soon as it arrives (all but its last instruction, which waits
+for the next chunk's first PC: a branch's outcome), and drops it. Both sides run without the GIL
+most of the time (Unicorn in C, the native trace hooks, the cores compiled with numba's nogil), so
+on two cores the run takes about as long as the slower of the two instead of their sum, and a
+trace is never held whole: at most QUEUE_CHUNKS chunks wait.
 
 The cycle counts are those of timing the joined trace (a core's state is carried between chunks:
 sim/cpus/session.py; tests/test_stream.py checks every counter, per-static sum and RDTSC value
@@ -25,15 +26,15 @@ from .emu import Machine
 
 # Instructions per chunk: small enough that the model starts soon after the emulator (the run takes
 # the model's time plus about one chunk of emulation), large enough that a chunk's fixed costs (a
-# Python call, a core call, decoding the chunk's PCs) stay small. Measured on the bench workload:
-# 1 M instructions 0.60 s end to end, 256 K 0.56 s.
+# Python call, a core call, decoding the chunk's PCs) stay small. Measured on the bench workload
+# (P6, pentium2-233), end to end: 1 M instructions 0.58 s, 256 K 0.55 s, 128 K 0.57 s, 64 K 0.58 s.
 CHUNK = 1 << 18
-QUEUE_CHUNKS = 16  # chunks (about 3.5 MB each) waiting for the model at most
+QUEUE_CHUNKS = 16  # chunks (a few MB each) waiting for the model at most
 _END = object()
 
 
 class _Consumer(threading.Thread):
-    """Feeds the chunks to a core session in order, one behind (its successor's first PC)."""
+    """Feeds the chunks to a core session in order; a chunk's last instruction waits for the next."""
 
     def __init__(self, session, repeat: int):
         super().__init__(name="retrosim-model", daemon=True)
