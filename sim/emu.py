@@ -250,7 +250,7 @@ class Machine:
         """Call a cdecl entry point. `trace`: False, True (native), or "python" (Python hooks, for
         comparison only). `regs` preloads registers (e.g. to study an uninitialised EDX).
         `on_chunk` (native traces): called with each chunk of the trace, in order, as the run
-        records it (about a million instructions each); the call's result then holds no trace."""
+        records it (at most `trace_chunk` instructions each); the call's result then holds no trace."""
         declared = self.entries.get(entry)
         if declared is not None and len(args) != len(declared.args):
             raise ArgumentError(f"{self.image.path}:{declared.line}: {declared.signature(returns=False)} takes "
