@@ -364,9 +364,7 @@ class K6Model:
     def run(self, trace: Trace, decoder: Decoder, segments: list[int] | None = None,
             timeline: tuple[int, int] = (0, 0), stat_first: int = 0, access_logs: AccessLogs | None = None) -> K6CoreRun:
         """Time `trace` from a cold machine (the arguments and result are those of P6Model.run)."""
-        session = K6Session(self, decoder, segments if segments else [trace.instructions], timeline, stat_first)
-        session.feed(trace, -1, access_logs)
-        return session.finish()
+        return K6Session.whole(self, trace, decoder, segments, timeline, stat_first, access_logs)
 
     def session(self, decoder: Decoder, segments: list[int], stat_first: int = 0, check=None) -> "K6Session":
         """A run fed in chunks (sim/stream.py), as :meth:`sim.cpus.p6.P6Model.session`."""

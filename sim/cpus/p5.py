@@ -322,9 +322,7 @@ class P5Model:
             timeline: tuple[int, int] = (0, 0), stat_first: int = 0, access_logs=None) -> P5CoreRun:
         """Time `trace` from a cold machine (the arguments and result are those of P6Model.run;
         `access_logs` is accepted and not used: the P5 core walks its caches on every run)."""
-        session = P5Session(self, decoder, segments if segments else [trace.instructions], timeline, stat_first)
-        session.feed(trace, -1)
-        return session.finish()
+        return P5Session.whole(self, trace, decoder, segments, timeline, stat_first)
 
     def session(self, decoder: Decoder, segments: list[int], stat_first: int = 0, check=None) -> P5Session:
         """A run fed in chunks (sim/stream.py), as :meth:`sim.cpus.p6.P6Model.session`."""

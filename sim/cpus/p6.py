@@ -155,9 +155,7 @@ class P6Model:
         per-instruction sums cover instructions from `stat_first` on; `access_logs`: record the data
         caches' results, or replay those of an earlier run on the same caches (sim.memory.replay).
         The result carries the cycle at which each RDTSC executed."""
-        session = P6Session(self, decoder, segments if segments else [trace.instructions], timeline, stat_first)
-        session.feed(trace, -1, access_logs)
-        return session.finish()
+        return P6Session.whole(self, trace, decoder, segments, timeline, stat_first, access_logs)
 
     def session(self, decoder: Decoder, segments: list[int], stat_first: int = 0, check=None) -> "P6Session":
         """A run fed in chunks (sim/stream.py); `segments` as for :meth:`run`, an end not yet known

@@ -133,6 +133,14 @@ class CoreSession:
         self.dstats, self.istats = model.dside.new_counts(), model.iside.new_counts()
         self.state = self.CORE.new_state(model.params, 0)
 
+    @classmethod
+    def whole(cls, model, trace: Trace, decoder: Decoder, segments=None, timeline: tuple[int, int] = (0, 0),
+              stat_first: int = 0, access_logs=None):
+        """A run of the whole `trace` (a model's `run`): one feed, so one code path times both."""
+        session = cls(model, decoder, segments if segments else [trace.instructions], timeline, stat_first)
+        session.feed(trace, -1, access_logs)
+        return session.finish()
+
     def end_segment(self, k: int, end: int) -> None:
         self.seg_end[k] = end
 
