@@ -45,7 +45,7 @@ import numpy as np
 from numba import njit
 
 from ..memory.hierarchy import S_FILLS, S_WRITEBACKS, memory_fills, memory_writebacks, served_level, service
-from ..memory.replay import LOG_HEADER, LOG_OFF, LOG_REPLAY, LOGGED_HIT, logged_service
+from ..memory.replay import LOG_OFF, LOGGED_HIT, logged_service, replayed_hit
 from .lowering import BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, LOAD, NREGS, REG_ST0, STA
 from .p6_core import (C_BRANCHES, C_DECODE_GROUPS, C_DECODER0, C_DRAM_BUS_CYCLES, C_DRAM_FILLS, C_DRAM_WRITEBACKS,
                       C_INSTRUCTIONS, C_L1D_LOAD_MISSES, C_L1D_LOADS, C_L1D_STORE_MISSES, C_L1D_STORES,
@@ -145,16 +145,6 @@ def _new_writebacks(stats, seen, level):
     new = stats[level, S_WRITEBACKS] - seen[level]
     seen[level] = stats[level, S_WRITEBACKS]
     return new
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _replayed_hit(dlog):
-    """A replayed access log's next entry is a plain L1 hit: take it here, without the call to
-    logged_service (whose replay of such an entry changes nothing but the log position)."""
-    if dlog[0] == LOG_REPLAY and dlog[LOG_HEADER + dlog[1]] == LOGGED_HIT:
-        dlog[1] += 1
-        return True
-    return False
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -484,7 +474,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                         counters[cs, C_STALL_STORE_FORWARD] += fwd_wait
                         per_static[psid, S_STALL_STORE_FORWARD] += fwd_wait
                     r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False) if log_off else
-                         LOGGED_HIT if _replayed_hit(dlog) else
+                         LOGGED_HIT if replayed_hit(dlog) else
                          logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False))
                     lvl = served_level(r)
                     counters[cs, C_L1D_LOADS] += 1
@@ -554,7 +544,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if j >= 0:
                 a, sz = np.int64(mem_addr[j]), np.int64(mem_size[j])
                 r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True) if log_off else
-                     LOGGED_HIT if _replayed_hit(dlog) else
+                     LOGGED_HIT if replayed_hit(dlog) else
                      logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True))
                 lvl = served_level(r)
                 counters[cs, C_L1D_STORES] += 1

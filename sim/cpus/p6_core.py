@@ -36,7 +36,7 @@ from ..memory.cache import LOAD as CACHE_LOAD
 from ..memory.cache import LRU, STORE as CACHE_STORE
 from ..memory.hierarchy import (CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS, CFG_WRITE_BACK,
                                 memory_fills, memory_writebacks, served_level, service)
-from ..memory.replay import LOG_HEADER, LOG_OFF, LOG_OVERFLOW, LOG_RECORD, LOG_REPLAY, LOGGED_HIT, logged_service
+from ..memory.replay import LOG_OFF, LOG_RECORD, LOG_REPLAY, logged_service, record_hit, replayed_hit
 from .lowering import (BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM,
                        DEC_SIMPLE, LOAD, NREGS, OCC_SCALE, REG_FLAGS, REG_ST0, SIDE, STA, STD)
 
@@ -253,21 +253,11 @@ def _logged_hit(dlog, tags, addr, size, ob, row0, set_mask, ways):
     caller makes service's updates; a log being recorded gets the entry service would have given
     it), (REPLAYED_HIT, 0) when a replayed log says the access was one (the caches are not
     touched in replay), or (-1, -1): the caller calls service through _access_slow."""
-    mode = dlog[0]
-    if mode == LOG_REPLAY:
-        k = dlog[1]
-        if dlog[LOG_HEADER + k] == LOGGED_HIT:
-            dlog[1] = k + 1
-            return REPLAYED_HIT, 0
-        return -1, -1
+    if dlog[0] == LOG_REPLAY:
+        return (REPLAYED_HIT, 0) if replayed_hit(dlog) else (-1, -1)
     row, way = _l1_way(tags, addr, size, ob, row0, set_mask, ways)
-    if row >= 0 and mode == LOG_RECORD:
-        k = dlog[1]
-        if LOG_HEADER + k < dlog.shape[0]:
-            dlog[LOG_HEADER + k] = LOGGED_HIT
-            dlog[1] = k + 1
-        else:
-            dlog[0] = LOG_OVERFLOW  # as logged_service: the recording is dropped, the run unaffected
+    if row >= 0 and dlog[0] == LOG_RECORD:
+        record_hit(dlog)
     return row, way
 
 
@@ -401,8 +391,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     rob_n, rs_n, rename_w, retire_w = P[P_ROB], P[P_RS], P[P_RENAME], P[P_RETIRE]
     queue_n, block = P[P_QUEUE], P[P_FETCH_BLOCK]
     l2_lat = P[P_L2_LAT]
-    mshr_n, sb_n = P[P_MSHR], P[P_SB]
-    d_levels = dconfig.shape[0]
+    sb_n = P[P_SB]
     n_acc = mem_insn.shape[0]
     nstatic = s_len.shape[0]
     # per static instruction, what would otherwise be a division per dynamic one: its BTB set

@@ -58,6 +58,28 @@ def logged_service(log, tags, stamps, dirty, config, work, stats, addr, size, is
     return r
 
 
+@njit(cache=True, nogil=True, inline="always")
+def replayed_hit(log) -> bool:
+    """A replayed log's next entry is a plain L1 hit: take it (a core then skips logged_service,
+    whose replay of such an entry changes nothing but the position). False otherwise, and when
+    the log is not being replayed."""
+    if log[0] == LOG_REPLAY and log[LOG_HEADER + log[1]] == LOGGED_HIT:
+        log[1] += 1
+        return True
+    return False
+
+
+@njit(cache=True, nogil=True, inline="always")
+def record_hit(log) -> None:
+    """Record a plain L1 hit a core made without logged_service, as logged_service would."""
+    k = log[1]
+    if LOG_HEADER + k < log.shape[0]:
+        log[LOG_HEADER + k] = LOGGED_HIT
+        log[1] = k + 1
+    else:
+        log[0] = LOG_OVERFLOW  # not representable: this recording is dropped, the run is unaffected
+
+
 NO_LOG = np.zeros(LOG_HEADER, np.int64)  # mode LOG_OFF: never written
 
 
