@@ -173,22 +173,23 @@ class Trace:
 
     def head(self, n: int) -> Trace:
         """The first `n` instructions and their accesses."""
-        m = int(np.searchsorted(self.mem_insn, n, side="left"))
-        c = max(1, int(np.searchsorted(self.cw_at, n, side="left"))) if n else 0
-        return Trace(self.pc[:n], self.mem_addr[:m], self.mem_size[:m], self.mem_write[:m], self.mem_insn[:m],
-                     self.cw_at[:c], self.cw_value[:c])
+        return self.part(0, n)
 
     def part(self, start: int, stop: int) -> Trace:
         """Instructions start .. stop - 1 as a trace of their own (accesses counted from `start`,
         opening with the control word in force at `start`): a chunk, as a streamed run sees it."""
+        stop = min(stop, self.pc.size)
         m0, m1 = (int(x) for x in np.searchsorted(self.mem_insn, [start, stop], side="left"))
-        j0 = max(0, int(np.searchsorted(self.cw_at, start, side="right")) - 1)
-        j1 = int(np.searchsorted(self.cw_at, stop, side="left"))
-        later = slice(j0 + 1, max(j0 + 1, j1))
+        if stop <= start:  # no instruction: no control word either
+            cw_at, cw_value = np.zeros(0, np.uint32), np.zeros(0, np.uint16)
+        else:
+            j0 = max(0, int(np.searchsorted(self.cw_at, start, side="right")) - 1)
+            later = slice(j0 + 1, max(j0 + 1, int(np.searchsorted(self.cw_at, stop, side="left"))))
+            cw_at = np.concatenate([[0], self.cw_at[later] - start]).astype(np.uint32)
+            cw_value = np.concatenate([self.cw_value[j0:j0 + 1], self.cw_value[later]]).astype(np.uint16)
         return Trace(self.pc[start:stop], self.mem_addr[m0:m1], self.mem_size[m0:m1], self.mem_write[m0:m1],
                      self.mem_insn[m0:m1] if start == 0 else (self.mem_insn[m0:m1] - start).astype(np.uint32),
-                     np.concatenate([[0], self.cw_at[later] - start]).astype(np.uint32),
-                     np.concatenate([self.cw_value[j0:j0 + 1], self.cw_value[later]]).astype(np.uint16))
+                     cw_at, cw_value)
 
     @property
     def instructions(self) -> int:
