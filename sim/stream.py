@@ -22,6 +22,7 @@ import threading
 from pathlib import Path
 from typing import Callable
 
+from .decode import Decoder
 from .emu import Machine
 
 # Instructions per chunk: small enough that the model starts soon after the emulator (the run takes
@@ -48,7 +49,7 @@ class _Consumer(threading.Thread):
     def put(self, item) -> None:
         """Queue an item; waits while the queue is full, and stops the emulation if the model failed."""
         while True:
-            if self.error is not None or self.stopped.is_set():
+            if self.stopped.is_set():  # the model thread ended early (with an error, kept in self.error)
                 raise _ModelStopped()
             try:
                 self.items.put(item, timeout=0.2)
@@ -107,7 +108,7 @@ def emulate_and_time(source: str | Path, entry: str, setup, model, repeat: int, 
     machine = Machine.from_source(source, assembler=assembler, cpu=model.preset.name)
     machine.trace_chunk = CHUNK
     args = setup(machine) if setup else []
-    session = model.session(machine_decoder(machine), [1 << 62] * repeat, stat_first=0 if repeat == 1 else 1 << 62,
+    session = model.session(Decoder(machine.image.fetch), [1 << 62] * repeat, stat_first=0 if repeat == 1 else 1 << 62,
                             check=(lambda records: check(machine, records)) if check else None)
     consumer = _Consumer(session, repeat)
     consumer.start()
@@ -123,7 +124,6 @@ def emulate_and_time(source: str | Path, entry: str, setup, model, repeat: int, 
     except _ModelStopped:
         pass
     except BaseException:
-        consumer.stopped.set()
         _abandon(consumer)
         raise
     consumer.join()
@@ -145,8 +145,3 @@ def _abandon(consumer: _Consumer) -> None:
                 pass
     consumer.join()
 
-
-def machine_decoder(machine: Machine):
-    from .decode import Decoder
-
-    return Decoder(machine.image.fetch)
