@@ -144,16 +144,44 @@ def breakdown_legend(key: str) -> str:
 
 
 # -- plot --------------------------------------------------------------------------------------
-def work_precision_png(result: SceneResult) -> bytes | None:
-    fig = work_precision_figure(result)
-    if fig is None:
-        return None
+# The scenes' plots share one form: a row per variant, cycles along x, a marker per machine.
+FAMILY_MARKERS = {"p5": "s", "p6": "o", "k6": "D"}  # a shape per family where a marker means a preset
+
+
+def png_bytes(fig) -> bytes:
+    """The figure as PNG bytes (no software tag, so the file depends on the data alone); closes it."""
     import matplotlib.pyplot as plt
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png", metadata={"Software": None})
     plt.close(fig)
     return buf.getvalue()
+
+
+def row_offset(i: int, n: int, spread: float) -> float:
+    """Vertical offset of the i-th of n machines' markers within a row, so none hides another."""
+    return (i - (n - 1) / 2) * (spread / max(1, n - 1)) if n > 1 else 0.0
+
+
+def finish_rows(fig, ax, rows: list[str], ypos: dict, labels: list[str], xlabel: str, title: str, fontsize: int,
+                ncol: int) -> None:
+    """The frame of a rows-of-variants dot plot: separators, row labels, axis text, legend below."""
+    for k in range(len(rows) - 1):
+        ax.axhline(k + 0.5, color="0.85", lw=0.8, zorder=1)
+    ax.set_yticks([ypos[v] for v in rows], labels, fontsize=fontsize)
+    ax.set_ylim(-0.5, len(rows) - 0.5)
+    ax.set_xlabel(xlabel, fontsize=10)
+    ax.set_title(title, fontsize=10)
+    ax.grid(axis="x", color="0.9", zorder=0)
+    ax.tick_params(axis="x", labelsize=9)
+    ax.margins(x=0.04)
+    fig.legend(fontsize=fontsize, loc="outside lower center", ncol=ncol, frameon=False, handletextpad=0.3,
+               columnspacing=1.2)
+
+
+def work_precision_png(result: SceneResult) -> bytes | None:
+    fig = work_precision_figure(result)
+    return None if fig is None else png_bytes(fig)
 
 
 def work_precision_figure(result: SceneResult):
@@ -190,7 +218,7 @@ def work_precision_figure(result: SceneResult):
         ax.axhspan(-0.5, len(exact) - 0.5, color="#dcefdc", zorder=0, label="exact: no pixel with wrong visibility")
     overridden = 0
     for i, key in enumerate(keys):
-        offset = (i - (len(keys) - 1) / 2) * (spread / max(1, len(keys) - 1)) if len(keys) > 1 else 0.0
+        offset = row_offset(i, len(keys), spread)
         xs = [result.timing(v, key).per_pixel("cycles") for v in rows]
         ys = [ypos[v] - offset for v in rows]
         cpu, memory = key.rsplit(":", 1)
@@ -204,22 +232,14 @@ def work_precision_figure(result: SceneResult):
             overridden += 1
             ax.scatter(xs, ys, marker=markers[(m + overridden) % len(markers)], s=52, facecolors="none",
                        edgecolors=colour, linewidths=1.6, label=_cpu_label(key), zorder=3)
-    for k in range(len(rows) - 1):
-        ax.axhline(k + 0.5, color="0.85", lw=0.8, zorder=1)
     labels = []
     for v in rows:
         f = share[v]
         text = "exact" if v in exact else (f"{f:.2%} wrong" if f >= 0.001 else f"{f:.4%} wrong")
         labels.append(f"{v}: {text}\n{VARIANT_LABELS[v]}")
-    ax.set_yticks([ypos[v] for v in rows], labels, fontsize=9)
-    ax.set_ylim(-0.5, len(rows) - 0.5)
-    ax.set_xlabel("cycles per pixel (last frame, caches warm); fewer is faster", fontsize=10)
-    ax.set_title(f"{result.scene.name}: cycles per pixel of each depth format on each CPU\n"
-                 "(rows from most to fewest pixels with wrong visibility)", fontsize=10)
-    ax.grid(axis="x", color="0.9", zorder=0)
-    ax.tick_params(axis="x", labelsize=9)
-    ax.margins(x=0.04)
-    fig.legend(fontsize=9, loc="outside lower center", ncol=ncol, frameon=False, handletextpad=0.3, columnspacing=1.2)
+    finish_rows(fig, ax, rows, ypos, labels, "cycles per pixel (last frame, caches warm); fewer is faster",
+                f"{result.scene.name}: cycles per pixel of each depth format on each CPU\n"
+                "(rows from most to fewest pixels with wrong visibility)", 9, ncol)
     return fig
 
 

@@ -39,7 +39,6 @@ problem is one SceneError naming the file, line and field.
 
 from __future__ import annotations
 
-import io
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -477,6 +476,7 @@ def figure(result: SnapResult):
     import matplotlib.pyplot as plt
 
     from .cpus import family_of, presets
+    from .report import FAMILY_MARKERS, row_offset
 
     s = result.scene
     in_range = [w for w in s.workloads if w in snap.IN_RANGE] or list(s.workloads)
@@ -490,11 +490,11 @@ def figure(result: SnapResult):
     for i, key in enumerate(keys):
         cpu = key.rsplit(":", 1)[0]
         base = cpu.split("{")[0]
-        offset = (i - (len(keys) - 1) / 2) * (0.6 / max(1, len(keys) - 1)) if len(keys) > 1 else 0.0
+        offset = row_offset(i, len(keys), 0.6)
         fam = family_of(base)
         ax.scatter([result.cycles_per_vertex(v, key) for v in rows], [len(rows) - 1 - j - offset for j in range(len(rows))],
                    s=36, color=palette(names.index(base) % palette.N) if base in names else "0.5",
-                   marker={"p5": "s", "p6": "o", "k6": "D"}.get(fam, "o"), edgecolors="black", linewidths=0.4,
+                   marker=FAMILY_MARKERS.get(fam, "o"), edgecolors="black", linewidths=0.4,
                    label=cpu, zorder=3)
     ax.set_yticks(range(len(rows)), [f"{v}: {'exact' if share[v] == 0 else f'{share[v]:.1%} wrong'}"
                                      for v in reversed(rows)], fontsize=9)
@@ -511,13 +511,9 @@ def figure(result: SnapResult):
 def png(result: SnapResult) -> bytes | None:
     if not result.timings:
         return None
-    import matplotlib.pyplot as plt
+    from .report import png_bytes
 
-    fig = figure(result)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata={"Software": None})
-    plt.close(fig)
-    return buf.getvalue()
+    return png_bytes(figure(result))
 
 
 def write_reports(result: SnapResult, out_dir: Path, formats: tuple[str, ...] = ("md", "png", "json", "csv", "html")

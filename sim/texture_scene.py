@@ -758,18 +758,16 @@ def error_cycles_png(result: TextureResult) -> bytes:
     mean coordinate error (the same on every CPU, written in the row's label with its share of
     wrong texels), cycles per pixel along x, one marker per CPU (offset within the row so none
     hides another; the same colours as the Z-buffer plots, a shape per family)."""
-    import io
-
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from .cpus import presets
+    from .report import FAMILY_MARKERS, finish_rows, png_bytes, row_offset
 
     names = presets.available()
     palette = plt.get_cmap("tab10" if len(names) <= 10 else "tab20")
-    markers = {"p5": "s", "p6": "o", "k6": "D"}
     acc = result.accuracy
     rows = sorted(result.scene.variants, key=lambda v: (-acc[v]["mean_coordinate_error"], v))  # top to bottom
     keys = _ordered_keys(result)
@@ -778,29 +776,18 @@ def error_cycles_png(result: TextureResult) -> bytes:
     spread = min(0.7, 0.08 * len(keys))
     ypos = {v: len(rows) - 1 - i for i, v in enumerate(rows)}
     for i, key in enumerate(keys):
-        offset = (i - (len(keys) - 1) / 2) * (spread / max(1, len(keys) - 1)) if len(keys) > 1 else 0.0
+        offset = row_offset(i, len(keys), spread)
         base = key.split(":")[0].split("{")[0]
         colour = palette(names.index(base) % palette.N) if base in names else "0.5"
         ax.scatter([result.cycles_per_pixel(v, key) for v in rows], [ypos[v] - offset for v in rows],
-                   marker=markers.get(family_of(key), "o"), s=40, color=colour, edgecolors="black", linewidths=0.4,
+                   marker=FAMILY_MARKERS.get(family_of(key), "o"), s=40, color=colour, edgecolors="black", linewidths=0.4,
                    label=_label(key), zorder=3)
-    for k in range(len(rows) - 1):
-        ax.axhline(k + 0.5, color="0.85", lw=0.8, zorder=1)
     labels = [f"{v}: mean error {acc[v]['mean_coordinate_error']:.5f} texel, {acc[v]['wrong_texel_share']:.2%} "
               f"wrong texels\n{F.VARIANT_LABELS[v]}" for v in rows]
-    ax.set_yticks([ypos[v] for v in rows], labels, fontsize=8)
-    ax.set_ylim(-0.5, len(rows) - 0.5)
-    ax.set_xlabel("cycles per pixel (timed pass, caches warm); fewer is faster", fontsize=10)
-    ax.set_title(f"{result.scene.name}: cycles per pixel of the article's steps on each CPU\n"
-                 "(rows from most to least error against the exact mapping)", fontsize=10)
-    ax.grid(axis="x", color="0.9", zorder=0)
-    ax.tick_params(axis="x", labelsize=9)
-    ax.margins(x=0.04)
-    fig.legend(fontsize=8, loc="outside lower center", ncol=3, frameon=False, handletextpad=0.3, columnspacing=1.2)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata={"Software": None})
-    plt.close(fig)
-    return buf.getvalue()
+    finish_rows(fig, ax, rows, ypos, labels, "cycles per pixel (timed pass, caches warm); fewer is faster",
+                f"{result.scene.name}: cycles per pixel of the article's steps on each CPU\n"
+                "(rows from most to least error against the exact mapping)", 8, 3)
+    return png_bytes(fig)
 
 
 def write_reports(result: TextureResult, out_dir: Path,
