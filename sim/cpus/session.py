@@ -114,15 +114,14 @@ class CoreSession:
 
     def __init__(self, model, decoder: Decoder, segments, timeline: tuple[int, int] = (0, 0),
                  stat_first: int = 0, check=None):
-        self.NC, self.NS, self.NT = self.CORE.NC, self.CORE.NS, self.CORE.NT
         self.model = model
         self.check = check
         self.statics = Statics(decoder, model.table)
         self.program = model.lower([], [])
         self.seg_end = np.array(segments, dtype=np.int64)
-        self.counters = np.zeros((self.seg_end.size, self.NC), np.int64)
-        self.per_static = np.zeros((1, self.NS), np.int64)  # the last row is the sink
-        self.timeline = np.zeros((timeline[1], self.NT), np.int64)
+        self.counters = np.zeros((self.seg_end.size, self.CORE.NC), np.int64)
+        self.per_static = np.zeros((1, self.CORE.NS), np.int64)  # the last row is the sink
+        self.timeline = np.zeros((timeline[1], self.CORE.NT), np.int64)
         self.tl_first = timeline[0]
         self.stat_first = stat_first
         self.rdtsc: list[np.ndarray] = []
