@@ -17,7 +17,7 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
-from .errors import OutputError
+from sim.errors import OutputError
 
 
 @contextlib.contextmanager

@@ -31,7 +31,7 @@ def default_jobs() -> int:
 
 
 def check_jobs(jobs: int | None) -> int:
-    from .errors import ArgumentError
+    from sim.errors import ArgumentError
 
     if jobs is None:
         return default_jobs()

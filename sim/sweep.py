@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from .errors import RetrosimError
+from sim.errors import RetrosimError
 
 _SWEEP_KEYS = {"description", "scenes", "kernels", "variants", "cpus", "memories", "compare"}
 _KERNEL_KEYS = {"source", "entry", "args", "repeat"}
@@ -72,13 +72,13 @@ class Spec:
 
 
 def _text(value) -> str:
-    from .cpus import _format
+    from sim.cpus import _format
 
     return _format(value)
 
 
 def load_spec(path: str | Path) -> Spec:
-    from .cpus import memory_presets, presets
+    from sim.cpus import memory_presets, presets
 
     path = Path(path)
 
@@ -151,7 +151,7 @@ def load_spec(path: str | Path) -> Spec:
     # what is emulated: scene variants and kernel calls
     subjects = []
     for i, name in enumerate(scenes):
-        from .scene import load_scene
+        from sim.scenes.zbuffer.scene import load_scene
 
         p = Path(name)
         p = p if p.suffix == ".toml" else SCENES_DIR / f"{name}.toml"
@@ -199,18 +199,18 @@ def load_spec(path: str | Path) -> Spec:
 def _emulation(group: dict):
     """(emulation, pixels or None) of a group: a scene variant's frames or a kernel's calls."""
     if group["kind"] == "scene":
-        from . import raster
-        from .frames import draw_frames
-        from .scene import load_scene
+        from sim.scenes import raster
+        from sim.scenes.zbuffer.frames import draw_frames
+        from sim.scenes.zbuffer.scene import load_scene
 
         scene = load_scene(group["what"])
         geometry = scene.build_geometry()
         spans = raster.rasterize(geometry, scene.width, scene.height)
         run = draw_frames(spans, group["variant"], scene.width, scene.height, scene.frames, geometry.colour)
         return run.emulation, run.pixels
-    from . import kernels
-    from .cli import parse_args
-    from .timing import emulate
+    from sim.guest import kernels
+    from sim.cli import parse_args
+    from sim.timing.kernel import emulate
 
     args = group["args"]
     return emulate(kernels.resolve(group["what"]), group["entry"], lambda m: parse_args(args, m)[0],
@@ -219,8 +219,8 @@ def _emulation(group: dict):
 
 def run_group(group: dict) -> list[dict]:
     """Rows of one group's points; a point that fails gets a row with its error."""
-    from .cpus import machine_label, make_model
-    from .timing import time_emulation
+    from sim.cpus import machine_label, make_model
+    from sim.timing.kernel import time_emulation
 
     rows = []
     try:
@@ -273,7 +273,7 @@ def write_rows(base: Path, rows: list[dict]) -> list[Path]:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from .report import atomic_write
+    from sim.scenes.zbuffer.report import atomic_write
 
     cols = _columns(rows)
     text = {c for c in cols if c in FIXED or c.startswith("set.") or c == "error"}
@@ -305,8 +305,8 @@ class SweepResult:
 def _warm(spec: Spec) -> None:
     """Run each family's compiled core once here, so the on-disk numba cache is filled before
     several workers load it at once (a cold cache loaded concurrently has been seen to stall)."""
-    from .cpus import presets
-    from .timing import time_kernel
+    from sim.cpus import presets
+    from sim.timing.kernel import time_kernel
 
     args = "buf:u16:64:0xFFFF,buf:u16:64,64,0x10000000,0x100000,0x1234"
     families = {}
@@ -315,8 +315,8 @@ def _warm(spec: Spec) -> None:
             families.setdefault(presets.load(p["cpu"].split("{")[0]).family, p["cpu"].split("{")[0])
         except RetrosimError:
             pass
-    from .cli import parse_args
-    from .kernels import resolve
+    from sim.cli import parse_args
+    from sim.guest.kernels import resolve
 
     for cpu in families.values():
         time_kernel(resolve("zbuffer/fp16z.S"), "fp16z_span", lambda m: parse_args(args, m)[0], cpu=cpu, repeat=1)
@@ -416,7 +416,7 @@ def write_plots(spec: Spec, base: Path, rows: list[dict]) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .report import atomic_write
+    from sim.scenes.zbuffer.report import atomic_write
 
     ok = [r for r in rows if not r.get("error") and r["point"] in {p["point"] for p in spec.points}]
     metric, ylabel = _metric(ok)

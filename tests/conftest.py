@@ -3,7 +3,7 @@ from pathlib import Path
 
 import pytest
 
-from sim.emu import Machine
+from sim.guest.emu import Machine
 
 ROOT = Path(__file__).resolve().parent.parent
 KERNELS = ROOT / "kernels"

@@ -3,8 +3,8 @@
 import pytest
 from elftools.elf.elffile import ELFFile
 
-from sim import asm
-from sim.kernels import catalogue
+from sim.guest import asm
+from sim.guest.kernels import catalogue
 
 BOTH = {"gnu", "zig"} <= set(asm.available_assemblers())
 KERNELS = sorted(catalogue())

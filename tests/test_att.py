@@ -4,10 +4,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from sim import asm, loop
+from sim.guest import asm
+from sim.timing import loop
 from sim.cli import main
 from sim.cpus import presets
-from sim.timing import time_kernel
+from sim.timing.kernel import time_kernel
 
 INTEL_KERNEL = """# @entry sum(p, n) -> EAX
 .text

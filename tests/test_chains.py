@@ -13,7 +13,7 @@ the Pentium family", sec. 29.1.
 import numpy as np
 import pytest
 
-from sim.timing import emulate, time_emulation
+from sim.timing.kernel import emulate, time_emulation
 
 from conftest import KERNELS
 

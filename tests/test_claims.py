@@ -5,11 +5,11 @@ import json
 
 import pytest
 
-from sim import report
+from sim.scenes.zbuffer import report
 from sim.cpus import make_model, overridable
 from sim.errors import RetrosimError
-from sim.runner import run_scene
-from sim.scene import SceneError, load_scene
+from sim.scenes.zbuffer.runner import run_scene
+from sim.scenes.zbuffer.scene import SceneError, load_scene
 
 SCENE = """
 [scene]

@@ -6,7 +6,7 @@ import numpy as np
 from click.testing import CliRunner
 
 from sim.cli import main
-from sim.trace import Trace
+from sim.guest.trace import Trace
 
 
 def run(*args):

@@ -2,7 +2,7 @@
 
 import pytest
 
-from sim.conformance import RowResult, _judge, _operands, render, run_family
+from sim.reports.conformance import RowResult, _judge, _operands, render, run_family
 from sim.cpus.table import load_table
 
 

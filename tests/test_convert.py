@@ -91,7 +91,7 @@ def test_bsr_zero_sets_zf(machine, tmp_path):
     src = tmp_path / "zf.S"
     src.write_text(".intel_syntax noprefix\n.text\n# @entry zf(z)\n.globl zf\nzf:\n"
                    "  mov edx, [esp+4]\n  xor eax, eax\n  bsr ecx, edx\n  setz al\n  ret\n")
-    from sim.emu import Machine
+    from sim.guest.emu import Machine
     m = Machine.from_source(src)
     assert m.call("zf", 0).eax == 1
     assert m.call("zf", 1).eax == 0

@@ -10,15 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim import decode as D
-from sim.decode import (
-    DecodeError,
-    Decoder,
-    InsnRecord,
-    RegRef,
-    decode_block,
-    decode_one,
-)
+from sim.guest import decode as D
+from sim.guest.decode import DecodeError, Decoder, InsnRecord, RegRef, decode_block, decode_one
 
 AS = shutil.which("as") or "/usr/bin/as"
 OBJCOPY = shutil.which("objcopy") or "/usr/bin/objcopy"

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from elftools.elf.elffile import ELFFile
 
-from sim import asm
-from sim import raster as R
+from sim.guest import asm
+from sim.scenes import raster as R
 from sim import reference as ref
 
 from conftest import KERNELS
@@ -191,7 +191,7 @@ def test_equals_fp16z_kernel_where_fp16z_has_no_hazard(machine):
 
 @pytest.mark.parametrize("scene", ["random", "near_far"])
 def test_frame_driver_matches_simulate_frame(scene):
-    from sim.frames import VARIANT_LABELS, draw_frames
+    from sim.scenes.zbuffer.frames import VARIANT_LABELS, draw_frames
 
     w, h = 128, 96
     g = R.random_scene(w, h, 60, 3.0, 7) if scene == "random" else R.near_far_scene(w, h, 40, seed=7)
@@ -214,7 +214,7 @@ def test_frame_driver_matches_simulate_frame(scene):
 def hidden_cycles_per_pixel(source: str, entry: str, cpu: str) -> float:
     """Warm span loop, depth test failing (the second call ties with the first everywhere): the
     per-pixel cost from two span lengths, so call overhead and the loop's entry cancel out."""
-    from sim.timing import time_kernel
+    from sim.timing.kernel import time_kernel
 
     def setup(n):
         def build(m):
@@ -228,8 +228,8 @@ def hidden_cycles_per_pixel(source: str, entry: str, cpu: str) -> float:
 
 def frame_cycles_per_pixel(variant: str, cpu: str) -> float:
     """The scene runner's figure: the last of two frames (clear + spans) per pixel drawn."""
-    from sim.frames import draw_frames
-    from sim.timing import time_emulation
+    from sim.scenes.zbuffer.frames import draw_frames
+    from sim.timing.kernel import time_emulation
 
     w, h = 160, 120
     spans = R.rasterize(R.random_scene(w, h, 120, 3.0, 1998), w, h)

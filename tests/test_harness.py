@@ -3,10 +3,13 @@
 import numpy as np
 import pytest
 
-from sim import asm, elf
-from sim.emu import Machine, RdtscEvent
-from sim.errors import ArgumentError, AssemblerError, AssemblerMissing, GuestFault, LoadError, RunawayKernel, UnknownSymbol
-from sim.trace import Trace
+from sim.guest import asm
+from sim.guest import elf
+from sim.guest.emu import Machine, RdtscEvent
+from sim.errors import (
+    ArgumentError, AssemblerError, AssemblerMissing, GuestFault, LoadError, RunawayKernel, UnknownSymbol,
+)
+from sim.guest.trace import Trace
 
 
 def kernel(tmp_path, body: str, name: str = "k.S"):
@@ -233,7 +236,7 @@ def test_native_trace_equals_python_trace_across_buffer_refills(machine):
     n = 3000
     zb = m.arena.put(np.full(n, 0xFFFF, np.uint16))
     fb = m.arena.put(np.zeros(n, np.uint16))
-    from sim.trace import NativeTracer
+    from sim.guest.trace import NativeTracer
     m._tracer = NativeTracer(m.uc, instruction_capacity=997, access_capacity=300)
     native = m.call("fp16z_span", zb, fb, n, 1 << 28, 77777, 5, trace=True).trace
     m.arena.reset()

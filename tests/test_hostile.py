@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from sim import asm
+from sim.guest import asm
 from sim.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -238,7 +238,7 @@ def test_binary_source_is_one_line(tmp_path):
 
 
 def test_damaged_baselines_file(tmp_path, monkeypatch):
-    from sim import baseline
+    from sim.scenes import baseline
 
     path = tmp_path / "baselines.json"
     monkeypatch.setattr(baseline, "BASELINE_FILE", path)
@@ -287,8 +287,8 @@ def test_scene_field_errors(tmp_path):
 @pytest.mark.parametrize("xy", ["[[1, 1], [5, 5], [9, 9]]", "[[-50, -50], [-40, -50], [-45, -40]]",
                                 "[[3.1, 3.1], [3.2, 3.1], [3.1, 3.2]]"])
 def test_scenes_that_draw_nothing_report_zero_covered_pixels(tmp_path, xy):
-    from sim.runner import run_scene
-    from sim.scene import load_scene
+    from sim.scenes.zbuffer.runner import run_scene
+    from sim.scenes.zbuffer.scene import load_scene
 
     path = scene(tmp_path, "empty", f'generator = "triangles"\n[[geometry.triangle]]\nxy = {xy}\nz = [0.1, 0.2, 0.3]')
     result = run_scene(load_scene(path))

@@ -7,11 +7,11 @@ import sys
 
 import pytest
 
-from sim.asm import assemble
+from sim.guest.asm import assemble
 from sim.cpus import presets
 from sim.errors import RetrosimError
-from sim.isa import EXTENSIONS, march
-from sim.timing import emulate, time_emulation, time_kernel
+from sim.guest.isa import EXTENSIONS, march
+from sim.timing.kernel import emulate, time_emulation, time_kernel
 from conftest import KERNELS
 
 PRESETS = presets.available()
@@ -183,7 +183,7 @@ def test_div_cost_follows_the_operand_size(tmp_path):
 
 def test_refusal_names_the_line_with_the_zig_assembler_too(tmp_path):
     # clang assembles CMOV for -mcpu=k6_2 without complaint; the refusal still names the line
-    from sim.asm import available_assemblers
+    from sim.guest.asm import available_assemblers
 
     if "zig" not in available_assemblers():
         pytest.skip("zig assembler not installed")

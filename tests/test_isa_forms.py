@@ -18,12 +18,12 @@ import pytest
 from elftools.elf.elffile import ELFFile
 
 from isa_forms import forms
-from sim import isa
+from sim.guest import isa
 from sim.cpus import presets
 from sim.cpus.table import load_table
-from sim.decode import iter_decode
+from sim.guest.decode import iter_decode
 from sim.errors import RetrosimError
-from sim.timing import emulate, time_emulation
+from sim.timing.kernel import emulate, time_emulation
 
 AS = shutil.which("as")
 # the P5 presets: a Pentium (P54C, -march=pentium) and a Pentium MMX (P55C, -march=pentium+mmx)

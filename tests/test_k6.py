@@ -5,10 +5,10 @@ model stops charging what the sources say."""
 import numpy as np
 import pytest
 
-from sim import views
+from sim.reports import views
 from sim.cpus import k6_core, make_model, p6_core, presets
 from sim.errors import RetrosimError
-from sim.timing import emulate, time_emulation, time_kernel
+from sim.timing.kernel import emulate, time_emulation, time_kernel
 
 from conftest import KERNELS, rdtsc_kernel
 from test_p6 import chase_setup
@@ -200,7 +200,7 @@ def test_rdtsc_returns_simulated_cycles(tmp_path):
     measured = r.run.rdtsc[3] - r.run.rdtsc[2]  # the warm call
     assert 3 * 200 <= measured <= 3 * 200 + 40  # IMUL latency 3, plus the loop exit and RDTSC's sequence
     # the kernel itself computed the same difference from the values RDTSC returned in the replay
-    from sim.emu import Machine
+    from sim.guest.emu import Machine
 
     answers = iter(int(c) for c in r.run.rdtsc)
     m = Machine.from_source(src, rdtsc=lambda ev: next(answers))

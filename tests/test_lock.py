@@ -11,7 +11,7 @@ from __future__ import annotations
 import pytest
 
 from sim.cpus.table import load_table
-from sim.timing import time_kernel
+from sim.timing.kernel import time_kernel
 
 HEAD = ".intel_syntax noprefix\n.text\n.globl k\nk:\n    push ebx\n    sub esp, 64\n    mov ebx, esp\n    mov eax, 1\n"
 TAIL = "    add esp, 64\n    pop ebx\n    ret\n"

@@ -5,7 +5,7 @@ import json
 import pytest
 from click.testing import CliRunner
 
-from sim import loop
+from sim.timing import loop
 from sim.cli import main
 from sim.cpus import presets
 from sim.errors import RetrosimError

@@ -6,11 +6,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from sim.memory import (DIRTY_VICTIM, EVICT, FETCH, FORWARD, HIT, LOAD, STORE, CacheGeometry,
-                        CacheState, Hierarchy, OpenRowModel, bus_ratio, line_costs,
-                        line_costs_for_cpu, line_span, lines_touched, load_memory_preset,
-                        memory_fills, memory_writebacks, row_access, served_level, service,
-                        victim_address)
+from sim.memory import (
+    DIRTY_VICTIM, EVICT, FETCH, FORWARD, HIT, LOAD, STORE, CacheGeometry, CacheState, Hierarchy,
+    OpenRowModel, bus_ratio, line_costs, line_costs_for_cpu, line_span, lines_touched, load_memory_preset,
+    memory_fills, memory_writebacks, row_access, served_level, service, victim_address,
+)
 from sim.memory.hierarchy import family_policies, load_cpu_preset
 
 KB = 1024
@@ -131,7 +131,7 @@ def test_matches_pycachesim_on_synthetic_trace(config, seed):
 def fp16z_traces():
     """The fp16z span kernel over 20000 pixels, with aligned buffers and with buffers at odd
     addresses (every 16th 2-byte access then crosses a line)."""
-    from sim.emu import Machine
+    from sim.guest.emu import Machine
     m = Machine.from_source("kernels/zbuffer/fp16z.S")
     n = 20000
     traces = {}
@@ -405,14 +405,14 @@ def chase_4mb():
     from pathlib import Path
     sys.path.insert(0, str(Path(__file__).parent))
     from test_p6 import chase_setup
-    from sim.timing import emulate
+    from sim.timing.kernel import emulate
     return emulate(Path("kernels/micro/memory.S"), "chase", chase_setup(4 << 20), repeat=1)
 
 
 @pytest.mark.parametrize("machine,expected", list(MEASURED_CHASE.items()) + list(DERIVED_CHASE.items()),
                          ids=lambda x: ":".join(filter(None, x)) if isinstance(x, tuple) else None)
 def test_pointer_chase_beyond_the_caches_costs_the_published_latency(chase_4mb, machine, expected):
-    from sim.timing import time_emulation
+    from sim.timing.kernel import time_emulation
     cpu, memory = machine
     c = time_emulation(chase_4mb, cpu, memory).last
     assert c["dram_fills"] >= 0.9 * c["l1d_loads"]  # the chase does go to memory
@@ -501,11 +501,11 @@ def test_replayed_cache_results_time_exactly_like_a_cache_walk(cpu, override):
     """sim.memory.replay: a re-timing that reads back the data caches' recorded results (here with a
     latency or an estimate changed, as the claims' robustness pass does) gives every counter,
     per-instruction row and timeline row a full walk gives; it did replay, reading every result."""
-    from sim import bench
+    from sim.timing import bench
     from sim.cpus import make_model
-    from sim.kernels import kernels_root
+    from sim.guest.kernels import kernels_root
     from sim.memory.replay import LOG_REPLAY, AccessLogs
-    from sim.timing import emulate, time_emulation
+    from sim.timing.kernel import emulate, time_emulation
 
     pixels = 6000
     zinit, (z, dz, colour) = bench._workload(pixels)

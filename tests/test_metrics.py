@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from sim import metrics as M
-from sim import raster as R
+from sim.scenes.zbuffer import metrics as M
+from sim.scenes import raster as R
 from sim import reference as ref
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from sim.timing import time_kernel
+from sim.timing.kernel import time_kernel
 
 HEAD = ".intel_syntax noprefix\n.text\n"
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from sim.cpus import make_model, presets
-from sim.timing import time_kernel
+from sim.timing.kernel import time_kernel
 
 from conftest import KERNELS, rdtsc_kernel
 
@@ -185,7 +185,7 @@ def test_too_many_register_operands_is_an_error_naming_the_instruction(monkeypat
     # the cores track MAX_OPS sources and destinations per instruction; more is refused, not truncated
     from sim.cpus import lowering
     from sim.cpus.table import load_table
-    from sim.decode import decode_one
+    from sim.guest.decode import decode_one
 
     rec = decode_one(bytes.fromhex("01c8"), 0x400000)  # add eax, ecx: 2 sources + flags
     assert lowering.lower([rec], load_table("p6")).s_nsrc[0] == 2
@@ -202,7 +202,7 @@ def test_rdtsc_returns_simulated_cycles(tmp_path):
     # machine, a code line fetched from memory (~70-95 clocks with the calibrated DRAM latency)
     assert 4 * 200 <= measured <= 4 * 200 + 120
     # the kernel itself computed the same difference from the values RDTSC returned in the replay
-    from sim.emu import Machine
+    from sim.guest.emu import Machine
 
     answers = iter(int(c) for c in r.run.rdtsc)
     assert Machine.from_source(src, rdtsc=lambda ev: next(answers)).call("timed", 200).eax == measured
@@ -251,7 +251,7 @@ def test_pushad_popad_are_split_into_their_stores_and_loads(tmp_path):
 
 # -- partial flags stalls (Agner Fog, PPro/PII/PIII "partial flags stalls") ----------------------------
 def _flag_stalls(tmp_path, body: str) -> int:
-    from sim.timing import time_kernel
+    from sim.timing.kernel import time_kernel
 
     src = tmp_path / "flags.S"
     src.write_text(".intel_syntax noprefix\n.text\n.globl k\nk:\n    push edi\n    mov edi, esp\n    sub edi, 64\n"

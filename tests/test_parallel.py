@@ -8,8 +8,8 @@ from click.testing import CliRunner
 
 from sim.cli import main
 from sim.parallel import SharedPool
-from sim.runner import run_scene
-from sim.scene import load_scene
+from sim.scenes.zbuffer.runner import run_scene
+from sim.scenes.zbuffer.scene import load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 

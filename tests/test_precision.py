@@ -6,10 +6,10 @@ import pytest
 
 from sim.cpus import presets
 from sim.cpus.table import InstructionTable
-from sim.emu import Machine
+from sim.guest.emu import Machine
 from sim.errors import RetrosimError
-from sim.timing import emulate, time_emulation
-from sim.trace import Trace, precision_of
+from sim.timing.kernel import emulate, time_emulation
+from sim.guest.trace import Trace, precision_of
 
 from conftest import KERNELS
 
@@ -84,7 +84,7 @@ writers:
 def test_trace_survives_refills_and_save_load(tmp_path):
     m = Machine.from_source(KERNEL)
     m._tracer = None
-    from sim.trace import NativeTracer
+    from sim.guest.trace import NativeTracer
 
     m._tracer = NativeTracer(m.uc, instruction_capacity=64, access_capacity=64, control_word_pcs=m.control_word_pcs(),
                              control_word_capacity=4)  # forces many chunk refills and control-word stops

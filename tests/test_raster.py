@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from sim import raster as R
+from sim.scenes import raster as R
 from sim import reference as ref
 
 

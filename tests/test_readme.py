@@ -101,7 +101,7 @@ def test_the_command_table_lists_real_commands_and_options():
 
 def test_example_entry_points_exist():
     """Every --entry in the README names an entry point its file declares (see kernels/README.md)."""
-    from sim import kernels
+    from sim.guest import kernels
 
     for command in COMMANDS:
         argv = shlex.split(command)

@@ -4,9 +4,12 @@ import json
 
 import pytest
 
-from sim import asm, baseline, output, report
-from sim.runner import run_scene
-from sim.scene import load_scene
+from sim import output
+from sim.guest import asm
+from sim.scenes import baseline
+from sim.scenes.zbuffer import report
+from sim.scenes.zbuffer.runner import run_scene
+from sim.scenes.zbuffer.scene import load_scene
 
 SCENE = """
 [scene]
@@ -42,7 +45,7 @@ def test_scene_builds_only_what_it_asks_for(tmp_path, monkeypatch):
     real = asm.assemble
     monkeypatch.setattr(asm, "assemble", lambda src, *a, **k: assembled.append(str(src)) or real(src, *a, **k))
     made = []
-    import sim.runner as runner
+    from sim.scenes.zbuffer import runner
 
     real_model = runner.make_model
     monkeypatch.setattr(runner, "make_model", lambda cpu, mem=None: made.append((cpu, mem)) or real_model(cpu, mem))

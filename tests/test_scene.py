@@ -6,9 +6,9 @@ import re
 import numpy as np
 import pytest
 
-from sim import raster as R
+from sim.scenes import raster as R
 from sim.errors import RetrosimError
-from sim.scene import SceneError, load_scene
+from sim.scenes.zbuffer.scene import SceneError, load_scene
 
 VALID = """\
 [scene]

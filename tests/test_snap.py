@@ -4,15 +4,15 @@ Glide guide's trick relies on."""
 import numpy as np
 import pytest
 
-from sim import snap as S
-from sim.timing import emulate, time_emulation
+from sim.scenes.snap import workload as S
+from sim.timing.kernel import emulate, time_emulation
 
 V = S.VARIANTS
 
 
 @pytest.fixture(scope="module")
 def machine():
-    from sim.emu import Machine
+    from sim.guest.emu import Machine
 
     return Machine.from_source(S.KERNEL)
 

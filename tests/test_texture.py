@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim import texture as T
-from sim.emu import Machine
-from sim.kernels import kernels_root
+from sim.reports import texture_loops as T
+from sim.guest.emu import Machine
+from sim.guest.kernels import kernels_root
 
 
 @pytest.mark.parametrize("loop", list(T.LOOPS))

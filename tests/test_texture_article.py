@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim import texture_frame as F
-from sim.emu import Machine
-from sim.kernels import kernels_root
+from sim.scenes.texture import frame as F
+from sim.guest.emu import Machine
+from sim.guest.kernels import kernels_root
 
 W, H = 200, 150
 

@@ -8,10 +8,11 @@ from pathlib import Path
 
 import pytest
 
-from sim import baseline, report
-from sim import texture_scene as T
-from sim.runner import run_scene
-from sim.scene import SceneError, load_scene
+from sim.scenes import baseline
+from sim.scenes.zbuffer import report
+from sim.scenes.texture import scene as T
+from sim.scenes.zbuffer.runner import run_scene
+from sim.scenes.zbuffer.scene import SceneError, load_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 

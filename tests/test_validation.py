@@ -2,7 +2,7 @@
 
 from click.testing import CliRunner
 
-from sim import validation
+from sim.reports import validation
 from sim.cli import main
 from sim.errors import RetrosimError
 

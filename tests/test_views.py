@@ -8,7 +8,8 @@ import pytest
 from click.testing import CliRunner
 from rich.console import Console
 
-from sim import cli, kernels
+from sim import cli
+from sim.guest import kernels
 from sim.cpus import vocabulary
 
 LOOP = ("convert/loops.S", "-e", "convert_plain", "--args", "buf:u32:64:4096,buf:u16:64,64")

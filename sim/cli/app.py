@@ -13,8 +13,8 @@ import click
 import numpy as np
 from rich.console import Console
 
-from .. import kernels as catalogue_mod
-from ..errors import ArgumentError, RetrosimError
+from sim.guest import kernels as catalogue_mod
+from sim.errors import ArgumentError, RetrosimError
 
 console = Console()
 err_console = Console(stderr=True)
@@ -154,7 +154,7 @@ def parse_args(text: str | None, machine) -> tuple[list, list[tuple[str, int, np
 
 
 def _machine(source: str, assembler: str | None, cpu: str | None = None):
-    from ..emu import Machine
+    from sim.guest.emu import Machine
 
     return Machine.from_source(catalogue_mod.resolve(source), assembler=assembler, cpu=cpu)
 
@@ -181,7 +181,7 @@ def _buffer_summary(machine, buffers) -> list[dict]:
 
 def _set_syntax(ctx, param, value):
     """--syntax applies to every source the command assembles (set for each invocation, None too)."""
-    from .. import asm
+    from sim.guest import asm
 
     asm._syntax.set(value)
     return value
@@ -222,7 +222,7 @@ def with_kernel_options(fn):
 
 
 def _cpu_choice(ctx, param, value):
-    from ..cpus import presets
+    from sim.cpus import presets
 
     if value not in presets.available():
         raise click.BadParameter(f"unknown CPU preset '{value}' (choose one of: {', '.join(presets.available())})")
@@ -243,7 +243,7 @@ timing_options = [
 
 def _overrides(sets) -> tuple[dict, str | None]:
     """--set KEY=VALUE items as (preset overrides, memory preset or None); checked by make_model."""
-    from ..cpus import parse_value
+    from sim.cpus import parse_value
 
     out, memory = {}, None
     for item in sets:
@@ -260,7 +260,7 @@ def _overrides(sets) -> tuple[dict, str | None]:
 
 def _label(cpu: str, sets) -> tuple[str, str | None]:
     """(machine label, memory from --set) for a CPU preset and --set items, validated now."""
-    from ..cpus import load_dram, machine_label, make_model
+    from sim.cpus import load_dram, machine_label, make_model
 
     overrides, memory = _overrides(sets)
     label = machine_label(cpu, overrides)
@@ -278,7 +278,7 @@ def with_timing_options(fn):
 
 def _cpu_list(values) -> list[str]:
     """--cpu may repeat, take comma-separated presets, or `all` (every preset)."""
-    from ..cpus import presets
+    from sim.cpus import presets
 
     names = [n.strip() for v in values for n in v.split(",") if n.strip()] or ["pentium2-233"]
     if "all" in names:

@@ -12,10 +12,12 @@ from rich import box
 from rich.markup import escape
 from rich.table import Table
 
-from .. import kernels as catalogue_mod
-from ..errors import ArgumentError
-from .app import (_bounded, _buffer_summary, _cpu_choice, _cpu_list, _entry, _label, _machine, console, err_console,
-                  main, parse_args, with_kernel_options, with_timing_options)
+from sim.guest import kernels as catalogue_mod
+from sim.errors import ArgumentError
+from sim.cli.app import (
+    _bounded, _buffer_summary, _cpu_choice, _cpu_list, _entry, _label, _machine, console, err_console, main,
+    parse_args, with_kernel_options, with_timing_options,
+)
 
 
 # -- commands ------------------------------------------------------------------------------
@@ -85,7 +87,7 @@ def run_kernel_cmd(source, entry, args_text, budget, assembler, isa_cpu, as_json
               help="output .npz (arrays pc, mem_addr, mem_size, mem_write, mem_insn)")
 def trace_cmd(source, entry, args_text, budget, assembler, isa_cpu, out):
     """Record a kernel's PC stream and data accesses to an .npz file for other simulators."""
-    from ..output import check_output_file
+    from sim.output import check_output_file
 
     check_output_file(out, "--out")  # before the work: a bad path fails in a second, not after the run
     m = _machine(source, assembler, isa_cpu)
@@ -98,8 +100,8 @@ def trace_cmd(source, entry, args_text, budget, assembler, isa_cpu, out):
 
 
 def _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations=0, sets=()):
-    from ..emu import Machine
-    from ..timing import time_kernel
+    from sim.guest.emu import Machine
+    from sim.timing.kernel import time_kernel
 
     cpu, set_memory = _label(cpu, sets)
     memory = memory or set_memory
@@ -131,7 +133,7 @@ def _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iter
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
 def time_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets, as_json):
     """Cycle counts of a kernel on a CPU model: cycles, uops, decode, ports, stalls, caches, DRAM."""
-    from .. import views
+    from sim.reports import views
 
     result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets=sets)
     if as_json:
@@ -172,7 +174,7 @@ Narrow terminals get the table in three parts keyed by the instruction."""
 @click.option("--iterations", default=3, show_default=True, callback=_bounded(0, 1000), help="hot-loop iterations in the timeline")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object (rows and timeline)")
 def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets, iterations, as_json):
-    from .. import views
+    from sim.reports import views
 
     result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations, sets=sets)
     if as_json:
@@ -196,7 +198,7 @@ def _loop_explain_table(t) -> Table:
     """The explain table, narrowed to what a loop body needs (fits 80 columns for short bodies)."""
     from rich.markup import escape
 
-    from .. import views
+    from sim.reports import views
 
     table = Table(title=f"{t.cpu}: per instruction, cycles per execution (full table: --json)")
     for col in ("instruction", "dec", "uops", "ports", "iss>ret", "stalls"):
@@ -224,7 +226,8 @@ def _loop_explain_table(t) -> Table:
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
 def loop_cmd(source, cpus, syntax, iterations, regs, timeline, brief, assembler, as_json):
     """Time a bare loop body or basic block (FILE, or - for standard input): steady-state cycles per iteration."""
-    from .. import loop, views
+    from sim.timing import loop
+    from sim.reports import views
 
     if source == "-":
         text, name = sys.stdin.read(), "<stdin>"
@@ -273,7 +276,7 @@ def loop_cmd(source, cpus, syntax, iterations, regs, timeline, brief, assembler,
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object with the figures")
 def bench_cmd(pixels: int, as_json: bool):
     """Emulation speed: Unicorn bare, with Python hooks, with the native trace (same workload)."""
-    from ..bench import run_bench
+    from sim.timing.bench import run_bench
 
     result = run_bench(pixels, progress=None if as_json else console)
     if as_json:

@@ -9,15 +9,15 @@ import click
 from rich import box
 from rich.table import Table
 
-from ..errors import ArgumentError
-from .app import REPORTS_DIR, console, err_console, main
+from sim.errors import ArgumentError
+from sim.cli.app import REPORTS_DIR, console, err_console, main
 
 
 @main.command("cpus")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
 def cpus_cmd(as_json):
     """List CPU and memory presets with their caches, clocks and default memory."""
-    from ..cpus import load_dram, memory_presets, presets
+    from sim.cpus import load_dram, memory_presets, presets
 
     cpus = [presets.load(n) for n in presets.available()]
     if as_json:
@@ -30,7 +30,7 @@ def cpus_cmd(as_json):
         return
     for t in _cpu_tables(cpus, console.width):
         console.print(t)
-    m = Table(title="memory presets (sources in sim/cpus/presets/memory/*.toml)", box=box.SIMPLE_HEAD,
+    m = Table(title="memory presets (sources in sim/memory/presets/*.toml)", box=box.SIMPLE_HEAD,
               title_justify="left", pad_edge=False)
     for col in ("preset", "type", "burst (bus clocks)"):
         m.add_column(col, no_wrap=True)
@@ -43,7 +43,7 @@ def cpus_cmd(as_json):
 def _cpu_tables(cpus, width: int) -> list:
     """The presets in one wide table (every cache in full) when `width` holds it, else a compact one:
     sizes only, with the latencies and clock ratios one `--json` away."""
-    from ..views import _natural_width
+    from sim.reports.views import _natural_width
 
     def level(c, section: dict | None) -> str:
         return ("board " if "motherboard" in str((section or {}).get("location", "")) else "") + f"{c.size_kb}"
@@ -90,8 +90,8 @@ def validate_cmd(fams, out, check):
     """Time published loop timings (validation/*.toml) and write reports/validation.md."""
     import time as _time
 
-    from .. import validation
-    from ..report import atomic_write
+    from sim.reports import validation
+    from sim.scenes.zbuffer.report import atomic_write
 
     start = _time.perf_counter()
     results = [validation.run_family(f) for f in validation.families(only=list(fams) or None)]
@@ -123,7 +123,7 @@ def validate_cmd(fams, out, check):
 def conformance_cmd(out, families):
     """Run every table row's generated latency/throughput benchmark through the model on each preset
     of its family and write the comparison with the row's sourced figures (about 90 s of CPU time)."""
-    from ..conformance import write_report
+    from sim.reports.conformance import write_report
 
     results, seconds = write_report(out, tuple(families) or ("p6", "k6"))
     for fam, (rows, _) in results.items():

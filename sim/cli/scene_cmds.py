@@ -7,8 +7,10 @@ from pathlib import Path
 import click
 from rich.table import Table
 
-from ..errors import ArgumentError, RetrosimError
-from .app import REPORTS_DIR, SCENES_DIR, _cpu_choice, _label, console, err_console, main, one_line, say
+from sim.errors import ArgumentError, RetrosimError
+from sim.cli.app import (
+    REPORTS_DIR, SCENES_DIR, _cpu_choice, _label, console, err_console, main, one_line, say,
+)
 
 
 @main.command("texture-loops")
@@ -17,7 +19,7 @@ from .app import REPORTS_DIR, SCENES_DIR, _cpu_choice, _label, console, err_cons
 @click.option("--out", default=None, type=click.Path(path_type=Path), help="Markdown file to write")
 def texture_loops_cmd(cpus, out):
     """Cycles per pixel of the texture-mapping article's span loops on every preset (reports/texture-loops.md)."""
-    from .. import texture
+    from sim.reports import texture_loops as texture
 
     out = out or REPORTS_DIR / "texture-loops.md"
     texture.write_report(out, list(cpus) or None)  # also part of `retrosim report` and `check --reports`
@@ -40,7 +42,7 @@ def _scene_paths(names) -> list[Path]:
 
 
 def _scenes(names) -> list:
-    from ..scene import load_scene
+    from sim.scenes.zbuffer.scene import load_scene
 
     return [load_scene(p) for p in _scene_paths(names)]
 
@@ -52,9 +54,9 @@ def _run_scenes(scenes, cpus, on_result=None, jobs: int | None = None) -> tuple[
     returns (results, failures). Without it the first failure is raised."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from ..parallel import check_jobs
-    from ..runner import run_scene
-    from ..scene import load_scene
+    from sim.parallel import check_jobs
+    from sim.scenes.zbuffer.runner import run_scene
+    from sim.scenes.zbuffer.scene import load_scene
 
     jobs = check_jobs(jobs)
     results, failures = [], []
@@ -122,8 +124,8 @@ def _with_sets(chosen, cpus, sets) -> list[str]:
 @_JOBS_OPTION
 def report_cmd(scenes, cpus, sets, out, jobs):
     """Run scenes (default: every shipped scene) and write their reports; print a summary."""
-    from ..output import check_output_dir
-    from ..report import summary_tables, write_reports
+    from sim.output import check_output_dir
+    from sim.scenes.zbuffer.report import summary_tables, write_reports
 
     if out is None:
         # reports/ holds the committed reports, which CI compares with fresh ones: a run with other
@@ -136,7 +138,7 @@ def report_cmd(scenes, cpus, sets, out, jobs):
     check_output_dir(out, "--out")  # before the work: a read-only or impossible folder fails at once
     paths = _scene_paths(scenes)
     if sets:
-        from ..scene import load_scene
+        from sim.scenes.zbuffer.scene import load_scene
 
         paths = [load_scene(p) for p in paths]
         cpus = _with_sets(paths, cpus, sets)
@@ -159,14 +161,14 @@ def report_cmd(scenes, cpus, sets, out, jobs):
 
 
 def _write_texture_report(out: Path) -> Path:
-    from .. import texture
+    from sim.reports import texture_loops as texture
 
     return texture.write_report(Path(out) / "texture-loops.md")
 
 
 def _write_conversion_report(out: Path) -> Path:
-    from ..microreport import conversion_markdown, conversion_results
-    from ..report import atomic_write
+    from sim.reports.conversion import conversion_markdown, conversion_results
+    from sim.scenes.zbuffer.report import atomic_write
 
     path = Path(out) / "conversion.md"
     atomic_write(path, conversion_markdown(conversion_results()).encode())
@@ -181,8 +183,8 @@ def _write_conversion_report(out: Path) -> Path:
 @_JOBS_OPTION
 def check_cmd(scenes, update, check_reports, jobs):
     """Re-run scenes and compare exact cycle counts with reports/baselines.json."""
-    from .. import baseline
-    from ..report import write_reports
+    from sim.scenes import baseline
+    from sim.scenes.zbuffer.report import write_reports
 
     chosen = _scenes(scenes)
     baseline.load()  # a damaged baselines file fails before the work, not after it
@@ -236,8 +238,8 @@ def sweep_cmd(spec, out, scheduler, retry_failed, jobs):
     """Run a design-space sweep (scenes or kernels x CPUs x memories x overrides) into one table."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from ..parallel import check_jobs
-    from ..sweep import load_spec, run_sweep
+    from sim.parallel import check_jobs
+    from sim.sweep import load_spec, run_sweep
 
     if scheduler not in ("local", "serial") and not scheduler.startswith(("tcp://", "tls://", "inproc://")):
         raise ArgumentError(f"--scheduler '{scheduler}': expected local, serial or tcp://HOST:PORT")

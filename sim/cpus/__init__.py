@@ -6,9 +6,9 @@ import copy
 import math
 import re
 
-from ..errors import RetrosimError
-from ..memory import dram
-from . import presets
+from sim.errors import RetrosimError
+from sim.memory import dram
+from sim.cpus import presets
 
 
 def memory_presets() -> list[str]:
@@ -16,7 +16,7 @@ def memory_presets() -> list[str]:
 
 
 def load_dram(name: str) -> dram.DramTiming:
-    """A memory preset (sim/cpus/presets/memory/NAME.toml), or one clear error."""
+    """A memory preset (sim/memory/presets/NAME.toml), or one clear error."""
     try:
         return dram.load_memory_preset(name)
     except ValueError as e:
@@ -28,9 +28,9 @@ def load_dram(name: str) -> dram.DramTiming:
 def _family_estimates(family: str) -> dict:
     """The family model's ESTIMATES (name -> (value, reason))."""
     if family == "p6":
-        from .p6 import ESTIMATES
+        from sim.cpus.p6 import ESTIMATES
     elif family == "k6":
-        from .k6 import ESTIMATES
+        from sim.cpus.k6 import ESTIMATES
     else:
         return {}
     return ESTIMATES
@@ -214,15 +214,15 @@ def make_model(cpu: str, memory: str | None = None, overrides: dict | None = Non
     mem = load_dram(memory or preset.memory)
     try:
         if preset.family == "p6":
-            from .p6 import P6Model
+            from sim.cpus.p6 import P6Model
 
             return P6Model(preset, mem, estimates)
         if preset.family == "k6":
-            from .k6 import K6Model
+            from sim.cpus.k6 import K6Model
 
             return K6Model(preset, mem, estimates)
         if preset.family == "p5":
-            from .p5 import P5Model
+            from sim.cpus.p5 import P5Model
 
             return P5Model(preset, mem, estimates)
     except ValueError as e:  # e.g. an overridden cache geometry that is no cache

@@ -44,22 +44,24 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..decode import Decoder, InsnRecord
-from ..elf import EXIT_ADDR
-from ..errors import RetrosimError
-from ..memory.cache import CacheGeometry
-from ..memory.dram import DramTiming, bus_ratio, core_clocks, line_costs
-from ..memory.hierarchy import Hierarchy
-from ..memory.replay import NO_LOG, AccessLogs
-from ..trace import Trace
-from . import k6_core as core
-from .locking import lock_cost, locked_match
-from .lowering import BRANCH, COMPUTE, DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE, LOAD, STA, StaticProgram, lower
-from .p6 import CoreRun, DramCost
-from . import vocabulary
-from .presets import CpuPreset, dram_overhead, model_by_cpuid
-from .session import CoreSession, grown_state
-from .table import TABLES, InstructionTable, Match, load_table
+from sim.guest.decode import Decoder, InsnRecord
+from sim.guest.elf import EXIT_ADDR
+from sim.errors import RetrosimError
+from sim.memory.cache import CacheGeometry
+from sim.memory.dram import DramTiming, bus_ratio, core_clocks, line_costs
+from sim.memory.hierarchy import Hierarchy
+from sim.memory.replay import NO_LOG, AccessLogs
+from sim.guest.trace import Trace
+from sim.cpus import k6_core as core
+from sim.cpus.locking import lock_cost, locked_match
+from sim.cpus.lowering import (
+    BRANCH, COMPUTE, DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE, LOAD, STA, StaticProgram, lower,
+)
+from sim.cpus.p6 import CoreRun, DramCost
+from sim.cpus import vocabulary
+from sim.cpus.presets import CpuPreset, dram_overhead, model_by_cpuid
+from sim.cpus.session import CoreSession, grown_state
+from sim.cpus.table import TABLES, InstructionTable, Match, load_table
 
 # Model choices with no figure in the sources (each says why it is what it is).
 ESTIMATES = {

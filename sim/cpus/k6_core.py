@@ -44,21 +44,24 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..memory.hierarchy import S_FILLS, S_WRITEBACKS, memory_fills, memory_writebacks, served_level, service
-from ..memory.replay import LOG_OFF, LOGGED_HIT, logged_service, replayed_hit
-from .lowering import BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, LOAD, NREGS, REG_ST0, STA
-from .p6_core import (C_BRANCHES, C_DECODE_GROUPS, C_DECODER0, C_DRAM_BUS_CYCLES, C_DRAM_FILLS, C_DRAM_WRITEBACKS,
-                      C_INSTRUCTIONS, C_L1D_LOAD_MISSES, C_L1D_LOADS, C_L1D_STORE_MISSES, C_L1D_STORES,
-                      C_L1I_MISSES, C_L2_ACCESSES, C_L2_MISSES, C_LCP_STALLS, C_MISPREDICTS, C_MSROM_UOPS,
-                      C_NAMES as P6_C_NAMES, C_PORT0, C_STALL_DECODE, C_STALL_DEPENDENCY, C_STALL_FETCH,
-                      C_STALL_MEMORY, C_STALL_MISPREDICT, C_STALL_PARTIAL_REGISTER, C_STALL_PORT, C_STALL_ROB,
-                      C_STALL_STORE_BUFFER, C_STALL_STORE_FORWARD, C_STORE_FORWARDS, C_UOPS, C_CYCLES,
-                      CAUSES, NT, S_DECODE_TO_RETIRE, S_DECODER0, S_EXECUTIONS, S_ISSUE_TO_RETIRE, S_L1D_MISSES,
-                      S_L2_MISSES, S_MISPREDICTS, S_MSROM, S_NAMES as P6_S_NAMES, S_PORT0, S_STALL_DECODE,
-                      S_STALL_DEPENDENCY, S_STALL_MEMORY, S_STALL_MISPREDICT, S_STALL_PARTIAL, S_STALL_PORT,
-                      S_STALL_STORE_FORWARD, S_STALL_WINDOW, S_UOPS, T_NAMES, WINDOW, _book_port as _p6_book_port,
-                      _btb_alloc, FW, _queued_store, _remember_store)
-from ..memory.cache import HOT
+from sim.memory.hierarchy import S_FILLS, S_WRITEBACKS, memory_fills, memory_writebacks, served_level, service
+from sim.memory.replay import LOG_OFF, LOGGED_HIT, logged_service, replayed_hit
+from sim.cpus.lowering import (
+    BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, LOAD, NREGS, REG_ST0, STA,
+)
+from sim.cpus.p6_core import (
+    C_BRANCHES, C_DECODE_GROUPS, C_DECODER0, C_DRAM_BUS_CYCLES, C_DRAM_FILLS, C_DRAM_WRITEBACKS,
+    C_INSTRUCTIONS, C_L1D_LOAD_MISSES, C_L1D_LOADS, C_L1D_STORE_MISSES, C_L1D_STORES, C_L1I_MISSES,
+    C_L2_ACCESSES, C_L2_MISSES, C_LCP_STALLS, C_MISPREDICTS, C_MSROM_UOPS, C_NAMES as P6_C_NAMES, C_PORT0,
+    C_STALL_DECODE, C_STALL_DEPENDENCY, C_STALL_FETCH, C_STALL_MEMORY, C_STALL_MISPREDICT,
+    C_STALL_PARTIAL_REGISTER, C_STALL_PORT, C_STALL_ROB, C_STALL_STORE_BUFFER, C_STALL_STORE_FORWARD,
+    C_STORE_FORWARDS, C_UOPS, C_CYCLES, CAUSES, NT, S_DECODE_TO_RETIRE, S_DECODER0, S_EXECUTIONS,
+    S_ISSUE_TO_RETIRE, S_L1D_MISSES, S_L2_MISSES, S_MISPREDICTS, S_MSROM, S_NAMES as P6_S_NAMES, S_PORT0,
+    S_STALL_DECODE, S_STALL_DEPENDENCY, S_STALL_MEMORY, S_STALL_MISPREDICT, S_STALL_PARTIAL, S_STALL_PORT,
+    S_STALL_STORE_FORWARD, S_STALL_WINDOW, S_UOPS, T_NAMES, WINDOW, _book_port as _p6_book_port, _btb_alloc,
+    FW, _queued_store, _remember_store,
+)
+from sim.memory.cache import HOT
 
 __all__ = ["C_NAMES", "S_NAMES", "T_NAMES", "CAUSES", "NC", "NS", "NT", "simulate"]
 

@@ -31,9 +31,9 @@ import math
 from dataclasses import dataclass, replace
 from fractions import Fraction
 
-from ..decode import InsnRecord
-from ..errors import RetrosimError
-from .table import Match
+from sim.guest.decode import InsnRecord
+from sim.errors import RetrosimError
+from sim.cpus.table import Match
 
 KINDS = ("lock", "xchg")  # a LOCK-prefixed read-modify-write; XCHG with a memory operand
 

@@ -39,9 +39,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..decode import InsnRecord
-from ..errors import RetrosimError
-from .table import InstructionTable, Match
+from sim.guest.decode import InsnRecord
+from sim.errors import RetrosimError
+from sim.cpus.table import InstructionTable, Match
 
 # FNSAVE reads the eight x87 registers, the control and status words and up to three address
 # registers (13); FRSTOR writes ten; PUSHAD reads eight: 16 covers every instruction.

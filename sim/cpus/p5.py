@@ -26,20 +26,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..decode import Decoder, InsnRecord
-from ..errors import RetrosimError
-from ..memory.cache import CacheGeometry
-from ..memory.dram import DramTiming, bus_ratio, core_clocks
-from ..memory.hierarchy import Hierarchy, family_policies
-from ..trace import Trace, access_spans
-from . import p5_core as core
-from .k6 import dram_cost as socket7_dram_cost
-from .locking import lock_cost, locked_match
-from .lowering import COMPUTE, DEC_SIMPLE, GPRS, PART_MASK, StaticProgram, lower
-from .p6 import CoreRun
-from .presets import CpuPreset, model_by_cpuid
-from .session import CoreSession, grown_state
-from .table import TABLES, InstructionTable, Match, load_table
+from sim.guest.decode import Decoder, InsnRecord
+from sim.errors import RetrosimError
+from sim.memory.cache import CacheGeometry
+from sim.memory.dram import DramTiming, bus_ratio, core_clocks
+from sim.memory.hierarchy import Hierarchy, family_policies
+from sim.guest.trace import Trace, access_spans
+from sim.cpus import p5_core as core
+from sim.cpus.k6 import dram_cost as socket7_dram_cost
+from sim.cpus.locking import lock_cost, locked_match
+from sim.cpus.lowering import COMPUTE, DEC_SIMPLE, GPRS, PART_MASK, StaticProgram, lower
+from sim.cpus.p6 import CoreRun
+from sim.cpus.presets import CpuPreset, model_by_cpuid
+from sim.cpus.session import CoreSession, grown_state
+from sim.cpus.table import TABLES, InstructionTable, Match, load_table
 
 CLASSES = {"NP": core.NP, "UV": core.UV, "PU": core.PU, "PV": core.PV, "FX": core.FX, "FXCH": core.FXCH,
            "MMX": core.MMX}

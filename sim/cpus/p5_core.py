@@ -47,9 +47,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..memory.hierarchy import memory_fills, memory_writebacks, served_level, service
-from .lowering import BR_COND, BR_NONE, BR_RET, REG_ST0
-from .p6_core import _btb_alloc  # shared BTB victim choice (LRU by last use)
+from sim.memory.hierarchy import memory_fills, memory_writebacks, served_level, service
+from sim.cpus.lowering import BR_COND, BR_NONE, BR_RET, REG_ST0
+from sim.cpus.p6_core import _btb_alloc  # shared BTB victim choice (LRU by last use)
 
 # parameter vector indices
 (P_PFX_0F, P_AGI, P_MISALIGNED, P_BANK, P_NWB, P_WRITE_BUS, P_MISP_U, P_MISP_V, P_BTB_SETS, P_BTB_WAYS,

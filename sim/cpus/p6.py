@@ -11,21 +11,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..decode import Decoder
-from ..elf import EXIT_ADDR
-from ..memory.cache import CacheGeometry
-from ..errors import RetrosimError
-from ..memory.dram import DramTiming, line_costs
-from ..memory.hierarchy import Hierarchy, family_policies
-from ..memory.replay import NO_LOG, AccessLogs
-from ..trace import Trace
-from . import p6_core as core
-from . import vocabulary
-from .locking import lock_cost, locked_match
-from .lowering import P6Limits, StaticProgram, lower
-from .presets import CacheSpec, CpuPreset, dram_overhead
-from .session import CoreSession, grown_state
-from .table import TABLES, InstructionTable, load_table
+from sim.guest.decode import Decoder
+from sim.guest.elf import EXIT_ADDR
+from sim.memory.cache import CacheGeometry
+from sim.errors import RetrosimError
+from sim.memory.dram import DramTiming, line_costs
+from sim.memory.hierarchy import Hierarchy, family_policies
+from sim.memory.replay import NO_LOG, AccessLogs
+from sim.guest.trace import Trace
+from sim.cpus import p6_core as core
+from sim.cpus import vocabulary
+from sim.cpus.locking import lock_cost, locked_match
+from sim.cpus.lowering import P6Limits, StaticProgram, lower
+from sim.cpus.presets import CacheSpec, CpuPreset, dram_overhead
+from sim.cpus.session import CoreSession, grown_state
+from sim.cpus.table import TABLES, InstructionTable, load_table
 
 # Model choices with no figure in the sources (each says why it is what it is).
 ESTIMATES = {

@@ -32,13 +32,17 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..memory.cache import LOAD as CACHE_LOAD
-from ..memory.cache import LRU, STORE as CACHE_STORE
-from ..memory.hierarchy import (CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS, CFG_WRITE_BACK,
-                                memory_fills, memory_writebacks, served_level, service)
-from ..memory.replay import LOG_OFF, LOG_RECORD, LOG_REPLAY, logged_service, record_hit, replayed_hit
-from .lowering import (BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM,
-                       DEC_SIMPLE, LOAD, NREGS, OCC_SCALE, REG_FLAGS, REG_ST0, SIDE, STA, STD)
+from sim.memory.cache import LOAD as CACHE_LOAD
+from sim.memory.cache import LRU, STORE as CACHE_STORE
+from sim.memory.hierarchy import (
+    CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS, CFG_WRITE_BACK, memory_fills,
+    memory_writebacks, served_level, service,
+)
+from sim.memory.replay import LOG_OFF, LOG_RECORD, LOG_REPLAY, logged_service, record_hit, replayed_hit
+from sim.cpus.lowering import (
+    BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, DEC_SIMPLE, LOAD, NREGS, OCC_SCALE,
+    REG_FLAGS, REG_ST0, SIDE, STA, STD,
+)
 
 # parameter vector indices
 (P_ROB, P_RS, P_RENAME, P_RETIRE, P_QUEUE, P_FETCH_BLOCK, P_L1_LAT, P_L2_LAT, P_DRAM_LAT, P_DRAM_LINE,

@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..decode import InsnRecord
-from ..trace import Trace
-from .table import InstructionTable
+from sim.guest.decode import InsnRecord
+from sim.guest.trace import Trace
+from sim.cpus.table import InstructionTable
 
 
 def split_by_precision(records: list[InsnRecord], index: np.ndarray, trace: Trace, table: InstructionTable

@@ -7,7 +7,7 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import RetrosimError
+from sim.errors import RetrosimError
 
 PRESETS = Path(__file__).resolve().parent / "presets"
 
@@ -68,7 +68,7 @@ def available() -> list[str]:
 
 def load(name: str) -> CpuPreset:
     if "{" in name:  # a machine label: the preset with its overrides (sim.cpus.machine_label)
-        from . import load_preset
+        from sim.cpus import load_preset
 
         return load_preset(name)
     path = PRESETS / f"{name}.toml"

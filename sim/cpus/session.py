@@ -17,10 +17,10 @@ import threading
 
 import numpy as np
 
-from ..decode import Decoder, InsnRecord
-from ..trace import Trace
-from .precision import split_by_precision
-from .table import InstructionTable
+from sim.guest.decode import Decoder, InsnRecord
+from sim.guest.trace import Trace
+from sim.cpus.precision import split_by_precision
+from sim.cpus.table import InstructionTable
 
 
 class Statics:

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 
-from ..errors import RetrosimError
+from sim.errors import RetrosimError
 
 TABLES = Path(__file__).resolve().parent / "tables"
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass, field
 
-from ..errors import RetrosimError
+from sim.errors import RetrosimError
 
 # Stall kinds shared by the per-instruction table, the timeline and the reports: (key, short
 # column title). The help text of each is family-specific (Vocabulary.stall_help).
@@ -123,7 +123,7 @@ def of(model) -> Vocabulary:
 @functools.cache
 def for_preset(cpu: str) -> Vocabulary:
     """The vocabulary of a CPU preset's model (GENERIC for a family with no model yet)."""
-    from . import make_model
+    from sim.cpus import make_model
 
     try:
         return of(make_model(cpu))

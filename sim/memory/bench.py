@@ -6,7 +6,7 @@ import time
 
 import numpy as np
 
-from .hierarchy import Hierarchy, simulate
+from sim.memory.hierarchy import Hierarchy, simulate
 
 
 def synthetic_trace(n: int, seed: int = 1998) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -1,6 +1,6 @@
 """Main-memory timing: the cost of a 32-byte line fill or writeback over the front-side bus.
 
-Presets live in ``sim/cpus/presets/memory/NAME.toml`` (field names and sources are the research
+Presets live in ``sim/memory/presets/NAME.toml`` (field names and sources are the research
 colleague's). Timings there are in *bus* clocks as an x-y-y-y burst: x for the first 64-bit
 transfer (the lead-off: row/column access plus chipset), y for each of the three more transfers of
 a 32-byte line (EDO 5-2-2-2 = 11, PC66 SDRAM 5-1-1-1 = 8, PC100 SDRAM 4-1-1-1 = 7).
@@ -46,9 +46,9 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from .cache import HOT
+from sim.memory.cache import HOT
 
-MEMORY_PRESETS_DIR = Path(__file__).resolve().parent.parent / "cpus" / "presets" / "memory"
+MEMORY_PRESETS_DIR = Path(__file__).resolve().parent / "presets"
 TRANSFERS_PER_LINE = 4  # 32-byte line over the 64-bit P6/Socket 7 data bus
 
 DEFAULT_ROW_BYTES = 4096
@@ -104,7 +104,7 @@ def available_memory_presets() -> list[str]:
 
 
 def load_memory_preset(name: str) -> DramTiming:
-    """The memory preset ``sim/cpus/presets/memory/NAME.toml``, checked for consistency."""
+    """The memory preset ``sim/memory/presets/NAME.toml``, checked for consistency."""
     path = MEMORY_PRESETS_DIR / f"{name}.toml"
     if not path.is_file():
         raise ValueError(f"unknown memory preset {name!r} (available: {', '.join(available_memory_presets())})")

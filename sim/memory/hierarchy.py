@@ -35,9 +35,10 @@ from typing import Sequence
 import numpy as np
 from numba import njit
 
-from .cache import (ALLOC_ALWAYS, ALLOC_PAGE_SECTOR, ALLOCATED, DIRTY_VICTIM, EVICT, FETCH, FORWARD, HIT,
-                    HOT, LOAD, PAGE_BITS, PAGE_SECTOR, STORE, WRITEBACK, CacheGeometry, CacheState,
-                    lookup, victim_address)
+from sim.memory.cache import (
+    ALLOC_ALWAYS, ALLOC_PAGE_SECTOR, ALLOCATED, DIRTY_VICTIM, EVICT, FETCH, FORWARD, HIT, HOT, LOAD,
+    PAGE_BITS, PAGE_SECTOR, STORE, WRITEBACK, CacheGeometry, CacheState, lookup, victim_address,
+)
 
 MAX_LEVELS = 3
 POLICIES_FILE = Path(__file__).with_name("policies.toml")

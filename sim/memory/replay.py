@@ -19,8 +19,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .cache import HOT
-from .hierarchy import LINES_SHIFT, S_FILLS, S_WRITEBACKS, service
+from sim.memory.cache import HOT
+from sim.memory.hierarchy import LINES_SHIFT, S_FILLS, S_WRITEBACKS, service
 
 LOG_OFF, LOG_RECORD, LOG_REPLAY, LOG_OVERFLOW = 0, 1, 2, 3
 LOG_HEADER = 2

@@ -1,0 +1,169 @@
+"""Per-CPU instruction sets: which extension an instruction needs, what each preset has, and how a
+kernel is assembled for a preset.
+
+A preset (sim/cpus/presets/*.toml) declares ``isa_extensions`` (from the vocabulary below) and the
+assembler's CPU names: ``gnu_march`` (GNU as ``-march=``) and ``zig_mcpu`` (clang ``-mcpu=``).
+The base set of every modelled family is i586 (CPUID, CMPXCHG8B, RDTSC; Intel SDM vol. 2,
+"CPUID: Feature Information"); the extensions on top of it are:
+
+- ``cmov``   CMOVcc (CPUID.01H:EDX.CMOV; Pentium Pro and later; no K6 has it)
+- ``fcmov``  FCMOVcc and FCOMI/FCOMIP/FUCOMI/FUCOMIP (present when CMOV and FPU are; Intel SDM
+             vol. 2, FCMOVcc and FCOMI "IA-32 Architecture Compatibility")
+- ``mmx``    MMX (Pentium MMX, Pentium II and later, every K6)
+- ``sse``    SSE with its MMX-register additions, PREFETCHh, SFENCE, MOVNTQ, MASKMOVQ (Pentium III)
+- ``3dnow``  3DNow!, FEMMS, PREFETCH/PREFETCHW (AMD "3DNow! Technology Manual" 21928; K6-2, K6-III)
+- ``sse2``   SSE2 and the later SIMD sets (SSE3 adds the x87 FISTTP): the Pentium 4 and later, so no
+             modelled CPU has it; listed so that their encodings are refused, not left without a row
+- ``nopl``   the multi-byte NOP 0F 1F /0 (Intel SDM vol. 2 NOP: processors with CPUID family 6,
+             i.e. every P6; not the family-5 P5 and K6, where GNU as refuses it too)
+- ``fxsr``   FXSAVE/FXRSTOR (CPUID.01H:EDX bit 24 FXSR: set on the Pentium II model 5 and later P6
+             cores, clear on the Pentium Pro, the Pentium II model 3 and every K6 and P5; InstLatX64
+             CPUID dumps GenuineIntel0000617, 0633, 0651, 0660, AuthenticAMD0000562)
+
+PAUSE (F3 90) needs nothing: it is REP NOP, which every IA-32 processor before the Pentium 4
+executes as a NOP (Intel SDM vol. 2, PAUSE), although capstone files it under SSE2.
+
+Privileged and system instructions (HLT, CLI/STI, IN/OUT, LGDT, ...) are never part of a user
+kernel: they fault at CPL 3, so no user-mode timing exists for them.
+"""
+
+from __future__ import annotations
+
+from sim.guest.decode import InsnRecord
+from sim.errors import RetrosimError
+
+EXTENSIONS = ("cmov", "fcmov", "mmx", "sse", "3dnow", "fxsr", "sse2", "nopl")
+
+# MMX-register instructions that came with SSE (Intel SDM vol. 1, "SSE 64-bit SIMD integer
+# instructions") and the SSE cacheability instructions; capstone files the former under 'mmx'.
+_SSE_MMX = frozenset("pavgb pavgw pextrw pinsrw pmaxsw pmaxub pminsw pminub pmovmskb pmulhuw psadbw "
+                     "pshufw maskmovq movntq sfence prefetchnta prefetcht0 prefetcht1 prefetcht2".split())
+_SSE_UNGROUPED = frozenset({"cvtss2si"})  # SSE instructions capstone 5 puts in no group
+_3DNOW = frozenset({"femms", "prefetch", "prefetchw"})
+_FCMOV = frozenset({"fcomi", "fcompi", "fucomi", "fucompi"})
+_FXSR = frozenset({"fxsave", "fxrstor"})
+_NO_EXTENSION = frozenset({"pause"})  # REP NOP: a NOP before the Pentium 4 (module docstring)
+_SSE2_GROUPS = frozenset({"sse2", "sse3", "ssse3", "sse41", "sse42", "sse4a"})
+_SSE3_X87 = frozenset({"fisttp"})  # an x87 opcode (DB /1, DD /1, DF /1) that came with SSE3
+
+# System instructions that capstone does not put in its 'privilege' group but that a user-mode
+# kernel may not run: port I/O (IOPL 0 under every OS of the period), software interrupts and
+# fast system calls (they leave the kernel's code), segment/descriptor loads.
+_SYSTEM = frozenset("in out insb insw insd outsb outsw outsd int int1 int3 into iret iretd sysenter sysexit "
+                    "syscall sysret lldt sldt ltr str lmsw smsw lar lsl verr verw arpl clts ud2 ud0 ud1 "
+                    "lcall ljmp retf".split())
+
+# What a family lacks, in words, for the refusal message.
+_WHY = {
+    "cmov": "has no CMOV",
+    "fcmov": "has no FCMOV/FCOMI",
+    "mmx": "has no MMX",
+    "sse": "has no SSE",
+    "3dnow": "has no 3DNow!",
+    "fxsr": "has no FXSAVE/FXRSTOR (CPUID FXSR)",
+    "sse2": "has no SSE2 or later SIMD extension",
+    "nopl": "has no multi-byte NOP (0F 1F)",
+}
+_FAMILY_NAME = {"p6": "the P6 family", "k6": "the K6 family", "p5": "the P5 family"}
+
+
+class IsaError(RetrosimError):
+    """A kernel uses an instruction its CPU preset does not have, or a system instruction."""
+
+
+def required_extension(mnemonic: str, groups: frozenset[str] | set[str]) -> str | None:
+    """The extension an instruction needs beyond i586, or None."""
+    if mnemonic in _NO_EXTENSION:
+        return None
+    if mnemonic in _FXSR:
+        return "fxsr"
+    if mnemonic in _SSE3_X87 or groups & _SSE2_GROUPS:
+        return "sse2"
+    if mnemonic in _SSE_MMX or mnemonic in _SSE_UNGROUPED or any(g.startswith("sse") for g in groups):
+        return "sse"
+    if mnemonic in _3DNOW or "3dnow" in groups:
+        return "3dnow"
+    if mnemonic in _FCMOV or mnemonic.startswith("fcmov"):
+        return "fcmov"
+    if "cmov" in groups:
+        return "cmov"
+    if "mmx" in groups:
+        return "mmx"
+    return None
+
+
+_3DNOW_NAMES = frozenset({"pavgusb", "pmulhrw", "pswapd"})
+
+
+def mnemonic_extension(name: str) -> str | None:
+    """The extension a mnemonic belongs to, from its name alone (for assembler messages, where
+    there is no decoded instruction): the families' naming conventions."""
+    name = name.lower()
+    if name in _NO_EXTENSION:
+        return None
+    if name.startswith("fcmov") or name in _FCMOV:
+        return "fcmov"
+    if name.startswith("cmov"):
+        return "cmov"
+    if name in _3DNOW or name in _3DNOW_NAMES or name.startswith(("pf", "pi2f")):
+        return "3dnow"
+    if name in _FXSR:
+        return "fxsr"
+    if name in _SSE3_X87 or name == "movnti":
+        return "sse2"
+    if name in _SSE_MMX or name.endswith(("ps", "ss")) or name in ("ldmxcsr", "stmxcsr"):
+        return "sse"
+    if name in ("emms", "movd", "movq") or name.startswith("p"):
+        return "mmx"
+    return None
+
+
+def is_system(rec: InsnRecord) -> bool:
+    return "privilege" in rec.groups or rec.mnemonic in _SYSTEM
+
+
+def extensions_of(preset) -> frozenset[str]:
+    return frozenset(preset.raw.get("isa_extensions", ()))
+
+
+def march(preset, assembler: str) -> str:
+    """The assembler's CPU name for a preset (GNU as -march= / clang -mcpu=)."""
+    key = "zig_mcpu" if assembler == "zig" else "gnu_march"
+    value = preset.raw.get(key)
+    if not value:
+        raise RetrosimError(f"CPU preset '{preset.name}': missing field '{key}' (the assembler's name for the CPU)")
+    return value
+
+
+# Extensions no CPU of a family has (the refusal then names the family, not the preset).
+_FAMILY_LACKS = {"k6": {"cmov", "fcmov", "sse", "fxsr", "sse2", "nopl"}, "p6": {"3dnow", "sse2"},
+                 "p5": {"cmov", "fcmov", "sse", "3dnow", "fxsr", "sse2", "nopl"}}
+
+
+def record_extension(rec: InsnRecord) -> str | None:
+    """The extension a decoded instruction needs (:func:`required_extension`, plus what only the
+    encoding tells: NOP with the 0F escape is the multi-byte NOP)."""
+    if rec.mnemonic == "nop" and rec.escape_0f:
+        return "nopl"
+    return required_extension(rec.mnemonic, rec.groups)
+
+
+def why_missing(preset, ext: str) -> str:
+    if ext in _FAMILY_LACKS.get(preset.family, ()):
+        return f"{_FAMILY_NAME.get(preset.family, preset.family)} {_WHY[ext]}"
+    return f"{preset.name} {_WHY[ext]}"
+
+
+def check_record(rec: InsnRecord, preset, where) -> None:
+    """Raise IsaError if `rec` may not run on `preset` (a system instruction or a missing extension).
+    `where`: the location for the message, or a callable making it (only called on an error)."""
+    if not is_system(rec) and record_extension(rec) in (None, *extensions_of(preset)):
+        return
+    where = where() if callable(where) else where
+    text = f"{rec.mnemonic} {rec.op_str}".strip()
+    if is_system(rec):
+        raise IsaError(f"{where}: {text} is a privileged or system instruction; a user-mode kernel cannot "
+                       f"execute it on {preset.name} (it faults at CPL 3), so it has no timing")
+    ext = record_extension(rec)
+    if ext is not None and ext not in extensions_of(preset):
+        raise IsaError(f"{where}: {rec.mnemonic} is not available on {preset.name} ({why_missing(preset, ext)})")

@@ -1,0 +1,855 @@
+"""Texture-mapping scenes (``kind = "texture"``): the span renderers of "Texture Mapping
+Optimization for Games" (John DiCamillo), step by step (kernels/texture/persp.S, the model of their
+arithmetic in sim/texture_frame.py), on a perspective-correct textured frame; error against the
+exact mapping, cycles per pixel per CPU, the article's component figures measured by probes, and
+its claims checked.
+
+Format::
+
+    [scene]
+    kind = "texture"                # required for this kind
+    name = "texture-article"        # required; must equal the file stem
+    description = "..."             # optional
+    width = 640                     # required, pixels (at most 4096)
+    height = 480                    # required, pixels (at most 4096)
+
+    [geometry]
+    generator = "grid"              # the screen tiled by a jittered grid, two triangles per cell
+    seed = 1997                     # required
+    columns = 5                     # required, 1..64
+    rows = 4                        # required, 1..64
+    w_range = [1.0, 3.0]            # optional: vertex depths (0 < lo <= hi)
+    st_range = [40.0, 216.0]        # optional: vertex texture coordinates in texels (0 <= lo <= hi <= 256)
+
+    [run]
+    variants = ["a", "b", "c", "d", "e"]   # required: the article's steps (sim.texture_frame.VARIANTS)
+    cpus = ["pentium-133", "k6-2-300"]     # required: CPU preset[:memory preset]
+    timing_stride = 4               # optional (default 1): time every n-th span of the frame (a
+                                    #   representative subset; every pixel is still checked)
+
+    [[claims]]                      # optional, repeatable
+    text = "..."                    # required: the article's words
+    quantity = "cycles_per_pixel"   # required: see QUANTITIES
+    variants = ["a"]                # one variant for cycles_per_pixel, two for cycles_ratio and
+                                    #   cycles_saved; none for the probes
+    expect = "about"                # required: about | at_most | at_least | between
+    value = 28.0                    # about / at_most / at_least
+    tolerance = 0.25                # about: a fraction of value (default 0.1) ...
+    within = 2.0                    # ... or an absolute margin instead
+    range = [0.0, 1.0]              # between
+    cpus = ["pentium-133"]          # the machines its words cover (presets, any memory) ...
+    families = ["p5"]               # ... and/or whole families; at least one covered machine must run
+
+Claims are checked on every covered machine of the run, each with the counters that explain it;
+they are not re-timed over the models' estimates (sim.claims does that for Z-buffer scenes only).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from sim.scenes.texture import frame as F
+from sim.cpus import family_of
+from sim.errors import RetrosimError
+from sim.guest.kernels import kernels_root
+from sim.scenes.zbuffer.scene import CpuChoice, _show, _Validator
+
+QUANTITIES = {
+    "cycles_per_pixel": "cycles per pixel of a variant's frame",
+    "cycles_ratio": "cycles per pixel of variants[0] / variants[1]",
+    "cycles_saved": "cycles per pixel of variants[0] - variants[1]",
+    "ftol_call": "clocks one _ftol conversion adds, call included, over FLD / FSTP ST(0)",
+    "ftol_per_subspan": "clocks the two _ftol conversions of a 16-pixel sub-span add (twice ftol_call)",
+    "fistp": "clocks one FISTP conversion adds over FLD / FSTP ST(0)",
+    "fdiv_serial": "clocks a 16-pixel sub-span's FLD1 / FDIV / FSTP add when FSTP follows FDIV (64-bit precision)",
+    "fdiv_serial_24": "the same at 24-bit precision",
+    "fdiv_precision_saving": "fdiv_serial - fdiv_serial_24: what 24-bit precision saves on a waited-for divide",
+    "fdiv_overlapped": "clocks FLD1 / FDIV before the inner loop and FSTP after it add (64-bit precision)",
+    "timesnap_overhead": "stop - start of two back-to-back TIMESNAPs, from the model's RDTSC answers",
+    "span_setup_saving": "clocks per span of b's set-up minus c's (spans of 0 pixels)",
+}
+VARIANT_QUANTITIES = {"cycles_per_pixel": 1, "cycles_ratio": 2, "cycles_saved": 2}
+EXPECTATIONS = ("about", "at_most", "at_least", "between")
+COUNTERS = ("cycles", "instructions", "uops", "decode_groups", "l1d_load_misses", "l1d_store_misses", "l2_misses",
+            "dram_fills", "mispredicts")
+MAX_SIDE = 4096
+PROBE_N = 64        # probe loops: iterations at n and 2n, the difference per iteration
+SETUP_SPANS = 16    # zero-pixel spans at n and 2n for the set-up probe
+
+_SCENE_KEYS = {"kind": ("str", True), "name": ("str", True), "description": ("str", False), "width": ("int", True),
+               "height": ("int", True)}
+_GEOMETRY_KEYS = {"generator": ("str", True), "seed": ("int", True), "columns": ("int", True), "rows": ("int", True),
+                  "w_range": ("any", False), "st_range": ("any", False)}
+_RUN_KEYS = {"variants": ("strlist", True), "cpus": ("strlist", True), "timing_stride": ("int", False)}
+_CLAIM_KEYS = {"text": ("str", True), "quantity": ("str", True), "variants": ("strlist", False),
+               "expect": ("str", True), "value": ("number", False), "tolerance": ("number", False),
+               "within": ("number", False), "range": ("any", False), "cpus": ("strlist", False),
+               "families": ("strlist", False)}
+
+
+# ---------------------------------------------------------------------------------------------
+# the scene
+
+@dataclass(frozen=True)
+class TextureClaim:
+    text: str
+    quantity: str
+    variants: tuple[str, ...]
+    expect: str
+    value: float | None = None
+    tolerance: float | None = None
+    within: float | None = None
+    range: tuple[float, float] | None = None
+    cpus: tuple[str, ...] = ()
+    families: tuple[str, ...] = ()
+
+    def covers(self, preset: str, family: str) -> bool:
+        return family in self.families or preset.split("{")[0] in self.cpus
+
+    def holds(self, x: float) -> bool:
+        if self.expect == "between":
+            return self.range[0] <= x <= self.range[1]
+        if self.expect == "at_most":
+            return x <= self.value
+        if self.expect == "at_least":
+            return x >= self.value
+        margin = self.within if self.within is not None else (self.tolerance if self.tolerance is not None else 0.1) * abs(self.value)
+        return abs(x - self.value) <= margin
+
+    def describe(self) -> str:
+        what = self.quantity + (f" ({', '.join(self.variants)})" if self.variants else "")
+        if self.expect == "between":
+            return f"{what} between {self.range[0]:g} and {self.range[1]:g}"
+        if self.expect in ("at_most", "at_least"):
+            return f"{what} {self.expect.replace('_', ' ')} {self.value:g}"
+        margin = f"+-{self.within:g}" if self.within is not None else f"+-{(self.tolerance if self.tolerance is not None else 0.1):.0%}"
+        return f"{what} about {self.value:g} ({margin})"
+
+    def coverage(self) -> str:
+        return ", ".join(list(self.cpus) + [f"every {f.upper()} preset" for f in self.families])
+
+
+@dataclass(frozen=True)
+class TextureScene:
+    path: Path
+    name: str
+    description: str
+    width: int
+    height: int
+    seed: int
+    columns: int
+    rows: int
+    w_range: tuple[float, float]
+    st_range: tuple[float, float]
+    variants: tuple[str, ...]
+    machines: tuple[CpuChoice, ...]
+    timing_stride: int = 1
+    claims: tuple[TextureClaim, ...] = ()
+    kind: str = "texture"
+
+    @property
+    def cpus(self) -> list[str]:
+        return [m.label for m in self.machines]
+
+    @property
+    def frames(self) -> int:
+        return 1
+
+    def build_geometry(self) -> F.TexturedGeometry:
+        return F.grid_scene(self.width, self.height, self.columns, self.rows, self.seed, self.w_range, self.st_range)
+
+
+def _pair(v: _Validator, table: dict, key: str, default, lo_min: float, hi_max: float, strict_lo: bool) -> tuple:
+    if key not in table:
+        return default
+    x = table[key]
+    if (not isinstance(x, list) or len(x) != 2 or any(isinstance(e, bool) or not isinstance(e, (int, float)) for e in x)
+            or not all(math.isfinite(e) for e in x)):
+        v.fail(f"geometry.{key}", f"expected an array of two numbers [lo, hi], got {_show(x)}", "geometry", key)
+    lo, hi = float(x[0]), float(x[1])
+    if not ((lo > lo_min if strict_lo else lo >= lo_min) and lo <= hi <= hi_max):
+        v.fail(f"geometry.{key}", f"need {lo_min:g} {'<' if strict_lo else '<='} lo <= hi <= {hi_max:g}, got {_show(x)}",
+               "geometry", key)
+    return lo, hi
+
+
+def load(path: Path, text: str, doc: dict) -> TextureScene:
+    """Validate a parsed texture scene (sim.scene.load_scene dispatches here on [scene].kind)."""
+    from sim.cpus import presets as cpu_presets
+
+    v = _Validator(path, text)
+    for key in doc:
+        if key not in ("scene", "geometry", "run", "claims"):
+            v.fail(key, "unknown table (allowed: scene, geometry, run, claims)")
+    sc = v.table(doc, "scene")
+    v.keys(sc, _SCENE_KEYS, "scene", note=" for kind 'texture'")
+    name = v.typed(sc, "name", "str", "scene")
+    if name != path.stem:
+        v.fail("scene.name", f"'{name}' must equal the file name '{path.stem}'", "scene", "name")
+    width, height = v.typed(sc, "width", "int", "scene"), v.typed(sc, "height", "int", "scene")
+    for key, val in (("width", width), ("height", height)):
+        v.at_least(val, 16, f"scene.{key}", "scene", key)
+        v.at_most(val, MAX_SIDE, f"scene.{key}", "scene", key)
+
+    ge = v.table(doc, "geometry")
+    v.keys(ge, _GEOMETRY_KEYS, "geometry", note=" for kind 'texture'")
+    if v.typed(ge, "generator", "str", "geometry") != "grid":
+        v.fail("geometry.generator", f"unknown generator {_show(ge['generator'])} (known: grid)", "geometry", "generator")
+    seed = v.typed(ge, "seed", "int", "geometry")
+    if not 0 <= seed < 1 << 63:
+        v.fail("geometry.seed", f"must be between 0 and 2^63 - 1, got {seed}", "geometry", "seed")
+    columns, rows = v.typed(ge, "columns", "int", "geometry"), v.typed(ge, "rows", "int", "geometry")
+    for key, val in (("columns", columns), ("rows", rows)):
+        v.at_least(val, 1, f"geometry.{key}", "geometry", key)
+        v.at_most(val, 64, f"geometry.{key}", "geometry", key)
+    w_range = _pair(v, ge, "w_range", (1.0, 3.0), 0.0, 1e6, True)
+    st_range = _pair(v, ge, "st_range", (40.0, 216.0), 0.0, 256.0, False)
+
+    ru = v.table(doc, "run")
+    v.keys(ru, _RUN_KEYS, "run", note=" for kind 'texture'")
+    variants = v.typed(ru, "variants", "strlist", "run")
+    cpus = v.typed(ru, "cpus", "strlist", "run")
+    stride = v.typed(ru, "timing_stride", "int", "run", default=1)
+    v.at_least(stride, 1, "run.timing_stride", "run", "timing_stride")
+    for key, items in (("variants", variants), ("cpus", cpus)):
+        if not items:
+            v.fail(f"run.{key}", "must not be empty", "run", key)
+        dup = [x for i, x in enumerate(items) if x in items[:i]]
+        if dup:
+            v.fail(f"run.{key}", f"'{dup[0]}' is listed twice", "run", key)
+    for i, var in enumerate(variants):
+        if var not in F.VARIANTS:
+            v.fail(f"run.variants[{i}]", f"unknown variant '{var}' (known: {', '.join(F.VARIANTS)})", "run", "variants")
+    known_cpus = cpu_presets.available()
+    machines = v.machines(cpus)
+
+    claims = []
+    for i, c in enumerate(v.claim_tables(doc)):
+        field_ = f"claims[{i}]"
+        v.keys(c, _CLAIM_KEYS, "claims", i, field_)
+        text = v.typed(c, "text", "str", "claims", i, field_)
+        quantity = v.typed(c, "quantity", "str", "claims", i, field_)
+        if quantity not in QUANTITIES:
+            v.fail(f"{field_}.quantity", f"unknown quantity '{quantity}' (known: {', '.join(QUANTITIES)})",
+                   "claims", "quantity", i)
+        pair = v.typed(c, "variants", "strlist", "claims", i, field_, default=())
+        need = VARIANT_QUANTITIES.get(quantity, 0)
+        if len(pair) != need or any(x not in variants for x in pair):
+            v.fail(f"{field_}.variants", f"{quantity} takes {need} of run.variants ({', '.join(variants)}), "
+                   f"got {_show(list(pair))}", "claims", "variants", i)
+        expect = v.typed(c, "expect", "str", "claims", i, field_)
+        if expect not in EXPECTATIONS:
+            v.fail(f"{field_}.expect", f"unknown expectation '{expect}' (known: {', '.join(EXPECTATIONS)})",
+                   "claims", "expect", i)
+        value = v.typed(c, "value", "number", "claims", i, field_)
+        tolerance = v.typed(c, "tolerance", "number", "claims", i, field_)
+        within = v.typed(c, "within", "number", "claims", i, field_)
+        rng = c.get("range")
+        if expect == "between":
+            if (not isinstance(rng, list) or len(rng) != 2 or any(isinstance(e, bool) or not isinstance(e, (int, float))
+                                                                 for e in rng) or not rng[0] <= rng[1]):
+                v.fail(f"{field_}.range", f"'between' needs range = [lo, hi] with lo <= hi, got {_show(rng)}",
+                       "claims", "range" if "range" in c else None, i)
+            rng = (float(rng[0]), float(rng[1]))
+        elif value is None:
+            v.fail(f"{field_}.value", f"'{expect}' needs value = a number", "claims", None, i)
+        if tolerance is not None and within is not None:
+            v.fail(f"{field_}.within", "give tolerance (a fraction) or within (clocks), not both", "claims", "within", i)
+        if tolerance is not None and not 0 <= tolerance < 1:
+            v.fail(f"{field_}.tolerance", f"must be in [0, 1), got {tolerance}", "claims", "tolerance", i)
+        if within is not None and within < 0:
+            v.fail(f"{field_}.within", f"must be >= 0, got {within}", "claims", "within", i)
+        cover = v.typed(c, "cpus", "strlist", "claims", i, field_, default=())
+        families = v.typed(c, "families", "strlist", "claims", i, field_, default=())
+        if not cover and not families:
+            v.fail(field_, "names no CPU: give cpus = [...] and/or families = [...]", "claims", None, i)
+        for entry in cover:
+            if entry not in known_cpus:
+                v.fail(f"{field_}.cpus", f"unknown CPU preset '{entry}' (known: {', '.join(known_cpus)})",
+                       "claims", "cpus", i)
+        v.families(field_, families, i)
+        claim = TextureClaim(text, quantity, tuple(pair), expect, value, tolerance, within,
+                             rng if expect == "between" else None, tuple(cover), tuple(families))
+        v.require_cover(field_, i, machines, lambda preset, memory, family: claim.covers(preset, family))
+        claims.append(claim)
+
+    scene = TextureScene(path, name, v.typed(sc, "description", "str", "scene", default=""), width, height, seed,
+                         columns, rows, w_range, st_range, tuple(variants), tuple(machines), stride, tuple(claims))
+    try:  # the 24.8 variant needs v inside the texture: say so now, not after the emulation
+        params = F.span_params(scene.build_geometry(), width, height)
+        for var in variants:
+            F.variant_pixels(var, params)
+    except F.TextureSceneError as e:
+        v.fail("geometry", str(e), "geometry")
+    return scene
+
+
+# ---------------------------------------------------------------------------------------------
+# running
+
+@dataclass
+class TextureResult:
+    scene: TextureScene
+    spans: int
+    pixels: int
+    timed_spans: int
+    timed_pixels: int
+    accuracy: dict = field(default_factory=dict)     # variant -> error metrics
+    timings: dict = field(default_factory=dict)      # (variant, machine key) -> counters of the timed pass
+    probes: dict = field(default_factory=dict)       # machine key -> {quantity: clocks, "explain": {...}}
+    keys: list = field(default_factory=list)         # machine keys "preset:memory" in run order
+
+    @property
+    def cpu_keys(self) -> list[str]:
+        return list(self.keys)
+
+    def cycles_per_pixel(self, variant: str, key: str) -> float:
+        return self.timings[(variant, key)]["cycles"] / self.timed_pixels if self.timed_pixels else 0.0
+
+    def per_pixel(self, variant: str, key: str, counter: str) -> float:
+        return self.timings[(variant, key)].get(counter, 0) / self.timed_pixels if self.timed_pixels else 0.0
+
+
+def frame_setup(params: F.SpanParams, width: int, height: int, tex: np.ndarray, layout: list | None = None):
+    """A sim.timing setup: span records, the texture on a 64 KB boundary, the 8-bit frame buffer."""
+
+    def setup(m):
+        recs = m.arena.alloc(F.RECORD_BYTES * max(1, len(params)), align=4096)
+        t = m.arena.put(tex, align=1 << 16)
+        fb = m.arena.alloc(width * height, align=4096)
+        m.uc.mem_write(recs, F.span_records(params, fb, width))
+        if layout is not None:
+            layout.append(fb)
+        return [recs, len(params), t]
+
+    return setup
+
+
+def draw_frame(variant: str, params: F.SpanParams, width: int, height: int, tex: np.ndarray) -> np.ndarray:
+    """The frame buffer a variant's kernel leaves (untraced emulation)."""
+    from sim.guest.emu import Machine
+
+    m = Machine.from_source(kernels_root() / F.KERNEL)
+    layout: list = []
+    args = frame_setup(params, width, height, tex, layout)(m)
+    m.call(f"frame_{variant}", *args)
+    return m.arena.get(layout[0], np.uint8, width * height)
+
+
+def expected_frame(pixels: F.VariantPixels, params: F.SpanParams, width: int, height: int, tex) -> np.ndarray:
+    span, off = F.pixel_index(params)
+    out = np.zeros(width * height, np.uint8)
+    out[params.y[span] * width + params.x0[span] + off] = pixels.texels(tex)
+    return out
+
+
+def _probe_kernel_cycles(cpu: str, memory: str, entry: str, setup_for) -> tuple[dict, dict]:
+    from sim.timing.kernel import time_kernel
+
+    path = kernels_root() / F.KERNEL
+    return tuple(time_kernel(path, entry, setup_for(n), cpu=cpu, memory=memory, repeat=2).last
+                 for n in (PROBE_N, 2 * PROBE_N))
+
+
+def _diff(runs: tuple[dict, dict], per: int) -> dict:
+    a, b = runs
+    return {k: (b[k] - a[k]) / per for k in a if isinstance(a[k], (int, np.integer)) and k in b}
+
+
+def measure_probes(cpu: str, memory: str, first_span: F.SpanParams) -> dict:
+    """The article's component figures on one machine, each the difference of two runs."""
+    from sim.reports import texture_loops as texture
+    from sim.timing.kernel import time_kernel
+
+    path = kernels_root() / F.KERNEL
+
+    def conv(n):
+        return lambda m: [n, m.arena.put(np.array([12345.75], np.float64))]
+
+    per = {name: _diff(_probe_kernel_cycles(cpu, memory, f"probe_{name}", conv), PROBE_N)
+           for name in ("ftol", "fistp", "none")}
+    out = {"ftol_call": per["ftol"]["cycles"] - per["none"]["cycles"],
+           "fistp": per["fistp"]["cycles"] - per["none"]["cycles"]}
+    out["ftol_per_subspan"] = 2 * out["ftol_call"]
+    names = ("instructions",) + EXPLAIN[family_of(cpu)]
+    explain = {q: {k: round(per[name][k] - per["none"][k], 2) for k in names
+                   if k in per["none"] and abs(per[name][k] - per["none"][k]) >= 0.5}
+               for q, name in (("ftol_call", "ftol"), ("fistp", "fistp"))}
+
+    # FDIV in a 16-pixel sub-span (kernels/texture/fdiv.S), per sub-span over the loop without it
+    fd, fdc = {}, {}
+    n = 256
+    for entry in ("sub16", "sub16_overlap", "sub16_serial", "sub16_serial_single"):
+        runs = tuple(time_kernel(kernels_root() / texture.FDIV_KERNEL, entry, texture.fdiv_setup(k), cpu=cpu,
+                                 memory=memory, repeat=2).last for k in (n, 2 * n))
+        fdc[entry] = _diff(runs, n // 16)
+        fd[entry] = fdc[entry]["cycles"]
+    explain["fdiv_overlapped"] = {k: round(fdc["sub16_overlap"][k] - fdc["sub16"][k], 1) for k in names
+                                  if k in fdc["sub16"] and abs(fdc["sub16_overlap"][k] - fdc["sub16"][k]) >= 0.5}
+    out["fdiv_overlapped"] = fd["sub16_overlap"] - fd["sub16"]
+    out["fdiv_serial"] = fd["sub16_serial"] - fd["sub16"]
+    out["fdiv_serial_24"] = fd["sub16_serial_single"] - fd["sub16"]
+    out["fdiv_precision_saving"] = out["fdiv_serial"] - out["fdiv_serial_24"]
+
+    # TIMESNAP: the model's RDTSC answers, around nothing and around one _ftol conversion
+    snaps = {}
+    for entry, setup in (("snap_none", None), ("snap_ftol", lambda m: [m.arena.put(np.array([12345.75], np.float64))])):
+        r = time_kernel(path, entry, setup, cpu=cpu, memory=memory, repeat=2).run.rdtsc
+        snaps[entry] = int(r[-1] - r[-2])
+    out["timesnap_overhead"] = snaps["snap_none"]
+    out["timesnap_ftol"] = snaps["snap_ftol"]
+
+    # per-span set-up: spans of 0 pixels (the set-up runs, the sub-span loop does not)
+    def spans(k):
+        recs = first_span.select(np.zeros(k, np.int64))
+        recs = F.SpanParams(recs.y, recs.x0, np.zeros(k, np.int64), recs.tri, recs.start, recs.step)
+        return frame_setup(recs, 64, 1, F.texture())
+
+    setup_cost = {}
+    for var in ("b", "c"):
+        c = [time_kernel(path, f"frame_{var}", spans(k), cpu=cpu, memory=memory, repeat=2).last["cycles"]
+             for k in (SETUP_SPANS, 2 * SETUP_SPANS)]
+        setup_cost[var] = (c[1] - c[0]) / SETUP_SPANS
+    out["span_setup_b"], out["span_setup_c"] = setup_cost["b"], setup_cost["c"]
+    out["span_setup_saving"] = setup_cost["b"] - setup_cost["c"]
+    out["explain"] = explain
+    return out
+
+
+_WARM: set = set()
+
+
+def _time_task(shared, variant: str, index: int) -> dict:
+    from sim.timing.kernel import time_emulation
+
+    emulations, models = shared[0], shared[1]
+    return time_emulation(emulations[variant], models[index]).last
+
+
+def _probe_task(shared, cpu: str, memory: str) -> dict:
+    _, _, first = shared
+    return measure_probes(cpu, memory, first)
+
+
+def run_scene(scene: TextureScene, cpus: list[str] | None = None, progress=None, robustness: bool = True,
+              jobs: int = 1) -> TextureResult:
+    """Check every pixel of the frame against the model of each variant, measure the error against
+    the exact mapping, time every timing_stride-th span on each machine, and run the probes."""
+    from sim.cpus import make_model
+    from sim.parallel import SharedPool
+    from sim.timing.kernel import emulate
+
+    say = progress or (lambda msg: None)
+    w, h = scene.width, scene.height
+    geometry = scene.build_geometry()
+    params = F.span_params(geometry, w, h)
+    tex = F.texture()
+    timed = params.select(np.arange(len(params)) % scene.timing_stride == 0)
+    result = TextureResult(scene, len(params), params.pixels, len(timed), timed.pixels)
+    u_exact, v_exact = F.exact_coordinates(geometry, params)
+    emulations = {}
+    for variant in scene.variants:
+        say(f"{scene.name}: variant {variant}: drawing and checking {params.pixels:,} pixels")
+        model_pixels = F.variant_pixels(variant, params)
+        got = draw_frame(variant, params, w, h, tex)
+        if not np.array_equal(got, expected_frame(model_pixels, params, w, h, tex)):
+            raise RetrosimError(f"{scene.path}: variant {variant}: the emulated frame differs from the model of the "
+                                "kernel's arithmetic (sim/texture_frame.py): a kernel or emulator bug")
+        result.accuracy[variant] = F.error_metrics(model_pixels, variant, u_exact, v_exact)
+        emulations[variant] = emulate(kernels_root() / F.KERNEL, f"frame_{variant}", frame_setup(timed, w, h, tex),
+                                      repeat=2)
+    labels = cpus or scene.cpus
+    models = []
+    for spec in labels:
+        cpu, _, memory = spec.partition(":")
+        models.append(make_model(cpu, memory or None))
+    keys = [f"{spec.partition(':')[0]}:{m.dram.name}" for m, spec in zip(models, labels)]
+    result.keys = keys
+    shared = (emulations, models, params.select(np.arange(len(params)) == 0))
+    local = SharedPool(shared, 1)
+    futures = []
+    for i, m in enumerate(models):
+        if jobs > 1 and m.family not in _WARM:  # load the compiled core before the pool forks
+            _WARM.add(m.family)
+            futures.append(("t", scene.variants[0], i, local.submit(_time_task, scene.variants[0], i)))
+    pool = SharedPool(shared, jobs)
+    done = {(f[1], f[2]) for f in futures}
+    for i, key in enumerate(keys):
+        for variant in scene.variants:
+            if (variant, i) not in done:
+                futures.append(("t", variant, i, pool.submit(_time_task, variant, i)))
+        cpu, _, memory = key.rpartition(":")
+        futures.append(("p", None, i, pool.submit(_probe_task, cpu, memory)))
+    try:
+        for kind, variant, i, fut in futures:
+            if kind == "t":
+                result.timings[(variant, keys[i])] = {k: int(v) for k, v in fut.result().items()
+                                                      if isinstance(v, (int, np.integer))}
+                say(f"{scene.name}: variant {variant} on {keys[i]}: timed")
+            else:
+                result.probes[keys[i]] = fut.result()
+    finally:
+        pool.close()
+        local.close()
+    # the same order for any `jobs` (the warm-up timings above finish first)
+    result.timings = {(v, k): result.timings[(v, k)] for v in scene.variants for k in keys}
+    return result
+
+
+# ---------------------------------------------------------------------------------------------
+# claims
+
+def quantity(result: TextureResult, claim: TextureClaim, key: str) -> float:
+    if claim.quantity == "cycles_per_pixel":
+        return result.cycles_per_pixel(claim.variants[0], key)
+    if claim.quantity in ("cycles_ratio", "cycles_saved"):
+        a, b = (result.cycles_per_pixel(x, key) for x in claim.variants)
+        return (a / b if b else float("inf")) if claim.quantity == "cycles_ratio" else a - b
+    return float(result.probes[key][claim.quantity])
+
+
+EXPLAIN = {"p5": ("pairs", "alone", "stall_agi", "stall_memory", "stall_write_buffer", "stall_fpu", "l1d_load_misses",
+                  "l1d_store_misses"),
+           "p6": ("uops", "stall_partial_register", "stall_dependency", "stall_port", "stall_rob", "stall_memory",
+                  "l1d_load_misses"),
+           "k6": ("uops", "stall_dependency", "stall_port", "stall_rob", "stall_memory", "stall_store_buffer",
+                  "l1d_load_misses")}
+
+
+def explanation(result: TextureResult, claim: TextureClaim, key: str) -> dict:
+    """The counters behind a measured quantity: per pixel for a variant (the difference for two),
+    the probe's counter differences for _ftol, the set-up and the parts for the others."""
+    fam = family_of(key)
+    if claim.variants:
+        names = [n for n in EXPLAIN[fam] if any(n in result.timings[(v, key)] for v in claim.variants)]
+        if len(claim.variants) == 1:
+            return {n: round(result.per_pixel(claim.variants[0], key, n), 3) for n in names}
+        a, b = claim.variants
+        return {n: round(result.per_pixel(a, key, n) - result.per_pixel(b, key, n), 3) for n in names
+                if abs(result.per_pixel(a, key, n) - result.per_pixel(b, key, n)) >= 0.005}
+    p = result.probes[key]
+    if claim.quantity in ("ftol_call", "ftol_per_subspan", "fistp"):
+        return dict(p["explain"]["fistp" if claim.quantity == "fistp" else "ftol_call"])
+    if claim.quantity == "span_setup_saving":
+        return {"set-up b": round(p["span_setup_b"], 1), "set-up c": round(p["span_setup_c"], 1)}
+    if claim.quantity == "timesnap_overhead":  # the RDTSC row the model charges
+        from sim.cpus.table import load_table
+
+        row = load_table(fam).lookup("rdtsc", "").row
+        return {"RDTSC uops": row.uops, **({"RDTSC clocks": row.extra["cycles"]} if "cycles" in row.extra else {})}
+    if claim.quantity.startswith("fdiv"):
+        parts = {"serial": round(p["fdiv_serial"], 1), "serial 24-bit": round(p["fdiv_serial_24"], 1),
+                 "overlapped": round(p["fdiv_overlapped"], 1)}
+        if claim.quantity == "fdiv_overlapped":  # what the overlapped divide's sub-span adds, by counter
+            parts.update(p["explain"]["fdiv_overlapped"])
+        return parts
+    return {}
+
+
+def evaluate(result: TextureResult) -> list[dict]:
+    out = []
+    for claim in result.scene.claims:
+        per_cpu = []
+        for key in result.keys:
+            if not claim.covers(key.split(":")[0], family_of(key)):
+                continue
+            x = quantity(result, claim, key)
+            ok = claim.holds(x)
+            per_cpu.append({"cpu": key, "measured": round(x, 4), "holds": ok,
+                            "verdict": "reproduced" if ok else "not reproduced",
+                            "explanation": explanation(result, claim, key)})
+        verdicts = {e["verdict"] for e in per_cpu}
+        overall = verdicts.pop() if len(verdicts) == 1 else ("mixed (see each machine)" if per_cpu else "not checked")
+        run_presets = {k.split(":")[0] for k in result.keys}
+        missing = [m.label for m in result.scene.machines if m.preset not in run_presets
+                   and claim.covers(m.preset, family_of(m.label))]
+        out.append({"text": claim.text, "quantity": claim.quantity, "claim": claim.describe(),
+                    "covers": claim.coverage(), "verdict": overall, "holds": bool(per_cpu) and all(e["holds"] for e in per_cpu),
+                    "per_cpu": per_cpu, "not_checked": missing})
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# reports
+
+def baseline_entries(result: TextureResult) -> dict[str, dict[str, int]]:
+    """reports/baselines.json cases: each variant's timed pass per machine, and the probes'
+    figures (cycles, rounded to whole clocks x 100 so the integer comparison keeps fractions)."""
+    out = {f"{v}@{key}": {c: int(t[c]) for c in COUNTERS if c in t} for (v, key), t in result.timings.items()}
+    for key, p in result.probes.items():
+        out[f"probes@{key}"] = {q: round(100 * float(p[q])) for q in sorted(p) if q != "explain"}
+    return out
+
+
+def _f(x: float, digits: int = 2) -> str:
+    return f"{x:,.{digits}f}"
+
+
+def _md_table(header: list[str], rows: list[list[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
+
+
+def _label(key: str) -> str:
+    cpu, memory = key.rsplit(":", 1)
+    return f"{cpu} ({memory})"
+
+
+def _ordered_keys(result: TextureResult) -> list[str]:
+    order = {"p5": 0, "p6": 1, "k6": 2}
+    return sorted(result.keys, key=lambda k: (order.get(family_of(k), 9), result.keys.index(k)))
+
+
+def claim_lines(c: dict) -> list[str]:
+    lines = [f"- {c['text']} — **{c['verdict']}**. Checked: {c['claim']}, on {c['covers']}."]
+    for e in c["per_cpu"]:
+        why = ", ".join(f"{n.replace('stall_', '')} {v:g}" for n, v in e["explanation"].items())
+        lines.append(f"  - {_label(e['cpu'])}: **{e['verdict']}** — measured {e['measured']:g}"
+                     + (f"; {why}" if why else "") + ".")
+    lines += [f"  - {_label(k) if ':' in k else k}: not checked (CPU not in this run)." for k in c["not_checked"]]
+    return lines
+
+
+def _short(counter: str) -> str:
+    return counter.replace("stall_", "")
+
+
+def findings(result: TextureResult) -> list[str]:
+    out = []
+    acc = result.accuracy
+    if "d" in acc and "e" in acc:
+        d, e = acc["d"], acc["e"]
+        out.append(f"24.8 instead of 16.16 (e against d, same outer loop): mean coordinate error "
+                   f"{e['mean_coordinate_error']:.4f} against {d['mean_coordinate_error']:.4f} texels, largest "
+                   f"{e['max_coordinate_error']:.3f} against {d['max_coordinate_error']:.3f}; "
+                   f"{e['wrong_texel_share']:.2%} of pixels read another texel than the exact mapping against "
+                   f"{d['wrong_texel_share']:.2%} (the 16-pixel sub-spans' affine error is common to both).")
+    if "a" in acc and "b" in acc:
+        a, b = acc["a"], acc["b"]
+        changed = abs(b["wrong_texel"] - a["wrong_texel"])
+        out.append(f"24-bit precision (b against a) changes the share of wrong texels by {changed:,} pixels of "
+                   f"{a['pixels']:,}; the mean coordinate error moves from {a['mean_coordinate_error']:.7f} to "
+                   f"{b['mean_coordinate_error']:.7f} texels.")
+    steps = [("a", "b", "the overlapped divide and 24-bit precision"), ("b", "c", "FISTP, the reordered loop and set-up"),
+             ("c", "d", "the 4-clock loop"), ("c", "e", "24.8 instead of 16.16")]
+    for x, y, what in steps:
+        if x not in acc or y not in acc:
+            continue
+        parts = []
+        for key in _ordered_keys(result):
+            diff = {n: result.per_pixel(x, key, n) - result.per_pixel(y, key, n) for n in EXPLAIN[family_of(key)]
+                    if n.startswith("stall_") or n in ("alone", "uops")}
+            top = sorted(diff, key=lambda n: (-abs(diff[n]), n))[:2]
+            parts.append(f"{key.split(':')[0]} {result.cycles_per_pixel(x, key) - result.cycles_per_pixel(y, key):.2f} "
+                         f"({', '.join(_short(n) + f' {diff[n]:+.2f}' for n in top)})")
+        out.append(f"Cycles per pixel {what} ({y}) saves over {x}, with the two counters that differ most ({x} minus "
+                   f"{y}, per pixel): " + "; ".join(parts) + ".")
+    return out
+
+
+def to_markdown(result: TextureResult, png_name: str | None) -> str:
+    s = result.scene
+    keys = _ordered_keys(result)
+    parts = [f"# {s.name}", "", s.description.strip(), "",
+             f"Generated by `retrosim report {s.name}` from `scenes/{s.name}.toml`; do not edit.", "",
+             f"Workload: {s.width}x{s.height} pixels, {s.columns}x{s.rows} jittered grid cells of two perspective "
+             f"textured triangles each (vertex depths {s.w_range[0]:g}..{s.w_range[1]:g}, texture coordinates "
+             f"{s.st_range[0]:g}..{s.st_range[1]:g} texels), a 256x256 8-bit texture, {result.spans:,} spans, "
+             f"{result.pixels:,} pixels, no overdraw (the article's span sorter hands the renderer visible spans "
+             f"only). Every pixel of every variant is checked against the model of its arithmetic "
+             f"(sim/texture_frame.py). Timed: every {s.timing_stride}th span ({result.timed_spans:,} spans, "
+             f"{result.timed_pixels:,} pixels, the same distribution of span lengths), drawn twice in one machine "
+             "state; the second pass is reported (caches and predictors warm).", "",
+             "Variants (kernels/texture/persp.S):", ""]
+    parts += [f"- **{v}**: {F.VARIANT_LABELS[v]}" for v in s.variants] + [""]
+    parts += ["## Cycles per pixel", "",
+              _md_table(["CPU (memory)"] + list(s.variants),
+                        [[_label(k)] + [_f(result.cycles_per_pixel(v, k)) for v in s.variants] for k in keys]), ""]
+    parts += ["## Error against the exact mapping", "",
+              "Against u = (u/w) / (1/w), v likewise, in float64 at every pixel's centre. A pixel is wrong when "
+              "it reads another texel than floor(u), floor(v); the coordinate error is the larger of |u - u_exact| "
+              "and |v - v_exact| in texels. Every variant interpolates linearly across 16-pixel sub-spans, which "
+              "is most of the error; the variants differ by their float precision, their conversion (_ftol "
+              "truncates, FISTP rounds) and their fixed point.", "",
+              _md_table(["variant", "wrong texel (pixels)", "wrong texel (share)", "largest coordinate error",
+                         "mean coordinate error"],
+                        [[v, f"{a['wrong_texel']:,}", f"{a['wrong_texel_share']:.3%}", f"{a['max_coordinate_error']:.4f}",
+                          f"{a['mean_coordinate_error']:.5f}"] for v, a in ((v, result.accuracy[v]) for v in s.variants)]),
+              ""]
+    if png_name:
+        parts += ["## Error against cycles", "", f"![error against cycles]({png_name})", ""]
+    parts += ["## The article's component figures, measured", "",
+              "Each the difference of two runs of a probe (kernels/texture/persp.S, fdiv.S): _ftol and FISTP "
+              f"loops of {PROBE_N} and {2 * PROBE_N} conversions against the same loop with FLD / FSTP ST(0); "
+              "16-pixel sub-spans with and without FLD1 / FDIV / FSTP (serial: FSTP right after FDIV; overlapped: "
+              "FDIV before the inner loop, FSTP after it; 64-bit precision unless marked 24-bit, each set by FLDCW "
+              "of a constant word); spans of 0 pixels through b's and c's set-up; TIMESNAP from the model's "
+              "RDTSC answers (stop - start around nothing, and around one _ftol conversion, which the article "
+              "would print minus 16).", "",
+              _md_table(["CPU (memory)", "_ftol call", "FISTP", "FDIV serial", "FDIV serial 24-bit", "FDIV overlapped",
+                         "set-up b", "set-up c", "TIMESNAP overhead", "TIMESNAP around _ftol"],
+                        [[_label(k)] + [_f(result.probes[k][q], 1) for q in
+                                        ("ftol_call", "fistp", "fdiv_serial", "fdiv_serial_24", "fdiv_overlapped",
+                                         "span_setup_b", "span_setup_c")]
+                         + [str(result.probes[k]["timesnap_overhead"]), str(result.probes[k]["timesnap_ftol"])]
+                         for k in keys]), "",
+              "Self-timing: the article subtracts 16 from a TIMESNAP reading. With each model's own overhead (the "
+              "'TIMESNAP overhead' column) the reading around one _ftol gives "
+              + "; ".join(f"{_label(k)} {result.probes[k]['timesnap_ftol'] - result.probes[k]['timesnap_overhead']} "
+                          f"(minus 16: {result.probes[k]['timesnap_ftol'] - 16}) against the probe's "
+                          f"{result.probes[k]['ftol_call']:.1f}" for k in keys) + ".", ""]
+    claims = evaluate(result)
+    if claims:
+        parts += ["## The article's claims, checked", "",
+                  "Not re-timed over the models' estimates (unlike the Z-buffer scenes' claims). Counters are per "
+                  "pixel of the timed pass (the difference of the two variants for a ratio or a saving), or the "
+                  "probe's parts.", ""]
+        for c in claims:
+            parts += claim_lines(c)
+        parts.append("")
+    parts += ["## Findings", ""] + [f"- {f}" for f in findings(result)] + [""]
+    parts += ["## Where the cycles go", "", "Per pixel of the timed pass.", ""]
+    for k in keys:
+        fam = family_of(k)
+        names = [n for n in EXPLAIN[fam] if any(n in result.timings[(v, k)] for v in s.variants)]
+        parts += [f"### {_label(k)}", "",
+                  _md_table(["variant", "cycles", "instructions"] + [n.replace("stall_", "stall ") for n in names],
+                            [[v, _f(result.cycles_per_pixel(v, k)), _f(result.per_pixel(v, k, "instructions"))]
+                             + [_f(result.per_pixel(v, k, n)) for n in names] for v in s.variants]), ""]
+    return "\n".join(parts).rstrip() + "\n"
+
+
+def to_json(result: TextureResult) -> dict:
+    s = result.scene
+    return {"scene": s.name, "kind": s.kind, "description": s.description, "width": s.width, "height": s.height,
+            "spans": result.spans, "pixels": result.pixels, "timed_spans": result.timed_spans,
+            "timed_pixels": result.timed_pixels,
+            "timings": [{"variant": v, "cpu": key, "cycles_per_pixel": round(result.cycles_per_pixel(v, key), 4), **t}
+                        for (v, key), t in result.timings.items()],
+            "accuracy": {v: {k: (round(x, 8) if isinstance(x, float) else x) for k, x in a.items()}
+                         for v, a in result.accuracy.items()},
+            "probes": {k: {q: (round(float(x), 4) if q != "explain" else x) for q, x in p.items()}
+                       for k, p in result.probes.items()},
+            "claims": evaluate(result), "findings": findings(result)}
+
+
+def to_csv(result: TextureResult) -> str:
+    import csv
+    import io
+
+    buf = io.StringIO()
+    counters = list(dict.fromkeys(c for t in result.timings.values() for c in t))
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["scene", "variant", "cpu", "timed_pixels", "cycles_per_pixel", "wrong_texel_share",
+                "mean_coordinate_error"] + counters)
+    for (v, key), t in result.timings.items():
+        a = result.accuracy[v]
+        w.writerow([result.scene.name, v, key, result.timed_pixels, f"{result.cycles_per_pixel(v, key):.4f}",
+                    f"{a['wrong_texel_share']:.6f}", f"{a['mean_coordinate_error']:.6f}"] + [t.get(c, "") for c in counters])
+    return buf.getvalue()
+
+
+def error_cycles_png(result: TextureResult) -> bytes:
+    """Error against work as the Z-buffer reports' dot plot: one row per variant, ordered by its
+    mean coordinate error (the same on every CPU, written in the row's label with its share of
+    wrong texels), cycles per pixel along x, one marker per CPU (offset within the row so none
+    hides another; the same colours as the Z-buffer plots, a shape per family)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from sim.cpus import presets
+    from sim.scenes.zbuffer.report import FAMILY_MARKERS, finish_rows, png_bytes, row_offset
+
+    names = presets.available()
+    palette = plt.get_cmap("tab10" if len(names) <= 10 else "tab20")
+    acc = result.accuracy
+    rows = sorted(result.scene.variants, key=lambda v: (-acc[v]["mean_coordinate_error"], v))  # top to bottom
+    keys = _ordered_keys(result)
+    fig, ax = plt.subplots(figsize=(8, 1.6 + 0.6 * len(rows) + 0.22 * -(-len(keys) // 3)), dpi=100,
+                           layout="constrained")
+    spread = min(0.7, 0.08 * len(keys))
+    ypos = {v: len(rows) - 1 - i for i, v in enumerate(rows)}
+    for i, key in enumerate(keys):
+        offset = row_offset(i, len(keys), spread)
+        base = key.split(":")[0].split("{")[0]
+        colour = palette(names.index(base) % palette.N) if base in names else "0.5"
+        ax.scatter([result.cycles_per_pixel(v, key) for v in rows], [ypos[v] - offset for v in rows],
+                   marker=FAMILY_MARKERS.get(family_of(key), "o"), s=40, color=colour, edgecolors="black", linewidths=0.4,
+                   label=_label(key), zorder=3)
+    labels = [f"{v}: mean error {acc[v]['mean_coordinate_error']:.5f} texel, {acc[v]['wrong_texel_share']:.2%} "
+              f"wrong texels\n{F.VARIANT_LABELS[v]}" for v in rows]
+    finish_rows(fig, ax, rows, ypos, labels, "cycles per pixel (timed pass, caches warm); fewer is faster",
+                f"{result.scene.name}: cycles per pixel of the article's steps on each CPU\n"
+                "(rows from most to least error against the exact mapping)", 8, 3)
+    return png_bytes(fig)
+
+
+def write_reports(result: TextureResult, out_dir: Path,
+                  formats: tuple[str, ...] = ("md", "png", "json", "csv", "html")) -> list[Path]:
+    import json
+
+    from sim.scenes.zbuffer.report import atomic_write, render_html
+
+    name = result.scene.name
+    png = error_cycles_png(result) if ("png" in formats or "html" in formats) else None
+    md = to_markdown(result, f"{name}.png")
+    payloads = {"md": md.encode(), "png": png,
+                "json": (json.dumps(to_json(result), indent=2) + "\n").encode(),
+                "csv": to_csv(result).encode(), "html": render_html(md, png).encode()}
+    written = []
+    for fmt in formats:
+        if payloads[fmt] is None:
+            continue
+        path = Path(out_dir) / f"{name}.{fmt}"
+        atomic_write(path, payloads[fmt])
+        written.append(path)
+    return written
+
+
+def summary_tables(result: TextureResult) -> list:
+    """What `retrosim report` prints for a texture scene: cycles per pixel (CPUs as rows), the
+    share of wrong texels, how many claims held."""
+    from rich import box
+    from rich.markup import escape
+    from rich.padding import Padding
+    from rich.table import Table
+    from rich.text import Text
+
+    t = Table(title=f"{escape(result.scene.name)}: cycles per pixel", title_justify="left", box=box.SIMPLE_HEAD,
+              pad_edge=False)
+    t.add_column("CPU (memory)", overflow="fold")
+    for v in result.scene.variants:
+        t.add_column(v, justify="right", no_wrap=True, min_width=6)
+    for key in _ordered_keys(result):
+        t.add_row(escape(key.replace(":", " ")), *[f"{result.cycles_per_pixel(v, key):.2f}" for v in result.scene.variants])
+    t.add_section()
+    t.add_row("wrong texel", *[f"{result.accuracy[v]['wrong_texel_share']:.1%}" for v in result.scene.variants])
+    out = [t]
+    claims = [c for c in evaluate(result) if c["per_cpu"]]
+    if claims:
+        # a claim is checked on every family; say how it fares on each, not only where it holds everywhere
+        held = sum(c["verdict"] == "reproduced" for c in claims)
+        fams = {}
+        for c in claims:
+            for e in c["per_cpu"]:
+                n = fams.setdefault(family_of(e["cpu"]), [0, 0])
+                n[0] += e["holds"]
+                n[1] += 1
+        out.append(Padding(Text(f"claims: {held} of {len(claims)} reproduced on every machine they cover; checks "
+                                "reproduced per family: " + ", ".join(f"{f.upper()} {a} of {b}" for f, (a, b)
+                                                                       in sorted(fams.items()))), (0, 0, 0, 1)))
+        for c in claims:
+            counts = {}
+            for e in c["per_cpu"]:
+                n = counts.setdefault(family_of(e["cpu"]), [0, 0])
+                n[0] += e["holds"]
+                n[1] += 1
+            per = ", ".join(f"{f.upper()} {a}/{b}" for f, (a, b) in sorted(counts.items()))
+            out.append(Padding(Text(f"- {per}: {c['text']}"), (0, 0, 0, 3)))  # counts first: the text wraps
+    return out

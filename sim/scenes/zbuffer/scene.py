@@ -1,0 +1,816 @@
+"""Scene files (scenes/*.toml): the format, a loader that validates it, and what a scene needs.
+
+Format::
+
+    [scene]
+    kind = "zbuffer"                # optional (the default); another kind is loaded, run and
+                                    #   reported by its own module (KINDS: "texture", "snap")
+    name = "zbuffer-article"        # required; must equal the file stem
+    description = "..."             # optional
+    width = 640                     # required, pixels
+    height = 480                    # required, pixels
+
+    [geometry]
+    generator = "random"            # random | coplanar_far | steep | near_far | tiny | triangles
+    seed = 1998                     # every generator but "triangles" (required)
+    triangles = 300                 # random (required), steep / near_far / tiny (optional)
+    depth_complexity = 3.0          # random (required, > 0)
+    z_range = [0.05, 0.95]          # random, coplanar_far, steep (optional; 0 <= lo < hi <= 1)
+    pairs = 40                      # coplanar_far (optional)
+    separation = 9.5367431640625e-07  # coplanar_far (optional): depth gap of each pair
+    # generator = "triangles" takes [[geometry.triangle]] tables instead:
+    #   xy = [[x, y], [x, y], [x, y]]   z = [a, b, c] (in [0, 1))   colour = 7 (optional, 1..65535;
+    #   default: the triangle's index + 1)
+
+    [run]
+    variants = ["z32", "z16", "fp16z", "zf32"]     # required: z32 z16 fp16z fp16t zf32
+    cpus = ["pentium2-233:edo", "celeron-300a"]    # required: CPU preset[:memory preset]
+    metrics = ["visibility", "depth_error", "fp16_precision"]   # optional (default none)
+    frames = 2                      # optional (default 1): frames drawn in one machine state,
+                                    # the last one is reported
+
+    [[run.machine]]                 # optional, repeatable: a CPU preset with overrides, run after
+    cpu = "k6-233"                  #   run.cpus; required: the CPU preset
+    memory = "sdram-pc66"           #   optional (default: the preset's)
+    set = { "write_allocate.mode" = "full", "l2.size_kb" = 256 }   # required: preset fields or
+                                    #   estimates to change (sim.cpus.make_model's overrides, the
+                                    #   names `retrosim time --set` takes; "l2.size_kb" = "none"
+                                    #   removes the L2)
+    # Its label, in the report, baselines and claims, is the preset with its overrides sorted by
+    # key: "k6-233{l2.size_kb=256,write_allocate.mode=full}:sdram-pc66". run.cpus accepts such a
+    # label as well. Claims naming a preset cover it with any overrides.
+
+    [[claims]]                      # optional, repeatable: a published claim to check
+    text = "..."                    # required
+    variants = ["fp16z", "z32"]     # required: two of run.variants
+    expect = "slower"               # required: similar | faster | slower (variants[0] than variants[1])
+    tolerance = 0.0                 # optional fraction
+    cpus = ["k6-2-300", "pentium2-233:edo"]   # the machines its words cover: presets (any memory)
+    families = ["k6"]               # ... and/or whole families (p5 p6 k6)
+    memories = ["sdram-pc100"]      # optional: only with these memory presets
+    # (cpu = "..." is accepted as a one-entry cpus). At least one covered machine must be in run.cpus.
+
+Generators are those of sim.raster (random_scene, coplanar_far_scene, ...) with the keys above as
+their arguments. Metrics: "visibility" (wrong winners), "depth_error" (stored vs exact depth),
+"fp16_precision" (the format table, needs no frame), "z_fighting" (coplanar_far only).
+
+Every problem raises one :class:`SceneError` whose message names the file (with a line when one can
+be found) and the dotted field: ``scenes/a.toml:12: run.variants[1]: unknown variant 'z24' ...``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+import stat
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from sim.scenes import raster
+from sim.errors import RetrosimError
+
+VARIANTS = raster.VARIANTS
+METRICS = ("visibility", "depth_error", "fp16_precision", "z_fighting")
+GENERATORS = ("random", "coplanar_far", "steep", "near_far", "tiny", "triangles")
+SPAN_RECORD_BYTES = 32  # kernels/zbuffer/draw.inc: 8 dwords per span
+ARENA_ALIGN = 64        # sim.emu.Arena.alloc's default alignment
+ZBUF_BYTES = {v: raster.ZBUF_DTYPE[v].itemsize for v in VARIANTS}
+KERNEL_DIR = "kernels/zbuffer"
+MAX_SCENE_BYTES = 64 << 20  # 65535 explicit triangles take about 6 MB
+MAX_COORDINATE = 1 << 20  # screens are at most 32768 wide; the plane math stays exact far beyond
+# Host memory a scene may take: the runner holds a few int64/float64 arrays per pixel visit
+# (rasterized spans expanded to pixels, the reference, the expected frames): about 220 bytes per
+# visit at peak (a 1024x1024 frame at depth complexity 60, 62 M visits, peaked at 14 GB). The
+# default admits a 4096x3072 frame at depth complexity 3 (38 M visits, ~8 GB); raise it with
+# RETROSIM_MAX_VISITS if the machine has the memory.
+MAX_VISITS_ENV = "RETROSIM_MAX_VISITS"
+DEFAULT_MAX_VISITS = 48_000_000
+VISIT_BYTES = 220
+
+# key -> (kind, required) per table; kinds: int, number, str, strlist, range, tables
+_SCENE_KEYS = {"kind": ("str", False), "name": ("str", True), "description": ("str", False), "width": ("int", True), "height": ("int", True)}
+_GENERATOR_KEYS = {
+    "random": {"seed": ("int", True), "triangles": ("int", True), "depth_complexity": ("number", True),
+               "z_range": ("range", False)},
+    "coplanar_far": {"seed": ("int", True), "pairs": ("int", False), "z_range": ("range", False),
+                     "separation": ("number", False)},
+    "steep": {"seed": ("int", True), "triangles": ("int", False), "z_range": ("range", False)},
+    "near_far": {"seed": ("int", True), "triangles": ("int", False)},
+    "tiny": {"seed": ("int", True), "triangles": ("int", False)},
+    "triangles": {"triangle": ("tables", True)},
+}
+_TRIANGLE_KEYS = {"xy": ("any", True), "z": ("any", True), "colour": ("int", False)}
+_RUN_KEYS = {"variants": ("strlist", True), "cpus": ("strlist", True), "metrics": ("strlist", False),
+             "frames": ("int", False), "machine": ("tables", False)}
+_MACHINE_KEYS = {"cpu": ("str", True), "memory": ("str", False), "set": ("any", True)}
+_CLAIM_KEYS = {"text": ("str", True), "cpu": ("str", False), "cpus": ("strlist", False),
+               "families": ("strlist", False), "memories": ("strlist", False), "variants": ("strlist", True),
+               "expect": ("str", True), "tolerance": ("number", False)}
+FAMILIES = ("p5", "p6", "k6")  # CPU families a claim may name (sim/cpus: cpu_model of the presets)
+EXPECTATIONS = ("similar", "faster", "slower")
+_KIND_NAMES = {"int": "an integer", "number": "a number", "str": "a string", "strlist": "an array of strings",
+               "range": "an array of two numbers [lo, hi]", "tables": "an array of tables", "any": "a value"}
+
+
+class SceneError(RetrosimError):
+    """A scene file is malformed; the message is `file[:line]: field: problem`."""
+
+
+# [scene].kind -> the module that loads, runs and reports that kind of scene: load(path, text, doc),
+# run_scene(scene, cpus, progress, robustness, jobs), write_reports(result, out_dir, formats),
+# summary_tables(result) and baseline_entries(result). "zbuffer" (the default) is this module's format.
+KINDS = {"zbuffer": None, "texture": "sim.scenes.texture.scene", "snap": "sim.scenes.snap.scene"}
+
+
+def kind_module(kind: str):
+    import importlib
+
+    return importlib.import_module(KINDS[kind])
+
+
+def _toml_type(value) -> str:
+    if isinstance(value, bool):
+        return "boolean"
+    if isinstance(value, int):
+        return "integer"
+    if isinstance(value, float):
+        return "float"
+    if isinstance(value, str):
+        return "string"
+    if isinstance(value, list):
+        return "array"
+    if isinstance(value, dict):
+        return "table"
+    return type(value).__name__
+
+
+def _show(value) -> str:
+    text = ("true" if value else "false") if isinstance(value, bool) else repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+# ---------------------------------------------------------------------------------------------
+# the parsed scene
+
+@dataclass(frozen=True)
+class TriangleSpec:
+    xy: tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
+    z: tuple[float, float, float]
+    colour: int | None = None
+
+
+@dataclass(frozen=True)
+class GeometrySpec:
+    """[geometry]: the generator and its arguments (None: the generator's default)."""
+
+    generator: str
+    seed: int | None = None
+    triangles: int | None = None
+    depth_complexity: float | None = None
+    z_range: tuple[float, float] | None = None
+    pairs: int | None = None
+    separation: float | None = None
+    triangle_list: tuple[TriangleSpec, ...] = ()
+
+    def build(self, width: int, height: int) -> raster.Geometry:
+        g = self.generator
+        opt = {k: v for k, v in (("z_range", self.z_range), ("separation", self.separation),
+                                 ("pairs", self.pairs)) if v is not None}
+        if g == "random":
+            return raster.random_scene(width, height, self.triangles, self.depth_complexity, self.seed, **opt)
+        if g == "coplanar_far":
+            return raster.coplanar_far_scene(width, height, seed=self.seed, **opt)
+        if g == "triangles":
+            t = self.triangle_list
+            colours = np.array([c.colour if c.colour is not None else i + 1 for i, c in enumerate(t)], np.int64)
+            return raster.Geometry(np.array([c.xy for c in t], np.float64).reshape(-1, 3, 2),
+                                   np.array([c.z for c in t], np.float64).reshape(-1, 3), colours)
+        if self.triangles is not None:
+            opt["triangles"] = self.triangles
+        return raster.GENERATORS[g](width, height, seed=self.seed, **opt)
+
+
+@dataclass(frozen=True)
+class CpuChoice:
+    """One `preset[:memory]` entry of run.cpus, with the memory preset resolved (the CPU preset's
+    default memory when none is given)."""
+
+    preset: str
+    memory: str
+    memory_given: bool
+
+    @property
+    def label(self) -> str:
+        return f"{self.preset}:{self.memory}"
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    variants: tuple[str, ...]
+    cpus: tuple[CpuChoice, ...]
+    metrics: tuple[str, ...] = ()
+    frames: int = 1
+
+
+@dataclass(frozen=True)
+class Needs:
+    """What a scene needs, and nothing more ("build only what it asks for").
+
+    kernels:       kernel sources, one per variant, relative to the repository (kernels/zbuffer/<v>.S);
+    entries:       the frame entry point of each variant (<v>_frame, see kernels/zbuffer/draw.inc);
+    cpus:          CPU presets; memories: the memory presets they run with; machines: the pairs;
+    metrics:       the metrics to compute;
+    reference:     whether the exact float64 reference (sim.raster.reference) is needed: only for
+                   visibility, depth_error and z_fighting (fp16_precision is a property of the
+                   formats and needs no frame at all);
+    colour_buffer: whether any metric reads the frame buffer (visibility, z_fighting). When False
+                   the builder does not read back, keep or compare fbuf. The kernels still store a
+                   16-bit colour wherever the depth test passes, so they must still be given a
+                   writable 2-byte-per-pixel target; the arena check counts it either way;
+    zbuf_bytes:    bytes per depth-buffer pixel per variant (z32, zf32: 4; z16, fp16z, fp16t: 2);
+    arena_bytes:   the most guest arena one frame of any requested variant takes (see
+                   :func:`frame_arena_bytes`).
+    """
+
+    kernels: tuple[str, ...]
+    entries: tuple[str, ...]
+    cpus: tuple[str, ...]
+    memories: tuple[str, ...]
+    machines: tuple[CpuChoice, ...]
+    metrics: tuple[str, ...]
+    reference: bool
+    colour_buffer: bool
+    zbuf_bytes: dict
+    arena_bytes: int
+
+    def as_dict(self) -> dict:
+        return {"kernels": list(self.kernels), "entries": list(self.entries), "cpus": list(self.cpus),
+                "memories": list(self.memories), "machines": [m.label for m in self.machines],
+                "metrics": list(self.metrics), "reference": self.reference, "colour_buffer": self.colour_buffer,
+                "zbuf_bytes": dict(self.zbuf_bytes), "arena_bytes": self.arena_bytes}
+
+
+def _align(n: int, a: int) -> int:
+    return -(-n // a) * a
+
+
+def frame_arena_bytes(width: int, height: int, spans: int, zbuf_bytes_per_pixel: int) -> dict:
+    """Guest arena bytes one frame takes, allocation by allocation as sim.emu.Arena lays them out
+    (each aligned to 64 bytes): the depth buffer rounded up to whole 32-byte lines (the frame
+    driver clears 8 dwords per iteration), the 16-bit colour buffer, and 32 bytes per span record."""
+    pixels = width * height
+    zbuf = _align(pixels * zbuf_bytes_per_pixel, 32)
+    fbuf = pixels * 2
+    recs = spans * SPAN_RECORD_BYTES
+    total = sum(_align(n, ARENA_ALIGN) for n in (zbuf, fbuf, recs))
+    return {"zbuf": zbuf, "fbuf": fbuf, "spans": recs, "span_count": spans, "total": total}
+
+
+@dataclass(frozen=True)
+class Claim:
+    """A published claim the report checks: variants[0] is `expect` (similar / faster / slower)
+    than variants[1], within `tolerance` (a fraction), on every machine its words cover.
+
+    Coverage: ``cpus`` (``preset`` = that preset with any memory, or ``preset:memory``) and
+    ``families`` (every preset whose cpu_model is one of them), narrowed by ``memories`` when
+    given. The report checks the claim on each covered machine of the run and names the covered
+    machines of the scene that the run left out ("not checked (CPU not in this run)")."""
+
+    text: str
+    variants: tuple[str, str]
+    expect: str
+    tolerance: float = 0.0
+    cpus: tuple[str, ...] = ()
+    families: tuple[str, ...] = ()
+    memories: tuple[str, ...] = ()
+
+    def covers(self, preset: str, memory: str, family: str) -> bool:
+        if self.memories and memory not in self.memories:
+            return False
+        preset = preset.split("{")[0]  # a preset with overrides (run.machine) is still that preset
+        return (family in self.families or preset in self.cpus or f"{preset}:{memory}" in self.cpus)
+
+    def describe_coverage(self) -> str:
+        parts = list(self.cpus) + [f"every {f.upper()} preset" for f in self.families]
+        text = ", ".join(parts)
+        return text + (f" (memory {', '.join(self.memories)})" if self.memories else "")
+
+
+@dataclass(frozen=True)
+class Scene:
+    path: Path
+    name: str
+    description: str
+    width: int
+    height: int
+    geometry: GeometrySpec
+    run: RunSpec
+    span_bound: int  # at most this many spans per frame (rows crossed inside the screen)
+    claims: tuple[Claim, ...] = ()
+    kind = "zbuffer"
+
+    # short names for what the runner and reports read
+    @property
+    def variants(self) -> tuple[str, ...]:
+        return self.run.variants
+
+    @property
+    def metrics(self) -> tuple[str, ...]:
+        return self.run.metrics
+
+    @property
+    def frames(self) -> int:
+        return self.run.frames
+
+    @property
+    def cpus(self) -> list[str]:
+        return [m.label for m in self.run.cpus]
+
+    def build_geometry(self) -> raster.Geometry:
+        return self.geometry.build(self.width, self.height)
+
+    def rasterize(self) -> raster.Spans:
+        return raster.rasterize(self.build_geometry(), self.width, self.height)
+
+    @property
+    def needs(self) -> Needs:
+        variants = self.run.variants
+        metrics = self.run.metrics
+        machines = self.run.cpus
+        zb = {v: ZBUF_BYTES[v] for v in variants}
+        arena = frame_arena_bytes(self.width, self.height, self.span_bound, max(zb.values()))["total"]
+        return Needs(
+            kernels=tuple(f"{KERNEL_DIR}/{v}.S" for v in variants),
+            entries=tuple(f"{v}_frame" for v in variants),
+            cpus=tuple(dict.fromkeys(m.preset for m in machines)),
+            memories=tuple(dict.fromkeys(m.memory for m in machines)),
+            machines=machines,
+            metrics=metrics,
+            reference=any(m in metrics for m in ("visibility", "depth_error", "z_fighting")),
+            colour_buffer=any(m in metrics for m in ("visibility", "z_fighting")),
+            zbuf_bytes=zb,
+            arena_bytes=arena,
+        )
+
+
+# ---------------------------------------------------------------------------------------------
+# loading and validation
+
+def _line_of(text: str, table: str | None, key: str | None = None, index: int | None = None) -> int | None:
+    """Best-effort line number of `key` in [table] (the index-th [[table]] for arrays of tables),
+    or of the table's header when key is None; None when not found."""
+    header = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*(#.*)?$")
+    keyline = re.compile(r"""^\s*(?:"([^"]*)"|'([^']*)'|([A-Za-z0-9_-]+))\s*=""")
+    current, seen, in_target = "", {}, table in (None, "")
+    for number, line in enumerate(text.splitlines(), 1):
+        m = header.match(line)
+        if m:
+            current = m.group(2).replace(" ", "")
+            count = seen.get(current, -1) + 1 if m.group(1) == "[[" else 0
+            seen[current] = count
+            in_target = current == table and (index is None or count == index)
+            if in_target and key is None:
+                return number
+            continue
+        if in_target and key is not None:
+            k = keyline.match(line)
+            if k and next(g for g in k.groups() if g is not None) == key:
+                return number
+    return None
+
+
+class _Validator:
+    def __init__(self, path: Path, text: str):
+        self.path, self.text = path, text
+
+    def fail(self, field: str, message: str, table: str | None = None, key: str | None = None,
+             index: int | None = None):
+        line = _line_of(self.text, table, key, index) if (table or key) else None
+        where = f"{self.path}:{line}" if line else f"{self.path}"
+        raise SceneError(f"{where}: {field}: {message}" if field else f"{where}: {message}")
+
+    def table(self, doc: dict, name: str, required: bool = True) -> dict:
+        if name not in doc:
+            if required:
+                self.fail(name, f"missing required table [{name}]")
+            return {}
+        value = doc[name]
+        if not isinstance(value, dict):
+            self.fail(name, f"expected a table [{name}], got {_toml_type(value)}", None, name)
+        return value
+
+    def machine(self, machines: list, label: str, memory: str | None, field: str, table: str, key: str,
+                index: int | None = None) -> None:
+        """Append the CpuChoice of a machine label (preset{overrides}) and memory to `machines`, with
+        one error naming `field` for an unknown preset or memory, an unusable override, or a repeat."""
+        from sim.cpus import machine_label, make_model, memory_presets, presets, split_label
+
+        try:
+            preset, overrides = split_label(label)
+        except RetrosimError as e:
+            self.fail(field, str(e), table, key, index)
+        known_cpus, known_mem = presets.available(), memory_presets()
+        if preset not in known_cpus:
+            self.fail(field, f"unknown CPU preset '{preset}' (known: {', '.join(known_cpus)})", table, key, index)
+        if memory is not None and memory not in known_mem:
+            self.fail(field, f"unknown memory preset '{memory}' (known: {', '.join(known_mem)})", table, key, index)
+        try:
+            label = machine_label(preset, overrides)
+            model = make_model(label, memory)  # validates every override (and the geometry it makes)
+        except RetrosimError as e:
+            self.fail(field, f"CPU preset '{preset}' is unusable: {e}", table, key, index)
+        choice = CpuChoice(label, model.dram.name, memory is not None)
+        # the same machine spelled twice ('pentium2-233' and its default 'pentium2-233:edo')
+        same = next((m for m in machines if (m.preset, m.memory) == (choice.preset, choice.memory)), None)
+        if same is not None:
+            self.fail(field, f"repeats '{same.label}' (both are {choice.preset} with {choice.memory} memory)",
+                      table, key, index)
+        machines.append(choice)
+
+    def machines(self, cpus) -> list[CpuChoice]:
+        """run.cpus entries (preset{overrides}[:memory]) as CpuChoices, each checked by :meth:`machine`."""
+        machines: list[CpuChoice] = []
+        for i, entry in enumerate(cpus):
+            label, sep, memory = entry.partition(":")
+            self.machine(machines, label, memory if sep else None, f"run.cpus[{i}]", "run", "cpus")
+        return machines
+
+    def families(self, field: str, families, index: int) -> None:
+        """A claim's families = [...] name known families."""
+        for fam in families:
+            if fam not in FAMILIES:
+                self.fail(f"{field}.families", f"unknown family '{fam}' (known: {', '.join(FAMILIES)})",
+                          "claims", "families", index)
+
+    def require_cover(self, field: str, index: int, machines: list, covers) -> None:
+        """A claim must cover at least one of the scene's machines: covers(preset, memory, family)."""
+        from sim.cpus import family_of
+
+        if not any(covers(m.preset, m.memory, family_of(m.preset)) for m in machines):
+            self.fail(field, f"covers none of run.cpus ({', '.join(m.label for m in machines)})", "claims", None,
+                      index)
+
+    def claim_tables(self, doc: dict) -> list[dict]:
+        """The [[claims]] tables of a scene (none: an empty list)."""
+        raw = doc.get("claims", [])
+        if not isinstance(raw, list) or not all(isinstance(c, dict) for c in raw):
+            self.fail("claims", "expected an array of tables [[claims]]", None, "claims")
+        return raw
+
+    def keys(self, data: dict, allowed: dict, table: str, index: int | None = None, field: str | None = None,
+             note: str = "") -> None:
+        field = field or table
+        for key in data:
+            if key not in allowed:
+                self.fail(f"{field}.{key}", f"unknown key{note} (allowed: {', '.join(allowed)})", table, key, index)
+        for key, (_, required) in allowed.items():
+            if required and key not in data:
+                self.fail(f"{field}.{key}", f"missing required field{note}", table, None, index)
+
+    def typed(self, data: dict, key: str, kind: str, table: str, index: int | None = None,
+              field: str | None = None, default=None):
+        field = f"{field or table}.{key}"
+        if key not in data:
+            return default
+        value = data[key]
+
+        def wrong(what=None):
+            self.fail(field, f"expected {_KIND_NAMES[kind]}, got {what or _toml_type(value)} {_show(value)}",
+                      table, key, index)
+
+        if kind == "int":
+            if isinstance(value, bool) or not isinstance(value, int):
+                wrong()
+            return value
+        if kind == "number":
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                wrong()
+            if not math.isfinite(value):
+                self.fail(field, f"must be finite, got {value}", table, key, index)
+            return float(value)
+        if kind == "str":
+            if not isinstance(value, str):
+                wrong()
+            return value
+        if kind == "strlist":
+            if not isinstance(value, list):
+                wrong()
+            for i, item in enumerate(value):
+                if not isinstance(item, str):
+                    self.fail(f"{field}[{i}]", f"expected a string, got {_toml_type(item)} {_show(item)}",
+                              table, key, index)
+            return tuple(value)
+        if kind == "range":
+            if (not isinstance(value, list) or len(value) != 2
+                    or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)):
+                wrong()
+            lo, hi = float(value[0]), float(value[1])
+            if not (0.0 <= lo < hi <= 1.0):
+                self.fail(field, f"need 0 <= lo < hi <= 1, got {_show(value)}", table, key, index)
+            return lo, hi
+        if kind == "tables":
+            if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
+                wrong()
+            return value
+        return value
+
+    def at_least(self, value, minimum, field: str, table: str, key: str, what: str = "") -> None:
+        if value is not None and value < minimum:
+            self.fail(field, f"must be >= {minimum}{what}, got {value}", table, key)
+
+    def at_most(self, value, maximum, field: str, table: str, key: str, what: str = "") -> None:
+        if value is not None and value > maximum:
+            self.fail(field, f"must be <= {maximum}{what}, got {value}", table, key)
+
+
+def _numbers(v, shape: tuple[int, ...]) -> bool:
+    if len(shape) == 0:
+        return not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
+    return isinstance(v, list) and len(v) == shape[0] and all(_numbers(x, shape[1:]) for x in v)
+
+
+def max_visits() -> int:
+    import os
+
+    raw = os.environ.get(MAX_VISITS_ENV, "").strip()
+    try:
+        value = int(raw) if raw else DEFAULT_MAX_VISITS
+    except ValueError:
+        raise SceneError(f"{MAX_VISITS_ENV}={raw!r}: expected a whole number of pixel visits") from None
+    return value
+
+
+def _check_visits(v: _Validator, geometry: GeometrySpec, width: int, height: int, span_bound: int) -> None:
+    """Refuse a scene whose frame draws more pixels than host memory can follow (see MAX_VISITS_ENV).
+    Cheap bound first (rows x width); only above the limit is the geometry rasterized to count."""
+    limit = max_visits()
+    if span_bound * width <= limit:
+        return
+    try:
+        visits = int(raster.rasterize(geometry.build(width, height), width, height).count.sum(dtype=np.int64))
+    except ValueError as e:
+        v.fail("geometry", f"cannot build the geometry: {e}", "geometry")
+    if visits > limit:
+        v.fail("geometry", f"a frame draws {visits:,} pixels ({visits / (width * height):.1f} per screen pixel), "
+               f"more than the limit of {limit:,} (host memory: about {VISIT_BYTES} bytes each, "
+               f"{visits * VISIT_BYTES / 2**30:.0f} GB here); raise {MAX_VISITS_ENV} if the machine has the memory",
+               "geometry")
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Parse and validate a scene file; raises SceneError with one line naming file and field."""
+    from sim.cpus import memory_presets
+    from sim.cpus import presets as cpu_presets
+    from sim.guest.emu import DEFAULT_ARENA
+
+    path = Path(path)
+    try:
+        st = path.stat()
+        # a scene is text of modest size: never read a device, a pipe or a sparse giant whole
+        if not stat.S_ISREG(st.st_mode):
+            raise SceneError(f"{path}: not a regular file (a device, pipe or folder)")
+        if st.st_size > MAX_SCENE_BYTES:
+            raise SceneError(f"{path}: {st.st_size:,} bytes, more than the {MAX_SCENE_BYTES >> 20} MB a scene file may have")
+        raw = path.read_bytes()
+    except OSError as e:
+        raise SceneError(f"{path}: cannot read scene file: {e.strerror or e}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise SceneError(f"{path}: not UTF-8 text ({e.reason} at byte {e.start})") from None
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        msg = str(e)
+        m = re.search(r"\s*\(at line (\d+), column (\d+)\)\s*$", msg)
+        if m:
+            raise SceneError(f"{path}:{m.group(1)}: TOML syntax error: {msg[:m.start()]} "
+                             f"(column {m.group(2)})") from None
+        m = re.search(r"\s*\(at end of document\)\s*$", msg)
+        if m:
+            line = text.count("\n") + (0 if text.endswith("\n") else 1)
+            raise SceneError(f"{path}:{max(line, 1)}: TOML syntax error: {msg[:m.start()]} (at end of document)") from None
+        raise SceneError(f"{path}: TOML syntax error: {msg}") from None
+
+    v = _Validator(path, text)
+    kind = doc["scene"].get("kind", "zbuffer") if isinstance(doc.get("scene"), dict) else "zbuffer"
+    if kind not in KINDS:
+        v.fail("scene.kind", f"unknown kind {_show(kind)} (known: {', '.join(KINDS)})", "scene", "kind")
+    if kind != "zbuffer":
+        return kind_module(kind).load(path, text, doc)
+    for key in doc:
+        if key not in ("scene", "geometry", "run", "claims"):
+            v.fail(key, "unknown table (allowed: scene, geometry, run, claims)", key if isinstance(doc[key], dict) else None,
+                   None if isinstance(doc[key], dict) else key)
+
+    # [scene]
+    sc = v.table(doc, "scene")
+    v.keys(sc, _SCENE_KEYS, "scene")
+    name = v.typed(sc, "name", "str", "scene")
+    description = v.typed(sc, "description", "str", "scene", default="")
+    width = v.typed(sc, "width", "int", "scene")
+    height = v.typed(sc, "height", "int", "scene")
+    if name != path.stem:
+        v.fail("scene.name", f"'{name}' must equal the file name '{path.stem}'", "scene", "name")
+    v.at_least(width, 1, "scene.width", "scene", "width")
+    v.at_least(height, 1, "scene.height", "scene", "height")
+    v.at_most(width, 1 << 15, "scene.width", "scene", "width")
+    v.at_most(height, 1 << 15, "scene.height", "scene", "height")
+
+    # [geometry]
+    ge = v.table(doc, "geometry")
+    if "generator" not in ge:
+        v.fail("geometry.generator", f"missing required field (one of: {', '.join(GENERATORS)})", "geometry")
+    gen = v.typed(ge, "generator", "str", "geometry")
+    if gen not in GENERATORS:
+        v.fail("geometry.generator", f"unknown generator '{gen}' (known: {', '.join(GENERATORS)})",
+               "geometry", "generator")
+    allowed = {"generator": ("str", True), **_GENERATOR_KEYS[gen]}
+    v.keys(ge, allowed, "geometry", note=f" for generator '{gen}'")
+    vals = {k: v.typed(ge, k, kind, "geometry") for k, (kind, _) in _GENERATOR_KEYS[gen].items()}
+    if vals.get("seed") is not None and not 0 <= vals["seed"] < 1 << 63:
+        v.fail("geometry.seed", f"must be between 0 and 2^63 - 1, got {vals['seed']}", "geometry", "seed")
+    max_tri = raster.MAX_TRIANGLES
+    if vals.get("triangles") is not None:
+        v.at_least(vals["triangles"], 1, "geometry.triangles", "geometry", "triangles")
+        v.at_most(vals["triangles"], max_tri, "geometry.triangles", "geometry", "triangles",
+                  " (colours are 16-bit: triangle index + 1)")
+    if vals.get("pairs") is not None:
+        v.at_least(vals["pairs"], 1, "geometry.pairs", "geometry", "pairs")
+        v.at_most(vals["pairs"], max_tri // 2, "geometry.pairs", "geometry", "pairs")
+    if vals.get("depth_complexity") is not None and not vals["depth_complexity"] > 0:
+        v.fail("geometry.depth_complexity", f"must be > 0, got {vals['depth_complexity']}", "geometry",
+               "depth_complexity")
+    if gen == "coplanar_far" and vals.get("separation") is not None:
+        lo, hi = vals.get("z_range") or (0.85, 0.95)
+        if not 0 < vals["separation"] < hi - lo:
+            v.fail("geometry.separation", f"must be > 0 and smaller than the z range ({hi - lo:g}), "
+                   f"got {vals['separation']}", "geometry", "separation")
+    triangle_list: list[TriangleSpec] = []
+    if gen == "triangles":
+        tables = vals.pop("triangle")
+        if not tables:
+            v.fail("geometry.triangle", "needs at least one [[geometry.triangle]]", "geometry")
+        if len(tables) > max_tri:
+            v.fail("geometry.triangle", f"{len(tables)} triangles: at most {max_tri}", "geometry")
+        for i, t in enumerate(tables):
+            tname, field = "geometry.triangle", f"geometry.triangle[{i}]"
+            v.keys(t, _TRIANGLE_KEYS, tname, i, field)
+            if not _numbers(t["xy"], (3, 2)):
+                v.fail(f"{field}.xy", f"expected three [x, y] pairs of finite numbers, got {_show(t['xy'])}",
+                       tname, "xy", i)
+            if any(abs(float(c)) > MAX_COORDINATE for p in t["xy"] for c in p):
+                # the plane setup multiplies coordinate differences: far beyond the screen they overflow
+                v.fail(f"{field}.xy", f"coordinates must be within +-{MAX_COORDINATE:,} pixels, got {_show(t['xy'])}",
+                       tname, "xy", i)
+            if not _numbers(t["z"], (3,)):
+                v.fail(f"{field}.z", f"expected three finite numbers, got {_show(t['z'])}", tname, "z", i)
+            if not all(0.0 <= float(z) < 1.0 for z in t["z"]):
+                v.fail(f"{field}.z", f"depths must be in [0, 1), got {_show(t['z'])}", tname, "z", i)
+            colour = v.typed(t, "colour", "int", tname, i, field)
+            if colour is not None and not 1 <= colour <= 0xFFFF:
+                v.fail(f"{field}.colour", f"must be 1..65535 (0 means 'no triangle'), got {colour}", tname, "colour", i)
+            triangle_list.append(TriangleSpec(tuple(tuple(float(c) for c in p) for p in t["xy"]),
+                                              tuple(float(z) for z in t["z"]), colour))
+    geometry = GeometrySpec(gen, triangle_list=tuple(triangle_list), **vals)
+
+    # [run]
+    ru = v.table(doc, "run")
+    v.keys(ru, _RUN_KEYS, "run")
+    variants = v.typed(ru, "variants", "strlist", "run")
+    cpus = v.typed(ru, "cpus", "strlist", "run")
+    metrics = v.typed(ru, "metrics", "strlist", "run", default=())
+    frames = v.typed(ru, "frames", "int", "run", default=1)
+    for key, items in (("variants", variants), ("cpus", cpus)):
+        if not items:
+            v.fail(f"run.{key}", "must not be empty", "run", key)
+    for key, items in (("variants", variants), ("cpus", cpus), ("metrics", metrics)):
+        dup = [x for i, x in enumerate(items) if x in items[:i]]
+        if dup:
+            v.fail(f"run.{key}[{items.index(dup[0], items.index(dup[0]) + 1)}]", f"'{dup[0]}' is listed twice",
+                   "run", key)
+    for i, var in enumerate(variants):
+        if var not in VARIANTS:
+            v.fail(f"run.variants[{i}]", f"unknown variant '{var}' (known: {', '.join(VARIANTS)})", "run", "variants")
+    for i, met in enumerate(metrics):
+        if met not in METRICS:
+            v.fail(f"run.metrics[{i}]", f"unknown metric '{met}' (known: {', '.join(METRICS)})", "run", "metrics")
+        if met == "z_fighting" and gen != "coplanar_far":
+            v.fail(f"run.metrics[{i}]", f"'z_fighting' needs coplanar pairs: generator 'coplanar_far', not '{gen}'",
+                   "run", "metrics")
+    from sim.cpus import machine_label
+
+    known_cpus, known_mem = cpu_presets.available(), memory_presets()
+    machines = []
+
+    def machine(label: str, memory: str | None, field: str, table: str, key: str, index=None):
+        v.machine(machines, label, memory, field, table, key, index)
+
+    for i, entry in enumerate(cpus):
+        preset, sep, memory = entry.partition(":")
+        machine(preset, memory if sep else None, f"run.cpus[{i}]", "run", "cpus")
+    for i, table in enumerate(v.typed(ru, "machine", "tables", "run", default=[])):
+        field = f"run.machine[{i}]"
+        v.keys(table, _MACHINE_KEYS, "run.machine", i, field)
+        cpu = v.typed(table, "cpu", "str", "run.machine", i, field)
+        memory = v.typed(table, "memory", "str", "run.machine", i, field)
+        sets = table["set"]
+        if not isinstance(sets, dict) or not sets:
+            v.fail(f"{field}.set", f"expected a non-empty table of overrides, got {_toml_type(sets)} {_show(sets)}",
+                   "run.machine", "set", i)
+        flat = {}
+
+        def walk(d, prefix):  # set = { l2.size_kb = 256 } parses as nested tables: dotted keys again
+            for k, x in d.items():
+                if isinstance(x, dict):
+                    walk(x, f"{prefix}{k}.")
+                elif isinstance(x, list):
+                    v.fail(f"{field}.set.{prefix}{k}", f"expected a number, a string or a boolean, got {_show(x)}",
+                           "run.machine", "set", i)
+                else:
+                    flat[f"{prefix}{k}"] = x
+
+        walk(sets, "")
+        sets = flat
+        try:
+            label = machine_label(cpu, sets)
+        except RetrosimError as e:
+            v.fail(f"{field}.set", str(e), "run.machine", "set", i)
+        machine(label, memory, field, "run.machine", "set", i)
+    v.at_least(frames, 1, "run.frames", "run", "frames")
+    v.at_most(frames, 1000, "run.frames", "run", "frames")
+
+    # does a frame fit in the guest arena? First with a bound needing no geometry (every triangle
+    # spans every row); only when that is too much, count the rows the triangles actually cross.
+    zbytes = max(ZBUF_BYTES[x] for x in variants)
+    widest = next(x for x in variants if ZBUF_BYTES[x] == zbytes)
+    ntri = len(triangle_list) if gen == "triangles" else (vals.get("triangles") or 0)
+    if gen == "coplanar_far":
+        ntri = 2 * (vals.get("pairs") or 40)
+    elif not ntri:
+        ntri = {"steep": 40, "near_far": 200, "tiny": 2000}[gen]
+    span_bound = ntri * height
+    need = frame_arena_bytes(width, height, span_bound, zbytes)
+    if need["total"] > DEFAULT_ARENA:
+        try:
+            geometry_built = geometry.build(width, height)
+        except ValueError as e:
+            v.fail("geometry", f"cannot build the geometry: {e}", "geometry")
+        span_bound = raster.count_rows(geometry_built, width, height)
+        need = frame_arena_bytes(width, height, span_bound, zbytes)
+    if need["total"] > DEFAULT_ARENA:
+        v.fail("scene.width", f"a {width}x{height} frame does not fit in the guest arena: it needs {need['total']:,} "
+               f"bytes ({widest} depth buffer {need['zbuf']:,} + colour buffer {need['fbuf']:,} + "
+               f"{need['span_count']:,} span records x {SPAN_RECORD_BYTES} = {need['spans']:,}), "
+               f"the arena has {DEFAULT_ARENA:,}", "scene", "width")
+
+    _check_visits(v, geometry, width, height, span_bound)
+
+    # [[claims]]
+    claims = []
+    for i, c in enumerate(v.claim_tables(doc)):
+        field = f"claims[{i}]"
+        v.keys(c, _CLAIM_KEYS, "claims", i, field)
+        text = v.typed(c, "text", "str", "claims", i, field)
+        cpu = v.typed(c, "cpu", "str", "claims", i, field)
+        cover = list(v.typed(c, "cpus", "strlist", "claims", i, field, default=()))
+        families = v.typed(c, "families", "strlist", "claims", i, field, default=())
+        memories = v.typed(c, "memories", "strlist", "claims", i, field, default=())
+        pair = v.typed(c, "variants", "strlist", "claims", i, field)
+        expect = v.typed(c, "expect", "str", "claims", i, field)
+        tolerance = v.typed(c, "tolerance", "number", "claims", i, field, default=0.0)
+        if cpu is not None:
+            cover.insert(0, cpu)
+        if not cover and not families:
+            v.fail(field, "names no CPU: give cpus = [...] (presets or preset:memory) and/or families = [...]",
+                   "claims", None, i)
+        for entry in cover:
+            preset, sep, memory = entry.partition(":")
+            if preset not in known_cpus:
+                v.fail(f"{field}.cpus", f"unknown CPU preset '{preset}' (known: {', '.join(known_cpus)})",
+                       "claims", "cpus" if "cpus" in c else "cpu", i)
+            if sep and memory not in known_mem:
+                v.fail(f"{field}.cpus", f"unknown memory preset '{memory}' in '{entry}' (known: {', '.join(known_mem)})",
+                       "claims", "cpus" if "cpus" in c else "cpu", i)
+        v.families(field, families, i)
+        for mem in memories:
+            if mem not in known_mem:
+                v.fail(f"{field}.memories", f"unknown memory preset '{mem}' (known: {', '.join(known_mem)})",
+                       "claims", "memories", i)
+        if len(pair) != 2 or any(x not in variants for x in pair):
+            v.fail(f"{field}.variants", f"expected two of run.variants ({', '.join(variants)}), got {_show(list(pair))}",
+                   "claims", "variants", i)
+        if expect not in EXPECTATIONS:
+            v.fail(f"{field}.expect", f"unknown expectation '{expect}' (known: {', '.join(EXPECTATIONS)})",
+                   "claims", "expect", i)
+        if not 0 <= tolerance < 1:
+            v.fail(f"{field}.tolerance", f"must be in [0, 1), got {tolerance}", "claims", "tolerance", i)
+        claim = Claim(text, (pair[0], pair[1]), expect, tolerance, tuple(cover), tuple(families), tuple(memories))
+        v.require_cover(field, i, machines, claim.covers)
+        claims.append(claim)
+
+    return Scene(path, name, description, width, height, geometry,
+                 RunSpec(variants, tuple(machines), metrics, frames), span_bound, tuple(claims))

@@ -1,0 +1,212 @@
+"""Time a kernel on a CPU model: emulate (traced), decode, and run the family's timing model.
+
+The kernel's entry point is called `repeat` times in one machine state, so caches and predictors
+carry over from call to call as they would in a program; the report is the last call. RDTSC inside
+a kernel returns the simulated cycle count: a first pass times the run, a second pass replays it
+with RDTSC answering the first pass's cycles (the instruction stream does not depend on the values
+RDTSC returns unless the kernel branches on them; the replay checks that it did not).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from sim.cpus import make_model
+from sim.guest.decode import Decoder
+from sim.guest.emu import Machine
+from sim.errors import LimitError, RetrosimError
+from sim.guest.trace import Trace, check_trace_bytes
+
+Setup = Callable[[Machine], list]  # builds the call's arguments (and buffers) in a fresh machine
+
+
+@dataclass
+class TimingResult:
+    cpu: str
+    memory: str
+    entry: str
+    source: Path
+    repeat: int
+    calls: list[dict]                 # counters per call
+    model: object = field(repr=False)
+    run: object = field(repr=False)
+    trace: Trace | None = field(repr=False)  # None when the run was streamed (sim/stream.py)
+
+    @property
+    def last(self) -> dict:
+        return self.calls[-1]
+
+    def summary(self) -> dict:
+        d = {"cpu": self.cpu, "memory": self.memory, "entry": self.entry, "repeat": self.repeat}
+        d.update(self.last)
+        return d
+
+
+def hot_loop_window(pc: np.ndarray, start: int, iterations: int, cap: int = 256) -> tuple[int, int]:
+    """(first instruction, count) covering `iterations` passes through the most executed PC of
+    pc[start:], taken from the middle of that range (steady state, caches and predictors warm)."""
+    if iterations <= 0 or start >= pc.size:
+        return (0, 0)
+    part = pc[start:]
+    values, counts = np.unique(part, return_counts=True)
+    head = values[np.argmax(counts)]
+    where = np.flatnonzero(part == head)
+    k = max(0, len(where) // 2 - 1)
+    end = where[min(k + iterations, len(where) - 1)] if len(where) > k + 1 else part.size
+    return (start + int(where[k]), int(min(cap, max(1, end - where[k]))))
+
+
+@dataclass
+class Emulation:
+    """A kernel's traced run: `repeat` calls in one machine state. The trace does not depend on
+    the CPU model, so one emulation serves every preset (unless the kernel reads RDTSC)."""
+
+    source: Path
+    entry: str
+    setup: Setup | None
+    repeat: int
+    budget: int
+    assembler: str | None
+    machine: Machine = field(repr=False)
+    trace: Trace = field(repr=False)
+    bounds: list[int]
+    isa_cpu: str | None = None  # the CPU preset the kernel was assembled for (None: plain i686)
+    # one decoder per emulation: its records and its trace index are computed once however many
+    # machines (and claim re-timings) time the trace
+    _decoder: Decoder | None = field(default=None, init=False, repr=False, compare=False)
+
+    @property
+    def last_call(self) -> int:
+        return self.bounds[-2] if len(self.bounds) > 1 else 0
+
+    def decoder(self) -> Decoder:
+        if self._decoder is None:
+            self._decoder = Decoder(self.machine.image.fetch)
+        return self._decoder
+
+    def replay(self, rdtsc_values: list[int]) -> Emulation:
+        return emulate(self.source, self.entry, self.setup, self.repeat, self.budget, self.assembler, rdtsc_values,
+                       self.isa_cpu)
+
+
+def emulate(source: str | Path, entry: str, setup: Setup | None = None, repeat: int = 2,
+            budget: int = 200_000_000, assembler: str | None = None,
+            rdtsc_values: list[int] | None = None, isa_cpu: str | None = None,
+            progress: Callable[[int, int], None] | None = None) -> Emulation:
+    """`isa_cpu`: assemble for that preset's instruction set (shipped kernels stay plain i686, so
+    one emulation serves every preset). `progress(done, repeat)` is called after each call."""
+    if repeat < 1:
+        raise RetrosimError(f"--repeat must be at least 1, got {repeat}")
+    answers = iter(rdtsc_values or [])
+    clock = (lambda ev: next(answers, 0)) if rdtsc_values is not None else None
+    machine = Machine.from_source(source, assembler=assembler, cpu=isa_cpu, rdtsc=clock)
+    args = setup(machine) if setup else []
+    parts = []
+    for k in range(repeat):
+        parts.append(machine.call(entry, *args, budget=budget, trace=True).trace)
+        # the calls' traces are all kept (the model times them in one machine state): bound them
+        check_trace_bytes(sum(p.nbytes for p in parts), sum(p.instructions for p in parts))
+        if progress is not None:
+            progress(k + 1, repeat)
+    bounds = np.cumsum([p.instructions for p in parts]).tolist()
+    return Emulation(Path(source), entry, setup, repeat, budget, assembler, machine, Trace.concatenate(parts), bounds,
+                     isa_cpu)
+
+
+# The timing models keep per-instruction state (decoded uops, issue and retire cycles, the timeline):
+# about 90 bytes per traced instruction, measured on `retrosim time` (1 M and 4 M instruction loops:
+# +88 MB per million). Bounded so that a long run stops with a message instead of exhausting memory.
+MODEL_LIMIT_ENV = "RETROSIM_MODEL_MB"
+DEFAULT_MODEL_LIMIT_MB = 8192
+MODEL_BYTES_PER_INSTRUCTION = 90
+
+
+def check_model_memory(instructions: int) -> None:
+    raw = os.environ.get(MODEL_LIMIT_ENV, "").strip()
+    try:
+        limit_mb = int(raw) if raw else DEFAULT_MODEL_LIMIT_MB
+    except ValueError:
+        raise LimitError(f"{MODEL_LIMIT_ENV}={raw!r}: expected a whole number of megabytes") from None
+    need_mb = instructions * MODEL_BYTES_PER_INSTRUCTION >> 20
+    if need_mb > limit_mb:
+        raise LimitError(f"timing {instructions:,} instructions needs about {need_mb:,} MB of host memory, more than "
+                         f"the limit {MODEL_LIMIT_ENV}={limit_mb}; raise it, or lower --budget or --repeat")
+
+
+def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None,
+                   timeline_iterations: int = 0, access_logs=None) -> TimingResult:
+    """Time an emulation on one CPU preset (a name, or a model from make_model).
+    `timeline_iterations`: record a per-instruction timeline of that many iterations of the hot
+    loop (the last call's most executed PC), from the middle of the last call. `access_logs`
+    (a sim.memory.replay.AccessLogs): re-timings of the same emulation on the same data caches
+    reuse the first one's cache results (the P6 and K6 cores; the P5 core walks its caches each time)."""
+    model = make_model(cpu, memory) if isinstance(cpu, str) else cpu
+    cpu = model.preset.name
+    check_model_memory(emu.trace.instructions)
+    timeline = hot_loop_window(emu.trace.pc, emu.last_call, timeline_iterations)
+    decoder = emu.decoder()
+    check_isa(emu, decoder, model.preset)
+    run = model.run(emu.trace, decoder, emu.bounds, timeline, emu.last_call, access_logs=access_logs)
+    if run.rdtsc.size:
+        replay = emu.replay([int(c) for c in run.rdtsc])
+        if not np.array_equal(replay.trace.pc, emu.trace.pc):
+            raise RetrosimError(f"{emu.source}: {emu.entry} branches on RDTSC values; its timing cannot be replayed")
+        emu = replay
+        run = model.run(emu.trace, emu.decoder(), emu.bounds, timeline, emu.last_call, access_logs=access_logs)
+    calls = [run.segment(k) for k in range(len(emu.bounds))]
+    return TimingResult(cpu, model.dram.name, emu.entry, emu.source, emu.repeat, calls, model, run, emu.trace)
+
+
+def check_isa(emu: Emulation, decoder: Decoder, preset) -> None:
+    """Refuse (one IsaError) an executed instruction the preset lacks, or a system instruction.
+    Where the kernel assembles for that CPU, the error is the assembler's, with the source line."""
+    records, _ = decoder.decode_trace(emu.trace.pc)
+    check_records(records, preset, emu.source, emu.machine, emu.assembler, emu.isa_cpu)
+
+
+def check_records(records, preset, source: Path, machine: Machine, assembler: str | None, isa_cpu: str | None) -> None:
+    """:func:`check_isa` for decoded records (a streamed run checks each chunk's new ones)."""
+    from sim.guest.isa import IsaError, check_record
+
+    for rec in records:
+        try:
+            check_record(rec, preset, lambda: f"{source}: pc {machine.where(rec.pc)}")
+        except IsaError:
+            # GNU as, told the CPU, refuses the instruction with its source line (clang does not)
+            from sim.guest.asm import assemble
+            from sim.errors import AssemblerMissing
+
+            for name in dict.fromkeys(n for n in (assembler, "gnu") if isa_cpu != preset.name or n == "gnu"):
+                try:
+                    assemble(source, name, preset.name)
+                except AssemblerMissing:
+                    pass
+            raise
+
+
+def time_kernel(source: str | Path, entry: str, setup: Setup | None = None, cpu: str = "pentium2-233",
+                memory: str | None = None, repeat: int = 2, budget: int = 200_000_000,
+                timeline_iterations: int = 0, assembler: str | None = None,
+                progress: Callable[[int, int], None] | None = None) -> TimingResult:
+    """Emulate and time in one step (see :func:`emulate` and :func:`time_emulation`); the kernel is
+    assembled for the preset's instruction set. The model times the trace as the emulator makes it
+    (sim/stream.py), unless a timeline window is asked for (it is chosen from the whole trace), the
+    model cannot take a trace in chunks, or the kernel reads RDTSC (its answers need a first pass)."""
+    model = make_model(cpu, memory)  # before emulating: an unknown preset fails fast
+    if timeline_iterations == 0 and hasattr(model, "session"):
+        from sim.timing.stream import emulate_and_time
+
+        name = model.preset.name
+        machine, run = emulate_and_time(
+            source, entry, setup, model, repeat, budget, assembler, progress,
+            check=lambda m, records: check_records(records, model.preset, Path(source), m, assembler, name))
+        if run.rdtsc.size == 0:
+            calls = [run.segment(k) for k in range(repeat)]
+            return TimingResult(name, model.dram.name, entry, Path(source), repeat, calls, model, run, None)
+    emu = emulate(source, entry, setup, repeat, budget, assembler, isa_cpu=model.preset.name, progress=progress)
+    return time_emulation(emu, model, timeline_iterations=timeline_iterations)

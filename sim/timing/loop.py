@@ -1,0 +1,391 @@
+"""Time a bare loop body or basic block, the way llvm-mca and uiCA take one.
+
+The input is instructions only (Intel or AT&T syntax, comments `#`, `//` and, in Intel syntax, `;`).
+Two shapes are accepted:
+
+- a **loop**: the last instruction is a conditional jump (or LOOP/JECXZ, or a JMP) to a label on
+  the first instruction; the body runs as written (its own counter must not run out first);
+- a **block**: anything else; it is repeated back to back (unrolled, as uiCA's unrolled mode), so
+  no loop counter or branch is added to what is timed.
+
+The tool supplies everything a kernel would: the code around the body, register start values
+(:data:`REG_DEFAULTS`, overridable), a stack, and a demand-zero data region: every data page the
+body touches is mapped zero-filled on first use (Unicorn's unmapped-memory hook), up to
+:data:`MAX_DATA_PAGES`. Addresses below :data:`NULL_LIMIT` are never mapped, so a null pointer faults.
+
+Measurement: the body runs ``iterations`` times twice from the same registers (the first pass
+warms caches and predictors). In the second pass the counters are cut where iteration
+``iterations // 2`` and iteration ``iterations`` start; steady-state figures are the difference
+divided by the iterations between (start-up and drain cancel). Any family's model from
+:func:`sim.cpus.make_model` serves, as for `retrosim time`.
+"""
+
+from __future__ import annotations
+
+import re
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from unicorn import UC_ERR_EXCEPTION, UC_HOOK_MEM_READ_UNMAPPED, UC_HOOK_MEM_WRITE_UNMAPPED, UC_PROT_READ, UC_PROT_WRITE, UcError
+from unicorn import x86_const as X
+
+from sim.guest import asm
+from sim.guest import elf
+from sim.cpus import make_model
+from sim.guest.decode import Decoder
+from sim.guest.emu import Machine
+from sim.errors import ArgumentError, AssemblerError, GuestFault, RetrosimError
+from sim.timing.kernel import TimingResult
+from sim.guest.trace import NativeTracer, Trace
+
+# Start values. Every register but ESP is a valid pointer (compilers use any of them as one):
+# regions 4 MB apart in unmapped low memory (demand-zero, below the 64 MB that Socket 7 board
+# caches cover), each shifted by a different multiple of 0x440 bytes so that streams fall in
+# different cache sets (4 KB P6 ways, 16 KB K6 ways) and sectors, as real buffers would. The values
+# are large, so `dec reg / jnz` loops run as long as needed, and distinct, so `cmp reg, reg / jne`
+# loops do too. EDX is the smallest so that `div r32` by any other register cannot overflow (#DE);
+# it is not shifted, so DL and DH start at 0 (byte-register steps stay still).
+REG_DEFAULTS = {"eax": 0x02400000 + 6 * 0x440, "ebx": 0x01800000 + 3 * 0x440, "ecx": 0x02000000 + 5 * 0x440,
+                "edx": 0x00C00000, "esi": 0x01000000, "edi": 0x01400000 + 2 * 0x440,
+                "ebp": 0x01C00000 + 4 * 0x440}
+NULL_LIMIT = 0x10000          # accesses below 64 KB are null-pointer bugs, not data
+MAX_DATA_PAGES = 4096         # 16 MB of demand-zero data at most
+MAX_INSTRUCTIONS = 5_000_000  # per pass: a body that needs more never reaches its back-edge
+DEFAULT_ITERATIONS = 100
+_STACK_TOP = elf.STACK_BASE + elf.STACK_SIZE - 4096  # room above ESP for [esp+k] reads
+
+_LABEL = re.compile(r"^\s*([A-Za-z_.$][\w.$@]*|\d+)\s*:(?!:)")
+_LABEL_RUN = re.compile(r"^(?:\s*(?:[A-Za-z_.$][\w.$@]*|\d+)\s*:(?!:))*")
+_COND = re.compile(r"^(j(?!mp)[a-z]+|loop[a-z]*|jn?e?cxz)$")
+_JUMP = re.compile(r"^(j[a-z]+|loop[a-z]*|call[lw]?|ljmp|lcall)$")
+_REGISTERS = {p + r for r in ("ax", "bx", "cx", "dx", "si", "di", "bp", "sp") for p in ("e", "")}
+_LEAVES = {"ret", "retl", "retn", "retf", "iret", "iretd", "int", "int3", "into", "hlt", "sysenter", "syscall"}
+
+
+@dataclass
+class Body:
+    """A parsed loop body: its lines (user line number, text without comments) and shape."""
+
+    name: str                      # file name for messages (or <stdin>)
+    syntax: str                    # 'intel' or 'att'
+    lines: list[tuple[int, str]]   # every line kept, comments removed
+    labels: set[str]               # labels the body defines
+    head_labels: set[str]          # labels on the first instruction
+    instructions: int              # static instruction count
+    loop: bool                     # ends with a conditional jump to its first instruction
+
+
+def strip_comment(line: str, syntax: str) -> str:
+    """Remove `//`, `#` and (Intel) `;` comments. In GNU as `;` separates statements, so a MASM
+    listing's `; comment` would be assembled as code without this."""
+    cut = [line.find(m) for m in ("//", "#") + ((";",) if syntax == "intel" else ()) if m in line]
+    return (line[:min(cut)] if cut else line).rstrip()
+
+
+def _syntax_of(text: str, syntax: str | None) -> str:
+    if syntax:
+        if syntax not in asm.SYNTAXES:
+            raise ArgumentError(f"--syntax {syntax}: choose intel or att")
+        return syntax
+    m = re.search(r"^\s*\.(intel|att)_syntax", text, re.MULTILINE)
+    if m:
+        return m.group(1)
+    return asm.detect_syntax(text.encode()) or "intel"
+
+
+def parse_body(text: str, name: str = "<stdin>", syntax: str | None = None) -> Body:
+    syntax = _syntax_of(text, syntax)
+    lines, labels, head, order = [], set(), set(), []
+    for number, raw in enumerate(text.splitlines(), 1):
+        line = strip_comment(raw, syntax)
+        rest = line
+        while (m := _LABEL.match(rest)):
+            labels.add(m.group(1))
+            if not order:
+                head.add(m.group(1))
+            rest = rest[m.end():]
+        rest = rest.strip()
+        if rest and not rest.startswith("."):
+            order.append((number, rest))
+        if line.strip():
+            lines.append((number, line))
+    if not order:
+        raise RetrosimError(f"{name}: no instructions in the body")
+    for number, insn in order:  # static check: every jump target must be a label of the body
+        words = insn.replace(",", " ").split()
+        op = words[0].lower()
+        if op in _LEAVES:
+            raise RetrosimError(f"{name}:{number}: '{insn}' leaves the body (a loop body cannot return or trap)")
+        if _JUMP.match(op) and len(words) == 2 and words[1].lower() not in _REGISTERS and re.fullmatch(r"[A-Za-z_.$][\w.$@]*|\d+[bf]", words[1]):
+            target = words[1]
+            local = re.fullmatch(r"(\d+)[bf]", target)
+            if (local.group(1) if local else target) not in labels:
+                raise RetrosimError(f"{name}:{number}: '{insn}' jumps to '{target}', which is not a label of the body")
+    last = order[-1][1].replace(",", " ").split()
+    target = last[1] if len(last) == 2 else ""
+    target = target[:-1] if re.fullmatch(r"\d+b", target) else target
+    # a conditional jump back to the first instruction (or an unconditional one: the harness stops
+    # by counting iterations, so an endless loop is fine) makes the body a loop
+    loop = bool(_COND.match(last[0].lower()) or last[0].lower() in ("jmp", "jmpl")) and target in head
+    return Body(name, syntax, lines, labels, head, len(order), loop)
+
+
+def _rename(line: str, labels: set[str], suffix: str) -> str:
+    """Give a repeated copy its own labels (numeric local labels need no renaming)."""
+    for lab in sorted((x for x in labels if not x.isdigit()), key=len, reverse=True):
+        line = re.sub(rf"(?<![\w.$@]){re.escape(lab)}(?![\w.$@])", lab + suffix, line)
+    return line
+
+
+def wrapper_source(body: Body, copies: int) -> tuple[str, list[int]]:
+    """The assembled file and, per generated line, the user's line number (0 for ours)."""
+    out: list[tuple[str, int]] = []
+    add = lambda text, n=0: out.append((text, n))  # noqa: E731
+    add(".intel_syntax noprefix" if body.syntax == "intel" else ".att_syntax prefix")
+    add(".text")
+    add(".globl retrosim_loop")
+    add("retrosim_loop:")
+    if body.loop:
+        first = True
+        for n, line in body.lines:
+            rest = _LABEL_RUN.sub("", line).strip()
+            if first and rest and not rest.startswith("."):
+                add("retrosim_iter_0:")  # the first instruction: where each iteration starts
+                first = False
+            add(line, n)
+    else:
+        for j in range(copies):
+            add(f"retrosim_iter_{j}:")
+            for n, line in body.lines:
+                add(_rename(line, body.labels, f"__r{j}"), n)
+    add("retrosim_exit:")
+    add("nop")
+    return "\n".join(t for t, _ in out) + "\n", [n for _, n in out]
+
+
+@dataclass
+class LoopRun:
+    """The traced passes of a body: one trace (warm pass then measured pass) and the cut points."""
+
+    body: Body
+    machine: Machine = field(repr=False)
+    trace: Trace = field(repr=False)
+    cuts: list[int]        # end of warm pass, start of iteration n1, start of iteration n2 (measured pass)
+    measured: int          # iterations between the last two cuts
+    iteration_length: int  # instructions in the first measured iteration (for the timeline)
+
+
+class _DemandZero:
+    """Maps zero-filled pages where the body touches unmapped data, within a page budget."""
+
+    def __init__(self, machine: Machine):
+        self.machine, self.pages = machine, 0
+        machine.uc.hook_add(UC_HOOK_MEM_READ_UNMAPPED | UC_HOOK_MEM_WRITE_UNMAPPED, self._on_unmapped)
+
+    def _on_unmapped(self, uc, kind, address, size, value, user_data):
+        first, last = address & ~(elf.PAGE - 1), (address + max(size, 1) - 1) & ~(elf.PAGE - 1)
+        if first < NULL_LIMIT or self.pages >= MAX_DATA_PAGES:
+            return False
+        for page in range(first, last + elf.PAGE, elf.PAGE):
+            try:
+                uc.mem_map(page, elf.PAGE, UC_PROT_READ | UC_PROT_WRITE)
+                self.pages += 1
+            except UcError:
+                pass  # already mapped (an access straddling into a mapped page)
+        self.machine._fault = None  # the Machine's own hook saw it first; it is handled now
+        return True
+
+
+def _truncate(trace: Trace, n: int) -> Trace:
+    return trace.head(n)
+
+
+def _user_line(body: Body, lines: list[int], message: str, generated: Path) -> str:
+    m = re.match(rf"^{re.escape(str(generated))}:(\d+): (.*)$", message)
+    if not m:
+        return message.replace(str(generated), body.name)
+    k = int(m.group(1)) - 1
+    n = lines[k] if 0 <= k < len(lines) else 0
+    return f"{body.name}:{n}: {m.group(2)}" if n else f"{body.name}: {m.group(2)}"
+
+
+def parse_regs(items) -> dict[str, int]:
+    regs = dict(REG_DEFAULTS)
+    for item in items or ():
+        name, _, value = item.partition("=")
+        name = name.strip().lower()
+        if name not in REG_DEFAULTS or not value.strip():
+            raise ArgumentError(f"--reg {item}: expected R=V with R one of {', '.join(REG_DEFAULTS)}")
+        try:
+            regs[name] = int(value, 0) & 0xFFFFFFFF
+        except ValueError:
+            raise ArgumentError(f"--reg {item}: '{value}' is not an integer") from None
+    return regs
+
+
+def run_body(body: Body, iterations: int = DEFAULT_ITERATIONS, regs: dict[str, int] | None = None,
+             assembler: str | None = None, cpu: str | None = None) -> LoopRun:
+    """Assemble the body in its wrapper (for `cpu`'s instruction set, if given) and trace the warm
+    and the measured pass."""
+    if iterations < 4:
+        raise ArgumentError(f"--iterations must be at least 4, got {iterations}")
+    regs = regs or dict(REG_DEFAULTS)
+    n1, n2 = iterations // 2, iterations
+    text, lines = wrapper_source(body, n2 + 1)
+    with tempfile.TemporaryDirectory(prefix="retrosim-loop-") as tmp:
+        path = Path(tmp) / "loop.S"
+        path.write_text(text)
+        try:
+            machine = Machine.from_source(path, assembler=assembler, cpu=cpu)
+        except AssemblerError as e:
+            raise AssemblerError(_user_line(body, lines, str(e), path)) from None
+        except RetrosimError as e:
+            raise RetrosimError(str(e).replace(str(path), body.name)) from None
+    machine.image.path = Path(body.name)
+    _DemandZero(machine)
+    starts = [machine.symbol(f"retrosim_iter_{j}") for j in range(1 if body.loop else n2 + 1)]
+    exit_pc = machine.symbol("retrosim_exit")
+    lo = machine.symbol("retrosim_loop")
+    passes = [_pass(machine, body, regs, starts, exit_pc, lo, n2) for _ in range(2)]
+    warm, (meas, marks) = passes[0][0], passes[1]
+    cuts = [warm.instructions, warm.instructions + marks[n1], warm.instructions + marks[n2]]
+    return LoopRun(body, machine, Trace.concatenate([warm, meas]), cuts, n2 - n1, marks[n1 + 1] - marks[n1])
+
+
+def _pass(machine: Machine, body: Body, regs: dict[str, int], starts: list[int], exit_pc: int, lo: int,
+          iterations: int) -> tuple[Trace, list[int]]:
+    """Run from the body's start with `regs` until `iterations` iterations are complete; return the
+    trace up to the start of the next one and the index where each iteration starts."""
+    uc = machine.uc
+    for name, value in regs.items():
+        machine.set_reg(name, value)
+    uc.reg_write(X.UC_X86_REG_ESP, _STACK_TOP)
+    machine.reset_fpu()
+    tracer = NativeTracer(uc, instruction_capacity=1 << 16, access_capacity=1 << 17,
+                          control_word_pcs=machine.control_word_pcs())
+    tracer.attach()
+    pc = starts[0]
+    try:
+        while True:
+            tracer.limit(min(tracer.icap, MAX_INSTRUCTIONS - tracer.recorded))
+            machine._fault = machine._interrupt = None
+            try:
+                uc.emu_start(pc, exit_pc)
+            except UcError as e:
+                raise _fault(machine, body, machine._describe_fault(e.errno), lo, exit_pc) from None
+            if machine._interrupt is not None:
+                raise _fault(machine, body, machine._describe_fault(UC_ERR_EXCEPTION), lo, exit_pc)
+            tracer.drain()
+            pc = machine.reg("eip")
+            trace = Trace.concatenate(list(tracer._parts))
+            marks = _marks(trace.pc, starts, body.loop)
+            if len(marks) > iterations:
+                break
+            outside = np.flatnonzero((trace.pc < lo) | (trace.pc >= exit_pc))
+            if outside.size:
+                k = int(outside[0])
+                src = machine.disassemble(int(trace.pc[k - 1])) if k else "?"
+                raise RetrosimError(f"{body.name}: the body branches out of itself: '{src}' went to "
+                                    f"{int(trace.pc[k]):#010x}")
+            if pc == exit_pc:
+                if body.loop:
+                    raise RetrosimError(
+                        f"{body.name}: the loop left through its back-edge after {max(len(marks) - 1, 1)} "
+                        f"iteration(s), {iterations} needed: give its counter a larger start value with --reg "
+                        f"(defaults: {', '.join(f'{k}={v:#x}' for k, v in REG_DEFAULTS.items())})")
+                raise RetrosimError(f"{body.name}: the block skipped some of its own copies (a forward jump out of it)")
+            if tracer.recorded >= MAX_INSTRUCTIONS:
+                raise RetrosimError(f"{body.name}: the body never reached its back-edge {iterations} times in "
+                                    f"{MAX_INSTRUCTIONS:,} instructions (an inner loop or REP count too long? "
+                                    "set its register with --reg)")
+    finally:
+        tracer.detach()
+    cut = marks[iterations]
+    trace = _truncate(trace, cut)
+    outside = np.flatnonzero((trace.pc < lo) | (trace.pc >= exit_pc))
+    if outside.size:
+        k = int(outside[0])
+        raise RetrosimError(f"{body.name}: the body branches out of itself: "
+                            f"'{machine.disassemble(int(trace.pc[k - 1]))}' went to {int(trace.pc[k]):#010x}")
+    return trace, marks[:iterations + 1]
+
+
+def _marks(pc: np.ndarray, starts: list[int], loop: bool) -> list[int]:
+    if loop:
+        return np.flatnonzero(pc == starts[0]).tolist()
+    first = []
+    for s in starts:
+        hit = np.flatnonzero(pc == s)
+        if not hit.size:
+            break
+        first.append(int(hit[0]))
+    return first
+
+
+def _fault(machine: Machine, body: Body, fault: GuestFault, lo: int, hi: int) -> RetrosimError:
+    if not lo <= fault.pc <= hi:  # a computed jump left the body and landed on no code
+        return RetrosimError(f"{body.name}: the body branches out of itself: a jump went to {fault.pc:#010x}")
+    msg = str(fault).replace(" (retrosim_loop+", " (body+").replace(" (retrosim_iter_0+", " (body+")
+    msg = re.sub(r" \(retrosim_\w+\+0x[0-9a-f]+\)", "", msg)
+    if fault.address is not None and fault.address < NULL_LIMIT and lo <= fault.pc < hi:
+        msg += " (below 64 KB: a null pointer; set the register with --reg)"
+    elif fault.address is not None and lo <= fault.pc < hi:
+        msg += f" (more than {MAX_DATA_PAGES * elf.PAGE >> 20} MB of data touched, or a protected page)"
+    return RetrosimError(f"{body.name}: {msg}")
+
+
+# -- timing ---------------------------------------------------------------------------------
+@dataclass
+class LoopTiming:
+    cpu: str
+    memory: str
+    iterations: int                  # measured iterations (between the two cuts)
+    per_iteration: dict[str, float]  # every counter divided by the measured iterations
+    result: TimingResult = field(repr=False)  # for views.explain_rows / timeline_rows
+
+    @property
+    def cycles_per_iteration(self) -> float:
+        return self.per_iteration["cycles"]
+
+    @property
+    def uops_per_iteration(self) -> float:
+        return self.per_iteration["uops"]
+
+
+def time_run(run: LoopRun, cpu: str, memory: str | None = None, timeline_iterations: int = 3) -> LoopTiming:
+    """Time a traced body on one CPU preset (any family make_model knows)."""
+    model = make_model(cpu, memory)
+    span = min(256, run.iteration_length * max(0, timeline_iterations))
+    core_run = model.run(run.trace, Decoder(run.machine.image.fetch), run.cuts, (run.cuts[1], span), run.cuts[1])
+    calls = [core_run.segment(k) for k in range(len(run.cuts))]
+    per = {k: round(v / run.measured, 4) for k, v in calls[-1].items()}
+    result = TimingResult(model.preset.name, model.dram.name, "loop", Path(run.body.name), 1, calls, model,
+                          core_run, run.trace)
+    return LoopTiming(model.preset.name, model.dram.name, run.measured, per, result)
+
+
+def time_body(text: str, cpus: list[str], name: str = "<stdin>", syntax: str | None = None,
+              iterations: int = DEFAULT_ITERATIONS, regs: dict[str, int] | None = None,
+              assembler: str | None = None, timeline_iterations: int = 3) -> list[LoopTiming]:
+    from sim.cpus import presets
+
+    body = parse_body(text, name, syntax)
+    for c in cpus:  # an unknown preset fails before any emulation
+        if c not in presets.available():
+            raise ArgumentError(f"unknown CPU preset '{c}' (choose one of: {', '.join(presets.available())})")
+    # one emulation per instruction set: the body assembles for each CPU's own (MMX, 3DNow!, SSE)
+    # and runs on the Unicorn CPU model that has it
+    runs = {}
+    for c in cpus:
+        raw = presets.load(c).raw
+        key = (raw.get("gnu_march"), raw.get("zig_mcpu"), raw.get("emulator_cpu"))
+        if key not in runs:
+            runs[key] = run_body(body, iterations, regs, assembler, cpu=c)
+    out = []
+    for c in cpus:
+        raw = presets.load(c).raw
+        run = runs[(raw.get("gnu_march"), raw.get("zig_mcpu"), raw.get("emulator_cpu"))]
+        out.append(time_run(run, c, timeline_iterations=timeline_iterations))
+    return out
