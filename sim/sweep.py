@@ -5,7 +5,7 @@ Spec format::
 
     [sweep]
     description = "..."                  # optional
-    scenes = ["zbuffer-article"]         # shipped scene names or .toml paths ... and/or kernels:
+    scenes = ["zbuffer-article"]         # shipped scene names or .toml paths, of any kind ... and/or kernels:
     variants = ["z32", "fp16z"]          # optional: these of each scene's variants (default all)
     cpus = ["pentium2-233"]              # required: CPU presets (or preset{key=value} labels)
     memories = ["edo", "sdram-pc100"]    # optional (default: each preset's own)
@@ -26,12 +26,14 @@ Spec format::
 
 A point is (scene variant or kernel, CPU, memory, overrides); its row holds the point's id, its
 coordinates (`set.KEY` columns, as text), every counter of the last frame or call, `pixels` and
-`cycles_per_pixel` for scenes, and `error` (empty, or the one-line reason the point failed: a
+`cycles_per_pixel` for scenes (per unit of the scene's work: pixels, or vertices for a snap scene,
+as its reports count them), and `error` (empty, or the one-line reason the point failed: a
 failed point does not stop the sweep). Points whose id already has a row in the output are not
 recomputed (failed ones are with --retry-failed), so an interrupted sweep resumes where it stopped.
 
 Work is grouped by emulation (a scene's variant, or a kernel call): one task times one emulation on
-every machine of its points, so a trace is emulated once per group, not per point.
+every machine of its points, so a trace is emulated once per group, not per point. A scene's
+variant is emulated by its kind (sim.scenes.kind.SceneKind.sweep_emulation), as its reports time it.
 """
 
 from __future__ import annotations
@@ -40,12 +42,14 @@ import csv
 import io
 import itertools
 import json
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from sim.cpus.machine import MachineKey
 from sim.errors import RetrosimError
+from sim.reports.render import atomic_write
+from sim.tomlfile import read_toml
 
 _SWEEP_KEYS = {"description", "scenes", "kernels", "variants", "cpus", "memories", "compare"}
 _KERNEL_KEYS = {"source", "entry", "args", "repeat"}
@@ -85,12 +89,7 @@ def load_spec(path: str | Path) -> Spec:
     def fail(field: str, message: str):
         raise SweepError(f"{path}: {field}: {message}")
 
-    try:
-        doc = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise SweepError(f"{path}: no such sweep spec") from None
-    except tomllib.TOMLDecodeError as e:
-        raise SweepError(f"{path}: not valid TOML: {e}") from None
+    _, doc = read_toml(path, "sweep spec", SweepError)
     for key in doc:
         if key not in ("sweep", "grid", "point"):
             fail(key, "unknown table (allowed: [sweep], [grid], [[point]])")
@@ -114,7 +113,7 @@ def load_spec(path: str | Path) -> Spec:
     scenes, variants_wanted = strlist("scenes"), strlist("variants")
     cpus, memories = strlist("cpus", True), strlist("memories")
     for i, cpu in enumerate(cpus):
-        if cpu.split("{")[0] not in presets.available():
+        if MachineKey(cpu).preset not in presets.available():
             fail(f"sweep.cpus[{i}]", f"unknown CPU preset '{cpu}' (known: {', '.join(presets.available())})")
     for i, m in enumerate(memories):
         if m not in memory_presets():
@@ -151,15 +150,13 @@ def load_spec(path: str | Path) -> Spec:
     # what is emulated: scene variants and kernel calls
     subjects = []
     for i, name in enumerate(scenes):
-        from sim.scenes.zbuffer.scene import load_scene
+        from sim.scenes.registry import load_scene
 
         p = Path(name)
         p = p if p.suffix == ".toml" else SCENES_DIR / f"{name}.toml"
         if not p.is_file():
             fail(f"sweep.scenes[{i}]", f"no scene '{name}'")
         scene = load_scene(p)
-        if scene.kind != "zbuffer":
-            fail(f"sweep.scenes[{i}]", f"scene '{name}' is a {scene.kind} scene; sweeps take Z-buffer scenes")
         chosen = [v for v in scene.variants if not variants_wanted or v in variants_wanted]
         if not chosen:
             fail("sweep.variants", f"none of {variants_wanted} is a variant of scene '{scene.name}'")
@@ -199,17 +196,12 @@ def load_spec(path: str | Path) -> Spec:
 def _emulation(group: dict):
     """(emulation, pixels or None) of a group: a scene variant's frames or a kernel's calls."""
     if group["kind"] == "scene":
-        from sim.scenes import raster
-        from sim.scenes.zbuffer.frames import draw_frames
-        from sim.scenes.zbuffer.scene import load_scene
+        from sim.scenes.registry import kind_of, load_scene
 
         scene = load_scene(group["what"])
-        geometry = scene.build_geometry()
-        spans = raster.rasterize(geometry, scene.width, scene.height)
-        run = draw_frames(spans, group["variant"], scene.width, scene.height, scene.frames, geometry.colour)
-        return run.emulation, run.pixels
+        return kind_of(scene).sweep_emulation(scene, group["variant"])
     from sim.guest import kernels
-    from sim.cli import parse_args
+    from sim.guest.args import parse_args
     from sim.timing.kernel import emulate
 
     args = group["args"]
@@ -273,8 +265,6 @@ def write_rows(base: Path, rows: list[dict]) -> list[Path]:
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from sim.scenes.zbuffer.report import atomic_write
-
     cols = _columns(rows)
     text = {c for c in cols if c in FIXED or c.startswith("set.") or c == "error"}
     schema = pa.schema([(c, pa.string() if c in text else pa.float64() if c == "cycles_per_pixel" else pa.int64())
@@ -303,23 +293,20 @@ class SweepResult:
 
 
 def _warm(spec: Spec) -> None:
-    """Run each family's compiled core once here, so the on-disk numba cache is filled before
-    several workers load it at once (a cold cache loaded concurrently has been seen to stall)."""
-    from sim.cpus import presets
-    from sim.timing.kernel import time_kernel
+    """Run each family's compiled core once here (sim.parallel.warm), so the on-disk numba cache is
+    filled before several workers load it at once (a cold cache loaded concurrently has been seen
+    to stall)."""
+    from sim.cpus import make_model, presets
+    from sim.parallel import warm
 
-    args = "buf:u16:64:0xFFFF,buf:u16:64,64,0x10000000,0x100000,0x1234"
     families = {}
     for p in spec.points:
+        preset = MachineKey(p["cpu"]).preset
         try:
-            families.setdefault(presets.load(p["cpu"].split("{")[0]).family, p["cpu"].split("{")[0])
+            families.setdefault(presets.load(preset).family, preset)
         except RetrosimError:
             pass
-    from sim.cli import parse_args
-    from sim.guest.kernels import resolve
-
-    for cpu in families.values():
-        time_kernel(resolve("zbuffer/fp16z.S"), "fp16z_span", lambda m: parse_args(args, m)[0], cpu=cpu, repeat=1)
+    warm([make_model(cpu) for cpu in families.values()])
 
 
 def run_sweep(spec: Spec, base: Path, scheduler: str = "local", jobs: int = 2,
@@ -415,8 +402,6 @@ def write_plots(spec: Spec, base: Path, rows: list[dict]) -> list[Path]:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from sim.scenes.zbuffer.report import atomic_write
 
     ok = [r for r in rows if not r.get("error") and r["point"] in {p["point"] for p in spec.points}]
     metric, ylabel = _metric(ok)

@@ -8,8 +8,8 @@ import pytest
 from sim.scenes.zbuffer import report
 from sim.cpus import make_model, overridable
 from sim.errors import RetrosimError
-from sim.scenes.zbuffer.runner import run_scene
-from sim.scenes.zbuffer.scene import SceneError, load_scene
+from sim.scenes.registry import load_scene, run_scene
+from sim.scenes.schema import SceneError
 
 SCENE = """
 [scene]

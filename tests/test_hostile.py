@@ -287,8 +287,7 @@ def test_scene_field_errors(tmp_path):
 @pytest.mark.parametrize("xy", ["[[1, 1], [5, 5], [9, 9]]", "[[-50, -50], [-40, -50], [-45, -40]]",
                                 "[[3.1, 3.1], [3.2, 3.1], [3.1, 3.2]]"])
 def test_scenes_that_draw_nothing_report_zero_covered_pixels(tmp_path, xy):
-    from sim.scenes.zbuffer.runner import run_scene
-    from sim.scenes.zbuffer.scene import load_scene
+    from sim.scenes.registry import load_scene, run_scene
 
     path = scene(tmp_path, "empty", f'generator = "triangles"\n[[geometry.triangle]]\nxy = {xy}\nz = [0.1, 0.2, 0.3]')
     result = run_scene(load_scene(path))

@@ -9,7 +9,8 @@ from click.testing import CliRunner
 from sim.cli import main
 from sim.cpus import machine_label, make_model, split_label
 from sim.errors import RetrosimError
-from sim.scenes.zbuffer.scene import SceneError, load_scene
+from sim.scenes.registry import load_scene
+from sim.scenes.schema import SceneError
 
 STORE = ["micro/k6.S", "--entry", "store_same", "--args", "200,buf:u32:16", "--cpu", "k6-233", "--json"]
 

@@ -8,8 +8,7 @@ from click.testing import CliRunner
 
 from sim.cli import main
 from sim.parallel import SharedPool
-from sim.scenes.zbuffer.runner import run_scene
-from sim.scenes.zbuffer.scene import load_scene
+from sim.scenes.registry import load_scene, run_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -7,9 +7,10 @@ import pytest
 from sim import output
 from sim.guest import asm
 from sim.scenes import baseline
+from sim.reports import render as render_mod
+from sim.scenes import registry
 from sim.scenes.zbuffer import report
-from sim.scenes.zbuffer.runner import run_scene
-from sim.scenes.zbuffer.scene import load_scene
+from sim.scenes.registry import load_scene, run_scene
 
 SCENE = """
 [scene]
@@ -104,7 +105,7 @@ def test_reports_are_deterministic_and_written_atomically(tmp_path, monkeypatch)
 
     monkeypatch.setattr(output.os, "replace", boom)  # the one writer, sim.output
     with pytest.raises(KeyboardInterrupt):
-        report.atomic_write(target, b"new report")
+        render_mod.atomic_write(target, b"new report")
     assert target.read_text() == "old report"
     assert list(tmp_path.glob(".keep.md.*")) == []  # no temp file left behind
 
@@ -191,7 +192,7 @@ def test_summary_fits_80_columns_and_says_how_many_claims_held(tmp_path):
                              '"k6-233{write_allocate.mode=page+sector only}"]', claims=claims)
     result = run_scene(scene)
     for width in (80, 200):
-        text = render(report.summary_tables([result]), width)
+        text = render(registry.summary_tables([result]), width)
         assert_fits(text, width)
         for label in ("pentium2-233 edo", "pentium2-233 sdram-pc100", "k6-2-300 sdram-pc100"):
             assert label in text  # every CPU named in full, the two memories apart

@@ -8,7 +8,8 @@ import pytest
 
 from sim.scenes import raster as R
 from sim.errors import RetrosimError
-from sim.scenes.zbuffer.scene import SceneError, load_scene
+from sim.scenes.registry import load_scene
+from sim.scenes.schema import SceneError
 
 VALID = """\
 [scene]

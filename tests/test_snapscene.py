@@ -9,8 +9,8 @@ from click.testing import CliRunner
 from sim.scenes import baseline
 from sim.scenes.snap import scene as snapscene
 from sim.cli import main
-from sim.scenes.zbuffer.runner import run_scene
-from sim.scenes.zbuffer.scene import SceneError, load_scene
+from sim.scenes.registry import load_scene, run_scene
+from sim.scenes.schema import SceneError
 
 ROOT = Path(__file__).resolve().parent.parent
 SMALL = """
@@ -111,9 +111,9 @@ def test_run_reports_errors_timings_and_claims(small_result, tmp_path):
     assert "## Failure cases" in md and "| trick-24 | huge |" in md
     assert (tmp_path / "snap-small.csv").read_text().count("\n") == 1 + len(r.timings)
     # generic entry points dispatch on the kind
-    from sim.scenes.zbuffer import report
+    from sim.scenes import registry
 
-    assert report.write_reports(r, tmp_path / "again", formats=("md",))[0].read_text() == md
+    assert registry.write_reports(r, tmp_path / "again", formats=("md",))[0].read_text() == md
     assert baseline.entries(r)["trick-24@k6-2-300:sdram-pc100"]["cycles"] == r.timings[1].counters["cycles"]
 
 

@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 
 from sim.scenes import baseline
-from sim.scenes.zbuffer import report
+from sim.scenes import registry
 from sim.scenes.texture import scene as T
-from sim.scenes.zbuffer.runner import run_scene
-from sim.scenes.zbuffer.scene import SceneError, load_scene
+from sim.scenes.registry import load_scene, run_scene
+from sim.scenes.schema import SceneError
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -140,7 +140,7 @@ def test_claims_cover_only_their_machines_and_follow_the_measurement(small):
 
 
 def test_reports_and_baselines_through_the_generic_entry_points(small, tmp_path):
-    written = report.write_reports(small, tmp_path)
+    written = registry.write_reports(small, tmp_path)
     assert {p.suffix for p in written} == {".md", ".png", ".json", ".csv", ".html"}
     doc = json.loads((tmp_path / "tex-small.json").read_text())
     assert doc["kind"] == "texture" and len(doc["claims"]) == 2
@@ -150,7 +150,7 @@ def test_reports_and_baselines_through_the_generic_entry_points(small, tmp_path)
     assert {f"{v}@{k}" for v in ("a", "c", "e") for k in small.keys} | {f"probes@{k}" for k in small.keys} == set(cases)
     assert all(isinstance(x, int) for case in cases.values() for x in case.values())
     assert baseline.compare({"tex-small": cases}, [small]) == []
-    assert report.summary_tables([small])  # the terminal summary renders
+    assert registry.summary_tables([small])  # the terminal summary renders
 
 
 def test_same_report_for_any_number_of_worker_processes(small, tmp_path):

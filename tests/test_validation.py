@@ -49,7 +49,7 @@ def test_malformed_case_files_give_one_error_naming_file_case_and_field(tmp_path
         '[[case]]\nname = "x"\nbody = "nop"\npublished = 3\nsource = "S"\ncpu = "pentium-9000"\n': ("case 1 'x'", "pentium-9000"),
         '[[case]]\nname = "x"\nbody = "nop"\npublished = 3\nsource = "S"\npublishd = 4\n': ("case 1 'x'", "publishd"),
         '[[case]]\nname = "x"\nbody = "nop"\npublished = 3\nsource = "S"\nregs = "eax=1"\n': ("case 1 'x'", "regs"),
-        '[[case]]\nname = "x"\nbody = "nop\npublished = 3\n': ("bad.toml", "line"),
+        '[[case]]\nname = "x"\nbody = "nop\npublished = 3\n': ("bad.toml:7:", "TOML syntax error"),
     }
     for text, (where, what) in bad.items():
         try:

@@ -91,7 +91,7 @@ def validate_cmd(fams, out, check):
     import time as _time
 
     from sim.reports import validation
-    from sim.scenes.zbuffer.report import atomic_write
+    from sim.reports.render import atomic_write
 
     start = _time.perf_counter()
     results = [validation.run_family(f) for f in validation.families(only=list(fams) or None)]

@@ -42,7 +42,7 @@ def _scene_paths(names) -> list[Path]:
 
 
 def _scenes(names) -> list:
-    from sim.scenes.zbuffer.scene import load_scene
+    from sim.scenes.registry import load_scene
 
     return [load_scene(p) for p in _scene_paths(names)]
 
@@ -55,8 +55,7 @@ def _run_scenes(scenes, cpus, on_result=None, jobs: int | None = None) -> tuple[
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from sim.parallel import check_jobs
-    from sim.scenes.zbuffer.runner import run_scene
-    from sim.scenes.zbuffer.scene import load_scene
+    from sim.scenes.registry import load_scene, run_scene
 
     jobs = check_jobs(jobs)
     results, failures = [], []
@@ -102,11 +101,13 @@ def _with_sets(chosen, cpus, sets) -> list[str]:
     """--cpu entries (or every scene's machines) with the --set overrides applied to each."""
     if not sets:
         return list(cpus)
+    from sim.cpus.machine import MachineKey
+
     out = []
     for spec in (list(cpus) or [c for s in chosen for c in s.cpus]):
-        cpu, _, memory = spec.partition(":")
-        label, set_memory = _label(cpu, sets)
-        memory = set_memory or memory
+        key = MachineKey.parse(spec)
+        label, set_memory = _label(key.label, sets)
+        memory = set_memory or key.memory
         out.append(f"{label}:{memory}" if memory else label)
     return list(dict.fromkeys(out))
 
@@ -125,7 +126,7 @@ def _with_sets(chosen, cpus, sets) -> list[str]:
 def report_cmd(scenes, cpus, sets, out, jobs):
     """Run scenes (default: every shipped scene) and write their reports; print a summary."""
     from sim.output import check_output_dir
-    from sim.scenes.zbuffer.report import summary_tables, write_reports
+    from sim.scenes.registry import summary_tables, write_reports
 
     if out is None:
         # reports/ holds the committed reports, which CI compares with fresh ones: a run with other
@@ -138,7 +139,7 @@ def report_cmd(scenes, cpus, sets, out, jobs):
     check_output_dir(out, "--out")  # before the work: a read-only or impossible folder fails at once
     paths = _scene_paths(scenes)
     if sets:
-        from sim.scenes.zbuffer.scene import load_scene
+        from sim.scenes.registry import load_scene
 
         paths = [load_scene(p) for p in paths]
         cpus = _with_sets(paths, cpus, sets)
@@ -168,7 +169,7 @@ def _write_texture_report(out: Path) -> Path:
 
 def _write_conversion_report(out: Path) -> Path:
     from sim.reports.conversion import conversion_markdown, conversion_results
-    from sim.scenes.zbuffer.report import atomic_write
+    from sim.reports.render import atomic_write
 
     path = Path(out) / "conversion.md"
     atomic_write(path, conversion_markdown(conversion_results()).encode())
@@ -184,7 +185,7 @@ def _write_conversion_report(out: Path) -> Path:
 def check_cmd(scenes, update, check_reports, jobs):
     """Re-run scenes and compare exact cycle counts with reports/baselines.json."""
     from sim.scenes import baseline
-    from sim.scenes.zbuffer.report import write_reports
+    from sim.scenes.registry import write_reports
 
     chosen = _scenes(scenes)
     baseline.load()  # a damaged baselines file fails before the work, not after it

@@ -167,7 +167,9 @@ def split_label(label: str) -> tuple[str, dict]:
 def family_of(key: str) -> str:
     """The family (p5, p6, k6) of a machine key or label: 'preset', 'preset{overrides}', either
     with ':memory'. Overrides never change a preset's family, so they are not applied."""
-    return presets.load(key.split(":")[0].split("{")[0]).family
+    from sim.cpus.machine import MachineKey
+
+    return MachineKey.parse(key).family
 
 
 def load_preset(label: str):

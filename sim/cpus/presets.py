@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from sim.errors import RetrosimError
+from sim.tomlfile import read_toml
 
 PRESETS = Path(__file__).resolve().parent / "presets"
 
@@ -74,11 +74,7 @@ def load(name: str) -> CpuPreset:
     path = PRESETS / f"{name}.toml"
     if not path.is_file():
         raise UnknownPreset(f"unknown CPU preset '{name}' (choose one of: {', '.join(available())})")
-    try:
-        with open(path, "rb") as f:
-            raw = tomllib.load(f)
-    except tomllib.TOMLDecodeError as e:  # a package file edited by hand: name it
-        raise RetrosimError(f"{path}: {e}") from None
+    _, raw = read_toml(path, "CPU preset")  # a package file edited by hand: one error naming it
     return from_raw(raw, name, path)
 
 

@@ -38,7 +38,6 @@ of 512 columns x 8 bytes = 4 KB (Micron 64Mb SDRAM MT48LC8M8A2 data sheet: "each
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
@@ -47,6 +46,7 @@ import numpy as np
 from numba import njit
 
 from sim.memory.cache import HOT
+from sim.tomlfile import read_toml
 
 MEMORY_PRESETS_DIR = Path(__file__).resolve().parent / "presets"
 TRANSFERS_PER_LINE = 4  # 32-byte line over the 64-bit P6/Socket 7 data bus
@@ -108,8 +108,7 @@ def load_memory_preset(name: str) -> DramTiming:
     path = MEMORY_PRESETS_DIR / f"{name}.toml"
     if not path.is_file():
         raise ValueError(f"unknown memory preset {name!r} (available: {', '.join(available_memory_presets())})")
-    with open(path, "rb") as f:
-        d = tomllib.load(f)
+    _, d = read_toml(path, "memory preset", ValueError)
     where = f"{path.name}"
 
     def need(field):

@@ -39,6 +39,7 @@ from sim.memory.cache import (
     ALLOC_ALWAYS, ALLOC_PAGE_SECTOR, ALLOCATED, DIRTY_VICTIM, EVICT, FETCH, FORWARD, HIT, HOT, LOAD,
     PAGE_BITS, PAGE_SECTOR, STORE, WRITEBACK, CacheGeometry, CacheState, lookup, victim_address,
 )
+from sim.tomlfile import read_toml
 
 MAX_LEVELS = 3
 POLICIES_FILE = Path(__file__).with_name("policies.toml")
@@ -584,8 +585,7 @@ def load_cpu_preset(name: str) -> dict:
     if not path.is_file():
         known = sorted(p.stem for p in PRESETS_DIR.glob("*.toml"))
         raise ValueError(f"unknown CPU preset {name!r} (available: {', '.join(known)})")
-    with open(path, "rb") as f:
-        return tomllib.load(f)
+    return read_toml(path, "CPU preset", ValueError)[1]
 
 
 __all__ = [

@@ -10,7 +10,7 @@ from sim import reference as ref
 from sim.cpus import vocabulary
 from sim.errors import RetrosimError
 from sim.guest.kernels import kernels_root
-from sim.scenes.zbuffer.report import _md_table
+from sim.reports.render import md_table
 from sim.timing.kernel import emulate, time_emulation
 from sim.reports.views import explain_rows
 
@@ -73,7 +73,7 @@ def conversion_markdown(results: dict) -> str:
         saved = 1 - i["cycles_per_element"] / p["cycles_per_element"]
         rows.append([cpu, f"{p['cycles_per_element']:.2f}", f"{p['decode_groups_per_element']:.2f}",
                      f"{i['cycles_per_element']:.2f}", f"{i['decode_groups_per_element']:.2f}", f"{saved:.0%}"])
-    parts += [_md_table(header, rows), ""]
+    parts += [md_table(header, rows), ""]
     saves = {cpu: 1 - d["convert_interleaved"]["cycles_per_element"] / d["convert_plain"]["cycles_per_element"]
              for cpu, d in results["cpus"].items()}
     helped = [c for c, x in saves.items() if x > 0.02]
@@ -90,7 +90,7 @@ def conversion_markdown(results: dict) -> str:
         voc = vocabulary.for_preset(cpu)  # each family's words: P6 uops on ports, K6 RISC86 ops on units
         rows = [[r["instruction"], r["decoder"], r["decoder_class"], str(r["uops"]), r["ports"],
                  f"{r['issue_to_retire']:g}", r["row"], r["source"]] for r in d["convert_plain"]["conversion"]]
-        parts += [f"### {cpu}", "", _md_table(["instruction", "decoder", "class", voc.op + "s",
+        parts += [f"### {cpu}", "", md_table(["instruction", "decoder", "class", voc.op + "s",
                                                voc.unit + "s", "issue->retire",
                                                "table row", "source"], rows), "",
                   f"Decoders: {voc.decode_help}.", ""]

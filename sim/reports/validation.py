@@ -19,13 +19,13 @@ from __future__ import annotations
 
 import re
 import time
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from sim.timing import loop
 from sim.reports import views
 from sim.errors import RetrosimError
+from sim.tomlfile import read_toml
 
 VALIDATION_DIR = Path(__file__).resolve().parents[2] / "validation"
 TABLES_DIR = Path(__file__).resolve().parents[1] / "cpus" / "tables"
@@ -114,7 +114,7 @@ def machine_sources(family: str, tables_dir: Path = TABLES_DIR) -> list[str]:
         elif isinstance(node, list):
             for v in node:
                 walk(v)
-    walk(tomllib.loads(path.read_text()))
+    walk(read_toml(path)[1])
     return out
 
 
@@ -160,10 +160,8 @@ _CASE_FIELDS = {"name": str, "body": str, "published": (int, float), "source": s
 
 def load_family(path: Path) -> Family:
     from sim.cpus import presets
-    try:
-        data = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise RetrosimError(f"{path}: {e}") from None
+
+    _, data = read_toml(path, "validation case file")
     for key in ("family", "cpu", "case"):
         if key not in data:
             raise RetrosimError(f"{path}: missing '{key}'")

@@ -11,12 +11,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from sim.errors import RetrosimError
-from sim.scenes.zbuffer.report import atomic_write
-from sim.scenes.zbuffer.runner import SceneResult
+from sim.reports.render import atomic_write
+from sim.scenes.kind import BASELINE_COUNTERS as COUNTERS
+from sim.scenes.registry import baseline_entries
 
 BASELINE_FILE = Path(__file__).resolve().parents[2] / "reports" / "baselines.json"
-COUNTERS = ("cycles", "instructions", "uops", "decode_groups", "l1d_load_misses", "l1d_store_misses", "l2_misses",
-            "dram_fills", "mispredicts")
 
 
 class BaselineError(RetrosimError):
@@ -40,12 +39,9 @@ class Drift:
         return None if not self.old or self.new is None else 100.0 * (self.new - self.old) / self.old
 
 
-def entries(result: SceneResult) -> dict[str, dict[str, int]]:
-    if result.scene.kind != "zbuffer":
-        from sim.scenes.zbuffer.scene import kind_module
-
-        return kind_module(result.scene.kind).baseline_entries(result)
-    return {f"{t.variant}@{t.key}": {c: int(t.counters[c]) for c in COUNTERS} for t in result.timings}
+def entries(result) -> dict[str, dict[str, int]]:
+    """The cases of a result of any kind (its kind's baseline_entries)."""
+    return baseline_entries(result)
 
 
 def load(path: Path | None = None) -> dict:
@@ -82,7 +78,7 @@ def save(data: dict, path: Path | None = None) -> None:
     atomic_write(path, (json.dumps(data, indent=1, sort_keys=True) + "\n").encode())
 
 
-def compare(baseline: dict, results: list[SceneResult]) -> list[Drift]:
+def compare(baseline: dict, results: list) -> list[Drift]:
     drifts = []
     for r in results:
         old_scene = baseline.get(r.scene.name, {})
@@ -97,7 +93,7 @@ def compare(baseline: dict, results: list[SceneResult]) -> list[Drift]:
     return drifts
 
 
-def update(baseline: dict, results: list[SceneResult]) -> dict:
+def update(baseline: dict, results: list) -> dict:
     out = dict(baseline)
     for r in results:
         out[r.scene.name] = entries(r)

@@ -140,8 +140,10 @@ def holds(claim, ratio: float) -> bool:
 def covered(claim, result) -> tuple[list[str], list[str]]:
     """(machine keys of the run the claim covers, covered machines of the scene not in the run)."""
     from sim.cpus import family_of
+    from sim.cpus.machine import MachineKey
 
-    run = [k for k in result.cpu_keys if claim.covers(*k.split(":"), family_of(k))]
+    keys = {k: MachineKey.parse(k) for k in result.cpu_keys}
+    run = [k for k, m in keys.items() if claim.covers(m.label, m.memory, family_of(k))]
     scene = [m.label for m in result.scene.run.cpus if claim.covers(m.preset, m.memory, family_of(m.preset))]
     explicit = [c for c in claim.cpus if ":" in c and c not in scene]  # named but not in the scene
     return run, [k for k in scene + explicit if k not in run]
@@ -181,8 +183,10 @@ def _robustness(claim, result, key, a, b, verdict) -> list[dict] | None:
     pb = result.sensitivity.get((b.variant, key))
     if pa is None or pb is None:
         return None
+    from sim.cpus.machine import MachineKey
+
     rows = []
-    for p in parameters(key.split(":")[0]):
+    for p in parameters(MachineKey.parse(key).label):
         ends = {}
         for end, value in (("low", p.low), ("high", p.high)):
             ca, cb = pa[(p.key, value)], pb[(p.key, value)]

@@ -1,5 +1,6 @@
-"""Vertex-snapping scenes ([scene] kind = "snap"): load, run and report (sim/snap.py has the
-kernels' variants, the workloads, the exact reference and the error measures).
+"""Vertex-snapping scenes ([scene] kind = "snap"): load, run and report (workload.py has the
+kernels' variants, the workloads, the exact reference and the error measures; kind.py puts this
+module behind the scene-kind interface, sim.scenes.kind).
 
 Format::
 
@@ -43,9 +44,11 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from sim.cpus.machine import MachineKey
+from sim.reports.render import FORMATS, md_table, render_html, timings_csv, write_payloads
+from sim.scenes.kind import BASELINE_COUNTERS, Timing
+from sim.scenes.schema import CpuChoice, Validator, show
 from sim.scenes.snap import workload as snap
-from sim.scenes.zbuffer.runner import Timing
-from sim.scenes.zbuffer.scene import CpuChoice, _show, _Validator
 
 _SCENE_KEYS = {"name": ("str", True), "kind": ("str", True), "description": ("str", False)}
 _WORKLOAD_KEYS = {"names": ("strlist", True), "vertices": ("int", True), "seed": ("int", True),
@@ -69,8 +72,7 @@ class SnapClaim:
     workloads: tuple[str, ...] = ()
 
     def covers(self, preset: str, family: str) -> bool:
-        preset = preset.split("{")[0]
-        return family in self.families or preset in self.cpus
+        return family in self.families or MachineKey(preset).preset in self.cpus
 
 
 @dataclass(frozen=True)
@@ -102,10 +104,10 @@ class SnapScene:
 
 
 def load(path: Path, text: str, doc: dict) -> SnapScene:
-    """Validate a parsed kind = "snap" scene (sim.scene.load_scene reads the file and dispatches)."""
+    """Validate a parsed kind = "snap" scene (sim.scenes.registry.load_scene reads the file and dispatches)."""
     from sim.cpus import presets
 
-    v = _Validator(path, text)
+    v = Validator(path, text)
     for key in doc:
         if key not in ("scene", "workloads", "run", "claims"):
             v.fail(key, "unknown table (allowed for kind 'snap': scene, workloads, run, claims)",
@@ -175,7 +177,7 @@ def load(path: Path, text: str, doc: dict) -> SnapScene:
         if not pair or any(x not in variants for x in pair) or (expect in TIMED + ("only-exact",) and len(pair) < 2) \
                 or (expect in TIMED and len(pair) != 2):
             need = "two" if expect in TIMED else ("at least two" if expect == "only-exact" else "one or more")
-            v.fail(f"{f}.variants", f"expected {need} of run.variants ({', '.join(variants)}), got {_show(list(pair))}",
+            v.fail(f"{f}.variants", f"expected {need} of run.variants ({', '.join(variants)}), got {show(list(pair))}",
                    "claims", "variants", i)
         for w in works:
             if w not in names:
@@ -219,6 +221,15 @@ class SnapResult:
         return self.timing(variant, key).per_pixel("cycles")
 
 
+def emulate_variant(scene: SnapScene, name: str):
+    """The traced emulation of a variant snapping the timing workload, REPEAT calls in one state."""
+    from sim.timing.kernel import emulate
+
+    variant = snap.VARIANTS[name]
+    xy = snap.workload(scene.timing_workload, scene.vertices, scene.width, scene.height, scene.seed)
+    return emulate(snap.KERNEL, variant.entry, snap.setup(variant, xy), repeat=REPEAT)
+
+
 def _time_task(shared, i: int) -> dict:
     from sim.timing.kernel import time_emulation
 
@@ -235,7 +246,6 @@ def run_scene(scene: SnapScene, cpus: list[str] | None = None, progress=None, ro
     from sim.cpus import make_model
     from sim.guest.emu import Machine
     from sim.parallel import SharedPool
-    from sim.timing.kernel import emulate
 
     say = progress or (lambda msg: None)
     result = SnapResult(scene, scene.vertices)
@@ -247,18 +257,12 @@ def run_scene(scene: SnapScene, cpus: list[str] | None = None, progress=None, ro
             out = snap.snap(machine, variant, xy)
             result.errors[(name, w)] = snap.errors(xy, out)
             result.failures[(name, w)] = snap.failures(xy, out)
-    models = []
-    for spec in cpus or scene.cpus:
-        cpu, _, memory = spec.partition(":")
-        models.append((cpu, make_model(cpu, memory or None)))
-    timed_on = coords[scene.timing_workload]
-    for k, name in enumerate(scene.variants):
-        variant = snap.VARIANTS[name]
+    models = [(key.label, make_model(key.label, key.memory or None)) for key in map(MachineKey.parse, cpus or scene.cpus)]
+    for name in scene.variants:
         say(f"{scene.name}: {name}: emulating {scene.vertices:,} vertices")
-        emu = emulate(snap.KERNEL, variant.entry, snap.setup(variant, timed_on), repeat=REPEAT)
+        emu = emulate_variant(scene, name)
         shared = (emu, [m for _, m in models])
-        # the first variant is timed here: every family's compiled core is loaded before any fork
-        with SharedPool(shared, 1 if k == 0 else jobs) as pool:
+        with SharedPool(shared, jobs, shared[1]) as pool:
             futures = [pool.submit(_time_task, i) for i in range(len(models))]
             pool.release()
             for (cpu, model), fut in zip(models, futures):
@@ -278,7 +282,7 @@ def evaluate_claims(result: SnapResult) -> list[dict]:
         if c.expect in TIMED:
             per = []
             for key in result.cpu_keys:
-                cpu = key.rsplit(":", 1)[0]
+                cpu = MachineKey.parse(key).label
                 if not c.covers(cpu, family_of(cpu)):
                     continue
                 a, b = (result.cycles_per_vertex(v, key) for v in c.variants)
@@ -315,11 +319,6 @@ def claim_sentence(c: dict) -> str:
 
 
 # -- reports -----------------------------------------------------------------------------------
-def _md_table(header: list[str], rows: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
-
-
 def _share(n: int, total: int) -> str:
     if n == 0:
         return "0"
@@ -334,7 +333,7 @@ def _num(x: float) -> str:
 
 def cycles_rows(result: SnapResult) -> tuple[list[str], list[list[str]]]:
     header = ["CPU (memory)"] + list(result.scene.variants)
-    rows = [[f"{k.rsplit(':', 1)[0]} ({k.rsplit(':', 1)[1]})"]
+    rows = [[MachineKey.parse(k).display]
             + [f"{result.cycles_per_vertex(v, k):.2f}" for v in result.scene.variants] for k in result.cpu_keys]
     return header, rows
 
@@ -414,9 +413,8 @@ def to_json(result: SnapResult) -> dict:
 
 
 def to_csv(result: SnapResult) -> str:
-    from sim.scenes.zbuffer.report import to_csv as timings_csv  # the Z-buffer scenes' table, counted in vertices
-
-    return timings_csv(result, ("vertices", "cycles_per_vertex"))
+    """The Z-buffer scenes' timings table, counted in vertices."""
+    return timings_csv(result.scene.name, result.timings, ("vertices", "cycles_per_vertex"))
 
 
 def to_markdown(result: SnapResult, png_name: str | None) -> str:
@@ -436,15 +434,15 @@ def to_markdown(result: SnapResult, png_name: str | None) -> str:
                   f"Two coordinates per vertex, measured on the `{s.timing_workload}` workload, last of "
                   f"{REPEAT} calls (caches warm); the control word is loaded once per call. The models' times do not "
                   "depend on the values (denormal operands, which real x87s handle slowly, are not modelled).", "",
-                  _md_table(*cycles_rows(result)), ""]
-    parts += ["## Error against the exact grid", "", _md_table(*error_rows(result)), ""]
+                  md_table(*cycles_rows(result)), ""]
+    parts += ["## Error against the exact grid", "", md_table(*error_rows(result)), ""]
     if png_name:
         parts += ["## Work against error", "", f"![cycles per vertex against error]({png_name})", ""]
     parts += ["## Failure cases", "",
               "Every variant and workload with a wrong coordinate: how many, how many off the grid, the largest "
               "distance from the nearest grid point, and the two farthest examples.", ""]
     rows = failure_rows(result)
-    parts += [_md_table(*rows) if rows[1] else "(none)", ""]
+    parts += [md_table(*rows) if rows[1] else "(none)", ""]
     claims = evaluate_claims(result)
     if claims:
         parts += ["## The guide's claims, checked", ""] + [claim_sentence(c) for c in claims] + [""]
@@ -476,7 +474,8 @@ def figure(result: SnapResult):
     import matplotlib.pyplot as plt
 
     from sim.cpus import family_of, presets
-    from sim.scenes.zbuffer.report import FAMILY_MARKERS, row_offset
+    from sim.reports.render import row_offset
+    from sim.scenes.zbuffer.report import FAMILY_MARKERS
 
     s = result.scene
     in_range = [w for w in s.workloads if w in snap.IN_RANGE] or list(s.workloads)
@@ -488,8 +487,8 @@ def figure(result: SnapResult):
     palette = plt.get_cmap("tab20")
     fig, ax = plt.subplots(figsize=(8, 1.8 + 0.5 * len(rows) + 0.12 * len(keys)), dpi=100, layout="constrained")
     for i, key in enumerate(keys):
-        cpu = key.rsplit(":", 1)[0]
-        base = cpu.split("{")[0]
+        cpu = MachineKey.parse(key).label
+        base = MachineKey(cpu).preset
         offset = row_offset(i, len(keys), 0.6)
         fam = family_of(base)
         ax.scatter([result.cycles_per_vertex(v, key) for v in rows], [len(rows) - 1 - j - offset for j in range(len(rows))],
@@ -511,35 +510,24 @@ def figure(result: SnapResult):
 def png(result: SnapResult) -> bytes | None:
     if not result.timings:
         return None
-    from sim.scenes.zbuffer.report import png_bytes
+    from sim.reports.render import png_bytes
 
     return png_bytes(figure(result))
 
 
-def write_reports(result: SnapResult, out_dir: Path, formats: tuple[str, ...] = ("md", "png", "json", "csv", "html")
-                  ) -> list[Path]:
-    from sim.scenes.zbuffer.report import atomic_write, render_html
-
-    out_dir, name = Path(out_dir), result.scene.name
+def write_reports(result: SnapResult, out_dir: Path, formats: tuple[str, ...] = FORMATS) -> list[Path]:
+    name = result.scene.name
     image = png(result) if ("png" in formats or "html" in formats) else None
     md = to_markdown(result, f"{name}.png" if result.timings else None)
     payloads = {"md": md.encode(), "png": image,
                 "json": (json.dumps(to_json(result), indent=2) + "\n").encode(),
                 "csv": to_csv(result).encode(), "html": render_html(md, image).encode()}
-    written = []
-    for fmt in formats:
-        if payloads[fmt] is None:
-            continue
-        atomic_write(out_dir / f"{name}.{fmt}", payloads[fmt])
-        written.append(out_dir / f"{name}.{fmt}")
-    return written
+    return write_payloads(out_dir, name, payloads, formats)
 
 
 def baseline_entries(result: SnapResult) -> dict[str, dict[str, int]]:
     """The recorded cycle counts: one case per variant and machine, the Z-buffer scenes' counters."""
-    from sim.scenes.baseline import COUNTERS
-
-    return {f"{t.variant}@{t.key}": {c: int(t.counters[c]) for c in COUNTERS} for t in result.timings}
+    return {f"{t.variant}@{t.key}": {c: int(t.counters[c]) for c in BASELINE_COUNTERS} for t in result.timings}
 
 
 def summary_tables(result: SnapResult) -> list:
@@ -560,8 +548,8 @@ def summary_tables(result: SnapResult) -> list:
         for v in s.variants:
             t.add_column(v, justify="right", no_wrap=True)
         for key in r.cpu_keys:
-            cpu, memory = key.rsplit(":", 1)
-            t.add_row(escape(f"{cpu} {memory}"), *[f"{r.cycles_per_vertex(v, key):.2f}" for v in s.variants])
+            machine = MachineKey.parse(key)
+            t.add_row(escape(f"{machine.label} {machine.memory}"), *[f"{r.cycles_per_vertex(v, key):.2f}" for v in s.variants])
         in_range = [w for w in s.workloads if w in snap.IN_RANGE]
         if in_range:
             t.add_section()

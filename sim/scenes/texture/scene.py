@@ -1,6 +1,6 @@
 """Texture-mapping scenes (``kind = "texture"``): the span renderers of "Texture Mapping
 Optimization for Games" (John DiCamillo), step by step (kernels/texture/persp.S, the model of their
-arithmetic in sim/texture_frame.py), on a perspective-correct textured frame; error against the
+arithmetic in sim/scenes/texture/frame.py), on a perspective-correct textured frame; error against the
 exact mapping, cycles per pixel per CPU, the article's component figures measured by probes, and
 its claims checked.
 
@@ -41,7 +41,8 @@ Format::
     families = ["p5"]               # ... and/or whole families; at least one covered machine must run
 
 Claims are checked on every covered machine of the run, each with the counters that explain it;
-they are not re-timed over the models' estimates (sim.claims does that for Z-buffer scenes only).
+they are not re-timed over the models' estimates (sim.scenes.claims does that for Z-buffer scenes
+only). The kind's interface (sim.scenes.kind) is in kind.py; this module loads, runs and reports.
 """
 
 from __future__ import annotations
@@ -52,11 +53,13 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.scenes.texture import frame as F
 from sim.cpus import family_of
+from sim.cpus.machine import MachineKey
 from sim.errors import RetrosimError
 from sim.guest.kernels import kernels_root
-from sim.scenes.zbuffer.scene import CpuChoice, _show, _Validator
+from sim.reports.render import FORMATS, md_table, render_html, write_payloads
+from sim.scenes.schema import CpuChoice, Validator, show
+from sim.scenes.texture import frame as F
 
 QUANTITIES = {
     "cycles_per_pixel": "cycles per pixel of a variant's frame",
@@ -108,7 +111,7 @@ class TextureClaim:
     families: tuple[str, ...] = ()
 
     def covers(self, preset: str, family: str) -> bool:
-        return family in self.families or preset.split("{")[0] in self.cpus
+        return family in self.families or MachineKey(preset).preset in self.cpus
 
     def holds(self, x: float) -> bool:
         if self.expect == "between":
@@ -163,25 +166,25 @@ class TextureScene:
         return F.grid_scene(self.width, self.height, self.columns, self.rows, self.seed, self.w_range, self.st_range)
 
 
-def _pair(v: _Validator, table: dict, key: str, default, lo_min: float, hi_max: float, strict_lo: bool) -> tuple:
+def _pair(v: Validator, table: dict, key: str, default, lo_min: float, hi_max: float, strict_lo: bool) -> tuple:
     if key not in table:
         return default
     x = table[key]
     if (not isinstance(x, list) or len(x) != 2 or any(isinstance(e, bool) or not isinstance(e, (int, float)) for e in x)
             or not all(math.isfinite(e) for e in x)):
-        v.fail(f"geometry.{key}", f"expected an array of two numbers [lo, hi], got {_show(x)}", "geometry", key)
+        v.fail(f"geometry.{key}", f"expected an array of two numbers [lo, hi], got {show(x)}", "geometry", key)
     lo, hi = float(x[0]), float(x[1])
     if not ((lo > lo_min if strict_lo else lo >= lo_min) and lo <= hi <= hi_max):
-        v.fail(f"geometry.{key}", f"need {lo_min:g} {'<' if strict_lo else '<='} lo <= hi <= {hi_max:g}, got {_show(x)}",
+        v.fail(f"geometry.{key}", f"need {lo_min:g} {'<' if strict_lo else '<='} lo <= hi <= {hi_max:g}, got {show(x)}",
                "geometry", key)
     return lo, hi
 
 
 def load(path: Path, text: str, doc: dict) -> TextureScene:
-    """Validate a parsed texture scene (sim.scene.load_scene dispatches here on [scene].kind)."""
+    """Validate a parsed texture scene (sim.scenes.registry.load_scene dispatches here on [scene].kind)."""
     from sim.cpus import presets as cpu_presets
 
-    v = _Validator(path, text)
+    v = Validator(path, text)
     for key in doc:
         if key not in ("scene", "geometry", "run", "claims"):
             v.fail(key, "unknown table (allowed: scene, geometry, run, claims)")
@@ -198,7 +201,7 @@ def load(path: Path, text: str, doc: dict) -> TextureScene:
     ge = v.table(doc, "geometry")
     v.keys(ge, _GEOMETRY_KEYS, "geometry", note=" for kind 'texture'")
     if v.typed(ge, "generator", "str", "geometry") != "grid":
-        v.fail("geometry.generator", f"unknown generator {_show(ge['generator'])} (known: grid)", "geometry", "generator")
+        v.fail("geometry.generator", f"unknown generator {show(ge['generator'])} (known: grid)", "geometry", "generator")
     seed = v.typed(ge, "seed", "int", "geometry")
     if not 0 <= seed < 1 << 63:
         v.fail("geometry.seed", f"must be between 0 and 2^63 - 1, got {seed}", "geometry", "seed")
@@ -240,7 +243,7 @@ def load(path: Path, text: str, doc: dict) -> TextureScene:
         need = VARIANT_QUANTITIES.get(quantity, 0)
         if len(pair) != need or any(x not in variants for x in pair):
             v.fail(f"{field_}.variants", f"{quantity} takes {need} of run.variants ({', '.join(variants)}), "
-                   f"got {_show(list(pair))}", "claims", "variants", i)
+                   f"got {show(list(pair))}", "claims", "variants", i)
         expect = v.typed(c, "expect", "str", "claims", i, field_)
         if expect not in EXPECTATIONS:
             v.fail(f"{field_}.expect", f"unknown expectation '{expect}' (known: {', '.join(EXPECTATIONS)})",
@@ -252,7 +255,7 @@ def load(path: Path, text: str, doc: dict) -> TextureScene:
         if expect == "between":
             if (not isinstance(rng, list) or len(rng) != 2 or any(isinstance(e, bool) or not isinstance(e, (int, float))
                                                                  for e in rng) or not rng[0] <= rng[1]):
-                v.fail(f"{field_}.range", f"'between' needs range = [lo, hi] with lo <= hi, got {_show(rng)}",
+                v.fail(f"{field_}.range", f"'between' needs range = [lo, hi] with lo <= hi, got {show(rng)}",
                        "claims", "range" if "range" in c else None, i)
             rng = (float(rng[0]), float(rng[1]))
         elif value is None:
@@ -420,7 +423,16 @@ def measure_probes(cpu: str, memory: str, first_span: F.SpanParams) -> dict:
     return out
 
 
-_WARM: set = set()
+def timed_spans(scene: TextureScene, params: F.SpanParams) -> F.SpanParams:
+    """The spans the timing draws: every timing_stride-th span of the frame."""
+    return params.select(np.arange(len(params)) % scene.timing_stride == 0)
+
+
+def emulate_variant(variant: str, timed: F.SpanParams, width: int, height: int, tex: np.ndarray):
+    """The traced emulation of a variant drawing the timed spans twice in one machine state."""
+    from sim.timing.kernel import emulate
+
+    return emulate(kernels_root() / F.KERNEL, f"frame_{variant}", frame_setup(timed, width, height, tex), repeat=2)
 
 
 def _time_task(shared, variant: str, index: int) -> dict:
@@ -441,14 +453,13 @@ def run_scene(scene: TextureScene, cpus: list[str] | None = None, progress=None,
     the exact mapping, time every timing_stride-th span on each machine, and run the probes."""
     from sim.cpus import make_model
     from sim.parallel import SharedPool
-    from sim.timing.kernel import emulate
 
     say = progress or (lambda msg: None)
     w, h = scene.width, scene.height
     geometry = scene.build_geometry()
     params = F.span_params(geometry, w, h)
     tex = F.texture()
-    timed = params.select(np.arange(len(params)) % scene.timing_stride == 0)
+    timed = timed_spans(scene, params)
     result = TextureResult(scene, len(params), params.pixels, len(timed), timed.pixels)
     u_exact, v_exact = F.exact_coordinates(geometry, params)
     emulations = {}
@@ -460,30 +471,19 @@ def run_scene(scene: TextureScene, cpus: list[str] | None = None, progress=None,
             raise RetrosimError(f"{scene.path}: variant {variant}: the emulated frame differs from the model of the "
                                 "kernel's arithmetic (sim/texture_frame.py): a kernel or emulator bug")
         result.accuracy[variant] = F.error_metrics(model_pixels, variant, u_exact, v_exact)
-        emulations[variant] = emulate(kernels_root() / F.KERNEL, f"frame_{variant}", frame_setup(timed, w, h, tex),
-                                      repeat=2)
-    labels = cpus or scene.cpus
-    models = []
-    for spec in labels:
-        cpu, _, memory = spec.partition(":")
-        models.append(make_model(cpu, memory or None))
-    keys = [f"{spec.partition(':')[0]}:{m.dram.name}" for m, spec in zip(models, labels)]
+        emulations[variant] = emulate_variant(variant, timed, w, h, tex)
+    machines = [MachineKey.parse(spec) for spec in cpus or scene.cpus]
+    models = [make_model(m.label, m.memory or None) for m in machines]
+    keys = [str(MachineKey(m.label, model.dram.name)) for m, model in zip(machines, models)]
     result.keys = keys
     shared = (emulations, models, params.select(np.arange(len(params)) == 0))
-    local = SharedPool(shared, 1)
+    pool = SharedPool(shared, jobs, models)
     futures = []
-    for i, m in enumerate(models):
-        if jobs > 1 and m.family not in _WARM:  # load the compiled core before the pool forks
-            _WARM.add(m.family)
-            futures.append(("t", scene.variants[0], i, local.submit(_time_task, scene.variants[0], i)))
-    pool = SharedPool(shared, jobs)
-    done = {(f[1], f[2]) for f in futures}
     for i, key in enumerate(keys):
         for variant in scene.variants:
-            if (variant, i) not in done:
-                futures.append(("t", variant, i, pool.submit(_time_task, variant, i)))
-        cpu, _, memory = key.rpartition(":")
-        futures.append(("p", None, i, pool.submit(_probe_task, cpu, memory)))
+            futures.append(("t", variant, i, pool.submit(_time_task, variant, i)))
+        machine = MachineKey.parse(key)
+        futures.append(("p", None, i, pool.submit(_probe_task, machine.label, machine.memory)))
     try:
         for kind, variant, i, fut in futures:
             if kind == "t":
@@ -494,8 +494,7 @@ def run_scene(scene: TextureScene, cpus: list[str] | None = None, progress=None,
                 result.probes[keys[i]] = fut.result()
     finally:
         pool.close()
-        local.close()
-    # the same order for any `jobs` (the warm-up timings above finish first)
+    # the same order for any `jobs`
     result.timings = {(v, k): result.timings[(v, k)] for v in scene.variants for k in keys}
     return result
 
@@ -555,7 +554,7 @@ def evaluate(result: TextureResult) -> list[dict]:
     for claim in result.scene.claims:
         per_cpu = []
         for key in result.keys:
-            if not claim.covers(key.split(":")[0], family_of(key)):
+            if not claim.covers(MachineKey.parse(key).label, family_of(key)):
                 continue
             x = quantity(result, claim, key)
             ok = claim.holds(x)
@@ -564,7 +563,7 @@ def evaluate(result: TextureResult) -> list[dict]:
                             "explanation": explanation(result, claim, key)})
         verdicts = {e["verdict"] for e in per_cpu}
         overall = verdicts.pop() if len(verdicts) == 1 else ("mixed (see each machine)" if per_cpu else "not checked")
-        run_presets = {k.split(":")[0] for k in result.keys}
+        run_presets = {MachineKey.parse(k).label for k in result.keys}
         missing = [m.label for m in result.scene.machines if m.preset not in run_presets
                    and claim.covers(m.preset, family_of(m.label))]
         out.append({"text": claim.text, "quantity": claim.quantity, "claim": claim.describe(),
@@ -589,14 +588,8 @@ def _f(x: float, digits: int = 2) -> str:
     return f"{x:,.{digits}f}"
 
 
-def _md_table(header: list[str], rows: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
-
-
 def _label(key: str) -> str:
-    cpu, memory = key.rsplit(":", 1)
-    return f"{cpu} ({memory})"
+    return MachineKey.parse(key).display
 
 
 def _ordered_keys(result: TextureResult) -> list[str]:
@@ -644,7 +637,7 @@ def findings(result: TextureResult) -> list[str]:
             diff = {n: result.per_pixel(x, key, n) - result.per_pixel(y, key, n) for n in EXPLAIN[family_of(key)]
                     if n.startswith("stall_") or n in ("alone", "uops")}
             top = sorted(diff, key=lambda n: (-abs(diff[n]), n))[:2]
-            parts.append(f"{key.split(':')[0]} {result.cycles_per_pixel(x, key) - result.cycles_per_pixel(y, key):.2f} "
+            parts.append(f"{MachineKey.parse(key).label} {result.cycles_per_pixel(x, key) - result.cycles_per_pixel(y, key):.2f} "
                          f"({', '.join(_short(n) + f' {diff[n]:+.2f}' for n in top)})")
         out.append(f"Cycles per pixel {what} ({y}) saves over {x}, with the two counters that differ most ({x} minus "
                    f"{y}, per pixel): " + "; ".join(parts) + ".")
@@ -667,7 +660,7 @@ def to_markdown(result: TextureResult, png_name: str | None) -> str:
              "Variants (kernels/texture/persp.S):", ""]
     parts += [f"- **{v}**: {F.VARIANT_LABELS[v]}" for v in s.variants] + [""]
     parts += ["## Cycles per pixel", "",
-              _md_table(["CPU (memory)"] + list(s.variants),
+              md_table(["CPU (memory)"] + list(s.variants),
                         [[_label(k)] + [_f(result.cycles_per_pixel(v, k)) for v in s.variants] for k in keys]), ""]
     parts += ["## Error against the exact mapping", "",
               "Against u = (u/w) / (1/w), v likewise, in float64 at every pixel's centre. A pixel is wrong when "
@@ -675,7 +668,7 @@ def to_markdown(result: TextureResult, png_name: str | None) -> str:
               "and |v - v_exact| in texels. Every variant interpolates linearly across 16-pixel sub-spans, which "
               "is most of the error; the variants differ by their float precision, their conversion (_ftol "
               "truncates, FISTP rounds) and their fixed point.", "",
-              _md_table(["variant", "wrong texel (pixels)", "wrong texel (share)", "largest coordinate error",
+              md_table(["variant", "wrong texel (pixels)", "wrong texel (share)", "largest coordinate error",
                          "mean coordinate error"],
                         [[v, f"{a['wrong_texel']:,}", f"{a['wrong_texel_share']:.3%}", f"{a['max_coordinate_error']:.4f}",
                           f"{a['mean_coordinate_error']:.5f}"] for v, a in ((v, result.accuracy[v]) for v in s.variants)]),
@@ -690,7 +683,7 @@ def to_markdown(result: TextureResult, png_name: str | None) -> str:
               "of a constant word); spans of 0 pixels through b's and c's set-up; TIMESNAP from the model's "
               "RDTSC answers (stop - start around nothing, and around one _ftol conversion, which the article "
               "would print minus 16).", "",
-              _md_table(["CPU (memory)", "_ftol call", "FISTP", "FDIV serial", "FDIV serial 24-bit", "FDIV overlapped",
+              md_table(["CPU (memory)", "_ftol call", "FISTP", "FDIV serial", "FDIV serial 24-bit", "FDIV overlapped",
                          "set-up b", "set-up c", "TIMESNAP overhead", "TIMESNAP around _ftol"],
                         [[_label(k)] + [_f(result.probes[k][q], 1) for q in
                                         ("ftol_call", "fistp", "fdiv_serial", "fdiv_serial_24", "fdiv_overlapped",
@@ -717,7 +710,7 @@ def to_markdown(result: TextureResult, png_name: str | None) -> str:
         fam = family_of(k)
         names = [n for n in EXPLAIN[fam] if any(n in result.timings[(v, k)] for v in s.variants)]
         parts += [f"### {_label(k)}", "",
-                  _md_table(["variant", "cycles", "instructions"] + [n.replace("stall_", "stall ") for n in names],
+                  md_table(["variant", "cycles", "instructions"] + [n.replace("stall_", "stall ") for n in names],
                             [[v, _f(result.cycles_per_pixel(v, k)), _f(result.per_pixel(v, k, "instructions"))]
                              + [_f(result.per_pixel(v, k, n)) for n in names] for v in s.variants]), ""]
     return "\n".join(parts).rstrip() + "\n"
@@ -764,7 +757,8 @@ def error_cycles_png(result: TextureResult) -> bytes:
     import matplotlib.pyplot as plt
 
     from sim.cpus import presets
-    from sim.scenes.zbuffer.report import FAMILY_MARKERS, finish_rows, png_bytes, row_offset
+    from sim.reports.render import finish_rows, png_bytes, row_offset
+    from sim.scenes.zbuffer.report import FAMILY_MARKERS
 
     names = presets.available()
     palette = plt.get_cmap("tab10" if len(names) <= 10 else "tab20")
@@ -777,7 +771,7 @@ def error_cycles_png(result: TextureResult) -> bytes:
     ypos = {v: len(rows) - 1 - i for i, v in enumerate(rows)}
     for i, key in enumerate(keys):
         offset = row_offset(i, len(keys), spread)
-        base = key.split(":")[0].split("{")[0]
+        base = MachineKey.parse(key).preset
         colour = palette(names.index(base) % palette.N) if base in names else "0.5"
         ax.scatter([result.cycles_per_pixel(v, key) for v in rows], [ypos[v] - offset for v in rows],
                    marker=FAMILY_MARKERS.get(family_of(key), "o"), s=40, color=colour, edgecolors="black", linewidths=0.4,
@@ -790,11 +784,8 @@ def error_cycles_png(result: TextureResult) -> bytes:
     return png_bytes(fig)
 
 
-def write_reports(result: TextureResult, out_dir: Path,
-                  formats: tuple[str, ...] = ("md", "png", "json", "csv", "html")) -> list[Path]:
+def write_reports(result: TextureResult, out_dir: Path, formats: tuple[str, ...] = FORMATS) -> list[Path]:
     import json
-
-    from sim.scenes.zbuffer.report import atomic_write, render_html
 
     name = result.scene.name
     png = error_cycles_png(result) if ("png" in formats or "html" in formats) else None
@@ -802,14 +793,7 @@ def write_reports(result: TextureResult, out_dir: Path,
     payloads = {"md": md.encode(), "png": png,
                 "json": (json.dumps(to_json(result), indent=2) + "\n").encode(),
                 "csv": to_csv(result).encode(), "html": render_html(md, png).encode()}
-    written = []
-    for fmt in formats:
-        if payloads[fmt] is None:
-            continue
-        path = Path(out_dir) / f"{name}.{fmt}"
-        atomic_write(path, payloads[fmt])
-        written.append(path)
-    return written
+    return write_payloads(out_dir, name, payloads, formats)
 
 
 def summary_tables(result: TextureResult) -> list:
@@ -827,7 +811,8 @@ def summary_tables(result: TextureResult) -> list:
     for v in result.scene.variants:
         t.add_column(v, justify="right", no_wrap=True, min_width=6)
     for key in _ordered_keys(result):
-        t.add_row(escape(key.replace(":", " ")), *[f"{result.cycles_per_pixel(v, key):.2f}" for v in result.scene.variants])
+        machine = MachineKey.parse(key)
+        t.add_row(escape(f"{machine.label} {machine.memory}"), *[f"{result.cycles_per_pixel(v, key):.2f}" for v in result.scene.variants])
     t.add_section()
     t.add_row("wrong texel", *[f"{result.accuracy[v]['wrong_texel_share']:.1%}" for v in result.scene.variants])
     out = [t]

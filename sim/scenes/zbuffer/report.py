@@ -1,22 +1,17 @@
-"""Scene reports: Markdown, self-contained HTML, JSON, CSV and a work-precision plot (PNG).
-
-Reports are generated, never edited. Every file is written to a temporary name and renamed, so an
-interrupted run leaves the previous report intact. Numbers are formatted deterministically so a
-re-run on any machine produces the same Markdown, JSON and CSV bytes (CI compares them).
+"""Z-buffer scene reports: Markdown, self-contained HTML, JSON, CSV and a work-precision plot (PNG),
+and the terminal summary. How files are written (atomically, deterministically) and the forms the
+scenes' reports share are in sim.reports.render.
 """
 
 from __future__ import annotations
 
-import base64
-import csv
-import html
-import io
 import json
 from pathlib import Path
 
 from typing import TYPE_CHECKING
 
-from sim import output
+from sim.cpus.machine import MachineKey
+from sim.reports.render import FORMATS, finish_rows, md_table, png_bytes, render_html, row_offset, timings_csv, write_payloads
 from sim.scenes.zbuffer.frames import VARIANT_LABELS
 
 if TYPE_CHECKING:
@@ -34,19 +29,12 @@ EXPLAIN_COUNTERS = ["uops", "msrom_uops", "decode_groups", "l1d_load_misses", "l
                     "stall_memory", "stall_partial_register", "mispredicts"]
 
 
-def atomic_write(path: Path, data: bytes) -> None:
-    # one writer for every output (sim.output: refuses devices and folders, follows the umask)
-    output.check_output_dir(Path(path).parent)
-    output.atomic_write(path, data)
-
-
 def _f(x: float, digits: int = 2) -> str:
     return f"{x:,.{digits}f}"
 
 
 def _cpu_label(key: str) -> str:
-    cpu, memory = key.rsplit(":", 1)
-    return f"{cpu} ({memory})"
+    return MachineKey.parse(key).display
 
 
 # -- claims ----------------------------------------------------------------------------------
@@ -73,12 +61,6 @@ def checked_claims(result: SceneResult) -> tuple[list[dict], list[dict]]:
 
 
 # -- tables ------------------------------------------------------------------------------------
-def _md_table(header: list[str], rows: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
-    return "\n".join(lines)
-
-
 def cycles_table(result: SceneResult) -> tuple[list[str], list[list[str]]]:
     header = ["variant"] + [_cpu_label(k) for k in result.cpu_keys]
     rows = [[f"{v} ({VARIANT_LABELS[v]})"] + [_f(result.timing(v, k).per_pixel("cycles")) for k in result.cpu_keys]
@@ -89,7 +71,7 @@ def cycles_table(result: SceneResult) -> tuple[list[str], list[list[str]]]:
 def ns_table(result: SceneResult) -> tuple[list[str], list[list[str]]]:
     from sim.cpus import presets
 
-    mhz = {k: presets.load(k.split(":")[0]).core_mhz for k in result.cpu_keys}
+    mhz = {k: presets.load(MachineKey.parse(k).label).core_mhz for k in result.cpu_keys}
     header = ["variant"] + [_cpu_label(k) for k in result.cpu_keys]
     rows = [[v] + [_f(1000.0 * result.timing(v, k).per_pixel("cycles") / mhz[k]) for k in result.cpu_keys]
             for v in result.scene.variants]
@@ -114,7 +96,7 @@ def breakdown_table(result: SceneResult, key: str) -> tuple[list[str], list[list
     load, store, branch and FPU); 'no L2' where the CPU has none."""
     from sim.cpus import presets, vocabulary
 
-    cpu = key.split(":")[0]
+    cpu = MachineKey.parse(key).label
     voc = vocabulary.for_preset(cpu)
     has_l2 = presets.load(cpu).l2 is not None
     units = list(voc.ports) + [name for counter, name in voc.extra_units]
@@ -136,7 +118,7 @@ def breakdown_legend(key: str) -> str:
     """The family's words for one breakdown table, in one sentence under it."""
     from sim.cpus import vocabulary
 
-    voc = vocabulary.for_preset(key.split(":")[0])
+    voc = vocabulary.for_preset(MachineKey.parse(key).label)
     units = "; ".join(voc.port_help) + ("; " + ", ".join(f"{n}: x87 unit" for c, n in voc.extra_units)
                                         if voc.extra_units else "")
     return (f"{voc.op}s per pixel on each {voc.unit} ({units}). "
@@ -146,37 +128,6 @@ def breakdown_legend(key: str) -> str:
 # -- plot --------------------------------------------------------------------------------------
 # The scenes' plots share one form: a row per variant, cycles along x, a marker per machine.
 FAMILY_MARKERS = {"p5": "s", "p6": "o", "k6": "D"}  # a shape per family where a marker means a preset
-
-
-def png_bytes(fig) -> bytes:
-    """The figure as PNG bytes (no software tag, so the file depends on the data alone); closes it."""
-    import matplotlib.pyplot as plt
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", metadata={"Software": None})
-    plt.close(fig)
-    return buf.getvalue()
-
-
-def row_offset(i: int, n: int, spread: float) -> float:
-    """Vertical offset of the i-th of n machines' markers within a row, so none hides another."""
-    return (i - (n - 1) / 2) * (spread / max(1, n - 1)) if n > 1 else 0.0
-
-
-def finish_rows(fig, ax, rows: list[str], ypos: dict, labels: list[str], xlabel: str, title: str, fontsize: int,
-                ncol: int) -> None:
-    """The frame of a rows-of-variants dot plot: separators, row labels, axis text, legend below."""
-    for k in range(len(rows) - 1):
-        ax.axhline(k + 0.5, color="0.85", lw=0.8, zorder=1)
-    ax.set_yticks([ypos[v] for v in rows], labels, fontsize=fontsize)
-    ax.set_ylim(-0.5, len(rows) - 0.5)
-    ax.set_xlabel(xlabel, fontsize=10)
-    ax.set_title(title, fontsize=10)
-    ax.grid(axis="x", color="0.9", zorder=0)
-    ax.tick_params(axis="x", labelsize=9)
-    ax.margins(x=0.04)
-    fig.legend(fontsize=fontsize, loc="outside lower center", ncol=ncol, frameon=False, handletextpad=0.3,
-               columnspacing=1.2)
 
 
 def work_precision_png(result: SceneResult) -> bytes | None:
@@ -221,11 +172,11 @@ def work_precision_figure(result: SceneResult):
         offset = row_offset(i, len(keys), spread)
         xs = [result.timing(v, key).per_pixel("cycles") for v in rows]
         ys = [ypos[v] - offset for v in rows]
-        cpu, memory = key.rsplit(":", 1)
-        base = cpu.split("{", 1)[0]  # a preset with overrides keeps its preset's colour
+        machine = MachineKey.parse(key)
+        base = machine.preset  # a preset with overrides keeps its preset's colour
         colour = palette(cpu_names.index(base) % palette.N) if base in cpu_names else "0.5"
-        m = memories.index(memory) if memory in memories else len(markers) - 1
-        if base == cpu:
+        m = memories.index(machine.memory) if machine.memory in memories else len(markers) - 1
+        if not machine.overridden:
             ax.scatter(xs, ys, marker=markers[m % len(markers)], s=46, color=colour, label=_cpu_label(key),
                        zorder=3, edgecolors="black", linewidths=0.4)
         else:  # overridden: hollow, and a shape of its own, so two variants of one preset differ
@@ -262,66 +213,51 @@ def to_json(result: SceneResult) -> dict:
     }
 
 
-def to_csv(result: SceneResult, units: tuple[str, str] = ("pixels", "cycles_per_pixel")) -> str:
-    """One row per (variant, CPU); the counter columns are the union over the CPUs of the run, in order
-    of first appearance (families count different things: the K6 adds fpu_ops, l3_*), empty where a
-    CPU's model has no such counter. `units` names the work-unit columns (a snap scene counts vertices)."""
-    buf = io.StringIO()
-    counters = list(dict.fromkeys(c for t in result.timings for c in t.counters))
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["scene", "variant", "cpu", "memory", *units] + counters)
-    for t in result.timings:
-        w.writerow([result.scene.name, t.variant, t.cpu, t.memory, t.pixels, f"{t.per_pixel('cycles'):.4f}"]
-                   + [t.counters.get(c, "") for c in counters])
-    return buf.getvalue()
+def to_csv(result: SceneResult) -> str:
+    """One row per (variant, CPU): sim.reports.render.timings_csv."""
+    return timings_csv(result.scene.name, result.timings)
 
 
 # -- terminal summary --------------------------------------------------------------------------
-def summary_tables(results: list[SceneResult]) -> list:
-    """What `retrosim report` prints: per scene, one table with the CPUs as rows and the variants as
-    columns (cycles per pixel), a row of wrong-visibility shares, and how many claims held. Variant
-    names are short, so a table fits 80 columns for any number of CPUs."""
+def summary_tables(r: SceneResult) -> list:
+    """What `retrosim report` prints for a Z-buffer scene: one table with the CPUs as rows and the
+    variants as columns (cycles per pixel), a row of wrong-visibility shares, and how many claims
+    held. Variant names are short, so a table fits 80 columns for any number of CPUs."""
     from rich import box
     from rich.markup import escape
     from rich.table import Table
 
-    from sim.scenes.zbuffer.scene import kind_module
-
     out = []
-    for r in results:
-        if r.scene.kind != "zbuffer":
-            out += kind_module(r.scene.kind).summary_tables(r)
-            continue
-        claims, unchecked = checked_claims(r)
-        held = sum(1 for c in claims if c["verdict"] == "reproduced")
-        t = Table(title=f"{escape(r.scene.name)}: cycles per pixel, last frame", title_justify="left",
-                  box=box.SIMPLE_HEAD, pad_edge=False)
-        # a machine with overrides has a long label: it folds, the numbers keep their width
-        t.add_column("CPU (memory)", overflow="fold")
+    claims, unchecked = checked_claims(r)
+    held = sum(1 for c in claims if c["verdict"] == "reproduced")
+    t = Table(title=f"{escape(r.scene.name)}: cycles per pixel, last frame", title_justify="left",
+              box=box.SIMPLE_HEAD, pad_edge=False)
+    # a machine with overrides has a long label: it folds, the numbers keep their width
+    t.add_column("CPU (memory)", overflow="fold")
+    for v in r.scene.variants:
+        t.add_column(v, justify="right", no_wrap=True, min_width=max(len(v), 6))
+    for key in r.cpu_keys:
+        cells = []
         for v in r.scene.variants:
-            t.add_column(v, justify="right", no_wrap=True, min_width=max(len(v), 6))
-        for key in r.cpu_keys:
-            cells = []
-            for v in r.scene.variants:
-                try:
-                    cells.append(f"{r.timing(v, key).per_pixel('cycles'):.2f}")
-                except KeyError:
-                    cells.append("-")
-            cpu, memory = key.rsplit(":", 1)
-            t.add_row(escape(f"{cpu} {memory}"), *cells)
-        if any(r.accuracy[v].visibility for v in r.scene.variants):
-            t.add_section()
-            t.add_row("wrong visibility", *[_share(r.accuracy[v].visibility) for v in r.scene.variants])
-        out.append(t)
-        if claims or unchecked:
-            from rich.padding import Padding
-            from rich.text import Text
+            try:
+                cells.append(f"{r.timing(v, key).per_pixel('cycles'):.2f}")
+            except KeyError:
+                cells.append("-")
+        machine = MachineKey.parse(key)
+        t.add_row(escape(f"{machine.label} {machine.memory}"), *cells)
+    if any(r.accuracy[v].visibility for v in r.scene.variants):
+        t.add_section()
+        t.add_row("wrong visibility", *[_share(r.accuracy[v].visibility) for v in r.scene.variants])
+    out.append(t)
+    if claims or unchecked:
+        from rich.padding import Padding
+        from rich.text import Text
 
-            wrong = [c for c in claims if c["verdict"] != "reproduced"]
-            lines = [f"claims: {held} of {len(claims)} reproduced" + (", the others:" if wrong else "")
-                     + (f" ({len(unchecked)} not checked: their CPU was not run)" if unchecked else "")]
-            out.append(Padding(Text(lines[0]), (0, 0, 0, 1)))
-            out += [Padding(Text(f"- {c['text']}: {c['verdict']}"), (0, 0, 0, 3)) for c in wrong]
+        wrong = [c for c in claims if c["verdict"] != "reproduced"]
+        lines = [f"claims: {held} of {len(claims)} reproduced" + (", the others:" if wrong else "")
+                 + (f" ({len(unchecked)} not checked: their CPU was not run)" if unchecked else "")]
+        out.append(Padding(Text(lines[0]), (0, 0, 0, 1)))
+        out += [Padding(Text(f"- {c['text']}: {c['verdict']}"), (0, 0, 0, 3)) for c in wrong]
     return out
 
 
@@ -388,12 +324,12 @@ def to_markdown(result: SceneResult, png_name: str | None, findings: list[str]) 
              f"{s.frames} frame(s) are drawn in one machine state (clear the depth buffer, then every span); "
              "the last frame is reported, with caches and predictors warm.", ""]
     if result.timings:
-        parts += ["## Cycles per pixel", "", _md_table(*cycles_table(result)), "",
-                  "The same in nanoseconds per pixel at each preset's clock:", "", _md_table(*ns_table(result)), ""]
+        parts += ["## Cycles per pixel", "", md_table(*cycles_table(result)), "",
+                  "The same in nanoseconds per pixel at each preset's clock:", "", md_table(*ns_table(result)), ""]
     if any(a.visibility or a.depth_error for a in result.accuracy.values()):
         parts += ["## Error against the exact reference", "",
                   "Against a float64 Z-buffer of the same spans. Depth errors are in units of the scene's exact "
-                  "depth range.", "", _md_table(*accuracy_table(result)), ""]
+                  "depth range.", "", md_table(*accuracy_table(result)), ""]
     if png_name:
         parts += ["## Work against precision", "", f"![work-precision plot]({png_name})", ""]
     claims = evaluate_claims(result)  # each says on which machines it held, and which were not run
@@ -407,7 +343,7 @@ def to_markdown(result: SceneResult, png_name: str | None, findings: list[str]) 
                   "a port, the decoders, a partial-register merge, memory, a store forward, a branch restart); "
                   "they overlap, so they do not add up to the cycle count.", ""]
         for key in result.cpu_keys:
-            parts += [f"### {_cpu_label(key)}", "", _md_table(*breakdown_table(result, key)), "",
+            parts += [f"### {_cpu_label(key)}", "", md_table(*breakdown_table(result, key)), "",
                       breakdown_legend(key), ""]
     if result.precision:
         parts += ["## Precision of the stored depth formats", "",
@@ -421,22 +357,15 @@ def _precision_md(precision: dict) -> str:
     if not rows:
         return "(none)"
     header = list(rows[0].keys())
-    return _md_table(header, [[f"{r[h]:.3g}" if isinstance(r[h], float) else str(r[h]) for h in header]
+    return md_table(header, [[f"{r[h]:.3g}" if isinstance(r[h], float) else str(r[h]) for h in header]
                               for r in rows])
 
 
-def write_reports(result: SceneResult, out_dir: Path,
-                  formats: tuple[str, ...] = ("md", "png", "json", "csv", "html")) -> list[Path]:
-    out_dir = Path(out_dir)
-    if result.scene.kind != "zbuffer":  # a scene of another kind writes its own reports
-        from sim.scenes.zbuffer.scene import kind_module
-
-        return kind_module(result.scene.kind).write_reports(result, out_dir, formats)
+def write_reports(result: SceneResult, out_dir: Path, formats: tuple[str, ...] = FORMATS) -> list[Path]:
     name = result.scene.name
     has_plot = any(a.visibility for a in result.accuracy.values())
     png = work_precision_png(result) if has_plot and ("png" in formats or "html" in formats) else None
     md = to_markdown(result, f"{name}.png" if has_plot else None, findings(result))
-    written = []
     payloads = {
         "md": md.encode(),
         "png": png,
@@ -444,54 +373,4 @@ def write_reports(result: SceneResult, out_dir: Path,
         "csv": to_csv(result).encode(),
         "html": render_html(md, png).encode(),
     }
-    for fmt in formats:
-        data = payloads[fmt]
-        if data is None:
-            continue
-        path = out_dir / f"{name}.{fmt}"
-        atomic_write(path, data)
-        written.append(path)
-    return written
-
-
-_CSS = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;line-height:1.4}"
-        "table{border-collapse:collapse;margin:1em 0;font-size:90%}td,th{border:1px solid #ccc;padding:2px 6px;"
-        "text-align:right}td:first-child,th:first-child{text-align:left}img{max-width:100%}")
-
-
-def render_html(markdown: str, png: bytes | None) -> str:
-    """The Markdown report as one self-contained HTML page (tables, headings, the inlined plot)."""
-    body: list[str] = []
-    table: list[str] = []
-
-    def flush():
-        if table:
-            head, *rest = table
-            body.append("<table><tr>" + "".join(f"<th>{c}</th>" for c in head) + "</tr>"
-                        + "".join("<tr>" + "".join(f"<td>{c}</td>" for c in r) + "</tr>" for r in rest) + "</table>")
-            table.clear()
-
-    for line in markdown.splitlines():
-        if line.startswith("|"):
-            if set(line.replace("|", "").strip()) <= {"-"}:
-                continue
-            table.append([html.escape(c.strip()) for c in line.strip().strip("|").split("|")])
-            continue
-        flush()
-        if line.startswith("### "):
-            body.append(f"<h3>{html.escape(line[4:])}</h3>")
-        elif line.startswith("## "):
-            body.append(f"<h2>{html.escape(line[3:])}</h2>")
-        elif line.startswith("# "):
-            body.append(f"<h1>{html.escape(line[2:])}</h1>")
-        elif line.startswith("!["):
-            if png:
-                data = base64.b64encode(png).decode()
-                body.append(f'<p><img alt="work-precision plot" src="data:image/png;base64,{data}"></p>')
-        elif line.startswith("- "):
-            body.append(f"<li>{html.escape(line[2:])}</li>")
-        elif line.strip():
-            body.append(f"<p>{html.escape(line)}</p>")
-    flush()
-    return ("<!DOCTYPE html><html><head><meta charset='utf-8'><title>retrosim report</title>"
-            f"<style>{_CSS}</style></head><body>" + "\n".join(body) + "</body></html>\n")
+    return write_payloads(out_dir, name, payloads, formats)

@@ -1,4 +1,4 @@
-"""Run a scene: rasterize, draw its frames with each Z-buffer variant under Unicorn, time the last
+"""Run a Z-buffer scene: rasterize, draw its frames with each Z-buffer variant under Unicorn, time the last
 frame on each CPU preset, and measure each variant's error against the exact reference.
 
 Only what the scene asks for is built: its variants' kernels, its presets, its metrics.
@@ -7,35 +7,18 @@ Only what the scene asks for is built: its variants' kernels, its presets, its m
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
-
 import numpy as np
 
-from sim.scenes.zbuffer import metrics
-from sim.scenes import raster
 from sim.cpus import make_model
+from sim.cpus.machine import MachineKey
 from sim.errors import RetrosimError
+from sim.parallel import SharedPool
+from sim.scenes import raster
+from sim.scenes.kind import Progress, Timing
+from sim.scenes.zbuffer import metrics
 from sim.scenes.zbuffer.frames import VARIANT_LABELS, draw_frames
 from sim.scenes.zbuffer.scene import Scene
 from sim.timing.kernel import time_emulation
-
-Progress = Callable[[str], None]
-
-
-@dataclass(frozen=True)
-class Timing:
-    variant: str
-    cpu: str      # preset name
-    memory: str   # memory preset name
-    pixels: int
-    counters: dict
-
-    @property
-    def key(self) -> str:
-        return f"{self.cpu}:{self.memory}"
-
-    def per_pixel(self, name: str) -> float:
-        return self.counters[name] / self.pixels if self.pixels else 0.0
 
 
 @dataclass(frozen=True)
@@ -88,11 +71,7 @@ def fp16z_hazards(spans) -> dict:
 
 
 def _cpu_keys(cpus: list[str]) -> list[tuple[str, str | None]]:
-    out = []
-    for spec in cpus:
-        cpu, _, memory = spec.partition(":")
-        out.append((cpu, memory or None))
-    return out
+    return [(key.label, key.memory or None) for key in map(MachineKey.parse, cpus)]
 
 
 def _claim_machines(scene: Scene, models: dict) -> dict[str, set]:
@@ -106,20 +85,6 @@ def _claim_machines(scene: Scene, models: dict) -> dict[str, set]:
     return out
 
 
-_WARM: set = set()  # families whose compiled core this process has run (see sim.parallel)
-
-
-def _warm(model) -> None:
-    """Load the family's compiled core into this process (before a pool forks: see sim.parallel) by
-    timing an empty trace: the same argument types as a real run, so the same compiled function."""
-    from sim.guest.decode import Decoder
-    from sim.guest.trace import Trace
-
-    if model.family not in _WARM:
-        model.run(Trace.empty(), Decoder(lambda address, n: b""), [0], (0, 0), 0)
-        _WARM.add(model.family)
-
-
 def _time_task(shared, i: int, key: str, robust: bool) -> tuple[dict, dict | None]:
     """Counters of the last call of the shared emulation on machine `i`, and the claims' robustness
     re-timings when `robust` (a pure function of its arguments: the same in any process)."""
@@ -129,8 +94,9 @@ def _time_task(shared, i: int, key: str, robust: bool) -> tuple[dict, dict | Non
     emulation, models = shared
     logs = AccessLogs() if robust else None  # the re-timings replay this timing's cache results
     timed = time_emulation(emulation, models[i], access_logs=logs)
-    cpu, memory = key.split(":")
-    sens = claim_checks.perturbed_timings(emulation, cpu, memory, timed.last, logs=logs) if robust else None
+    machine = MachineKey.parse(key)
+    sens = (claim_checks.perturbed_timings(emulation, machine.label, machine.memory, timed.last, logs=logs)
+            if robust else None)
     return timed.last, sens
 
 
@@ -143,12 +109,6 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
     `jobs` > 1 times each variant's emulation on the machines in that many forked processes
     sharing the trace (sim.parallel), while this process emulates the next variant; the result is
     the same for any `jobs`."""
-    from sim.parallel import SharedPool
-
-    if scene.kind != "zbuffer":  # another kind of scene runs in its own module (sim.scene.KINDS)
-        from sim.scenes.zbuffer.scene import kind_module
-
-        return kind_module(scene.kind).run_scene(scene, cpus, progress, robustness, jobs)
     say = progress or (lambda msg: None)
     geometry = scene.build_geometry()
     w, h = scene.width, scene.height
@@ -201,13 +161,9 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
             for i, ((cpu, _), model) in enumerate(models.items()):
                 key = f"{cpu}:{model.dram.name}"
                 futures.append([cpu, model.dram.name, (i, key, key in robust.get(variant, ()))])
-                if jobs > 1:
-                    # the compiled core loaded here, before the pool forks (timing a whole machine
-                    # here instead would leave the other cores idle meanwhile)
-                    _warm(model)
             while pending:  # the previous variant's timings ran while this one was emulated
                 collect(pending.pop(0))
-            pool = SharedPool(shared, jobs)
+            pool = SharedPool(shared, jobs, models.values())
             # the machines with claims' re-timings (many times the work of one timing) start first,
             # so that no core is left waiting on one long task at the end; results keep their order
             for f in sorted(futures, key=lambda f: not f[2][2]):

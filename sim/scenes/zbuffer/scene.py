@@ -1,10 +1,12 @@
-"""Scene files (scenes/*.toml): the format, a loader that validates it, and what a scene needs.
+"""Z-buffer scene files (scenes/*.toml, [scene] kind = "zbuffer" or none): the format, a loader
+that validates it, and what a scene needs. The kind's other parts: runner.py runs it, report.py
+reports it, kind.py joins them behind the scene-kind interface (sim.scenes.kind).
 
 Format::
 
     [scene]
     kind = "zbuffer"                # optional (the default); another kind is loaded, run and
-                                    #   reported by its own module (KINDS: "texture", "snap")
+                                    #   reported by its own package (sim.scenes.registry.KINDS)
     name = "zbuffer-article"        # required; must equal the file stem
     description = "..."             # optional
     width = 640                     # required, pixels
@@ -54,23 +56,23 @@ Generators are those of sim.raster (random_scene, coplanar_far_scene, ...) with 
 their arguments. Metrics: "visibility" (wrong winners), "depth_error" (stored vs exact depth),
 "fp16_precision" (the format table, needs no frame), "z_fighting" (coplanar_far only).
 
-Every problem raises one :class:`SceneError` whose message names the file (with a line when one can
-be found) and the dotted field: ``scenes/a.toml:12: run.variants[1]: unknown variant 'z24' ...``.
+Every problem raises one :class:`SceneError` (sim.scenes.schema) whose message names the file (with
+a line when one can be found) and the dotted field: ``scenes/a.toml:12: run.variants[1]: unknown
+variant 'z24' ...``.
 """
 
 from __future__ import annotations
 
 import math
-import re
-import stat
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from sim.scenes import raster
+from sim.cpus.machine import MachineKey
 from sim.errors import RetrosimError
+from sim.scenes import raster
+from sim.scenes.schema import CpuChoice, SceneError, Validator, show, toml_type
 
 VARIANTS = raster.VARIANTS
 METRICS = ("visibility", "depth_error", "fp16_precision", "z_fighting")
@@ -79,7 +81,6 @@ SPAN_RECORD_BYTES = 32  # kernels/zbuffer/draw.inc: 8 dwords per span
 ARENA_ALIGN = 64        # sim.emu.Arena.alloc's default alignment
 ZBUF_BYTES = {v: raster.ZBUF_DTYPE[v].itemsize for v in VARIANTS}
 KERNEL_DIR = "kernels/zbuffer"
-MAX_SCENE_BYTES = 64 << 20  # 65535 explicit triangles take about 6 MB
 MAX_COORDINATE = 1 << 20  # screens are at most 32768 wide; the plane math stays exact far beyond
 # Host memory a scene may take: the runner holds a few int64/float64 arrays per pixel visit
 # (rasterized spans expanded to pixels, the reference, the expected frames): about 220 bytes per
@@ -109,47 +110,7 @@ _MACHINE_KEYS = {"cpu": ("str", True), "memory": ("str", False), "set": ("any", 
 _CLAIM_KEYS = {"text": ("str", True), "cpu": ("str", False), "cpus": ("strlist", False),
                "families": ("strlist", False), "memories": ("strlist", False), "variants": ("strlist", True),
                "expect": ("str", True), "tolerance": ("number", False)}
-FAMILIES = ("p5", "p6", "k6")  # CPU families a claim may name (sim/cpus: cpu_model of the presets)
 EXPECTATIONS = ("similar", "faster", "slower")
-_KIND_NAMES = {"int": "an integer", "number": "a number", "str": "a string", "strlist": "an array of strings",
-               "range": "an array of two numbers [lo, hi]", "tables": "an array of tables", "any": "a value"}
-
-
-class SceneError(RetrosimError):
-    """A scene file is malformed; the message is `file[:line]: field: problem`."""
-
-
-# [scene].kind -> the module that loads, runs and reports that kind of scene: load(path, text, doc),
-# run_scene(scene, cpus, progress, robustness, jobs), write_reports(result, out_dir, formats),
-# summary_tables(result) and baseline_entries(result). "zbuffer" (the default) is this module's format.
-KINDS = {"zbuffer": None, "texture": "sim.scenes.texture.scene", "snap": "sim.scenes.snap.scene"}
-
-
-def kind_module(kind: str):
-    import importlib
-
-    return importlib.import_module(KINDS[kind])
-
-
-def _toml_type(value) -> str:
-    if isinstance(value, bool):
-        return "boolean"
-    if isinstance(value, int):
-        return "integer"
-    if isinstance(value, float):
-        return "float"
-    if isinstance(value, str):
-        return "string"
-    if isinstance(value, list):
-        return "array"
-    if isinstance(value, dict):
-        return "table"
-    return type(value).__name__
-
-
-def _show(value) -> str:
-    text = ("true" if value else "false") if isinstance(value, bool) else repr(value)
-    return text if len(text) <= 40 else text[:37] + "..."
 
 
 # ---------------------------------------------------------------------------------------------
@@ -191,20 +152,6 @@ class GeometrySpec:
         if self.triangles is not None:
             opt["triangles"] = self.triangles
         return raster.GENERATORS[g](width, height, seed=self.seed, **opt)
-
-
-@dataclass(frozen=True)
-class CpuChoice:
-    """One `preset[:memory]` entry of run.cpus, with the memory preset resolved (the CPU preset's
-    default memory when none is given)."""
-
-    preset: str
-    memory: str
-    memory_given: bool
-
-    @property
-    def label(self) -> str:
-        return f"{self.preset}:{self.memory}"
 
 
 @dataclass(frozen=True)
@@ -290,7 +237,7 @@ class Claim:
     def covers(self, preset: str, memory: str, family: str) -> bool:
         if self.memories and memory not in self.memories:
             return False
-        preset = preset.split("{")[0]  # a preset with overrides (run.machine) is still that preset
+        preset = MachineKey(preset).preset  # a preset with overrides (run.machine) is still that preset
         return (family in self.families or preset in self.cpus or f"{preset}:{memory}" in self.cpus)
 
     def describe_coverage(self) -> str:
@@ -356,176 +303,6 @@ class Scene:
         )
 
 
-# ---------------------------------------------------------------------------------------------
-# loading and validation
-
-def _line_of(text: str, table: str | None, key: str | None = None, index: int | None = None) -> int | None:
-    """Best-effort line number of `key` in [table] (the index-th [[table]] for arrays of tables),
-    or of the table's header when key is None; None when not found."""
-    header = re.compile(r"^\s*(\[\[?)\s*([^\]]+?)\s*\]\]?\s*(#.*)?$")
-    keyline = re.compile(r"""^\s*(?:"([^"]*)"|'([^']*)'|([A-Za-z0-9_-]+))\s*=""")
-    current, seen, in_target = "", {}, table in (None, "")
-    for number, line in enumerate(text.splitlines(), 1):
-        m = header.match(line)
-        if m:
-            current = m.group(2).replace(" ", "")
-            count = seen.get(current, -1) + 1 if m.group(1) == "[[" else 0
-            seen[current] = count
-            in_target = current == table and (index is None or count == index)
-            if in_target and key is None:
-                return number
-            continue
-        if in_target and key is not None:
-            k = keyline.match(line)
-            if k and next(g for g in k.groups() if g is not None) == key:
-                return number
-    return None
-
-
-class _Validator:
-    def __init__(self, path: Path, text: str):
-        self.path, self.text = path, text
-
-    def fail(self, field: str, message: str, table: str | None = None, key: str | None = None,
-             index: int | None = None):
-        line = _line_of(self.text, table, key, index) if (table or key) else None
-        where = f"{self.path}:{line}" if line else f"{self.path}"
-        raise SceneError(f"{where}: {field}: {message}" if field else f"{where}: {message}")
-
-    def table(self, doc: dict, name: str, required: bool = True) -> dict:
-        if name not in doc:
-            if required:
-                self.fail(name, f"missing required table [{name}]")
-            return {}
-        value = doc[name]
-        if not isinstance(value, dict):
-            self.fail(name, f"expected a table [{name}], got {_toml_type(value)}", None, name)
-        return value
-
-    def machine(self, machines: list, label: str, memory: str | None, field: str, table: str, key: str,
-                index: int | None = None) -> None:
-        """Append the CpuChoice of a machine label (preset{overrides}) and memory to `machines`, with
-        one error naming `field` for an unknown preset or memory, an unusable override, or a repeat."""
-        from sim.cpus import machine_label, make_model, memory_presets, presets, split_label
-
-        try:
-            preset, overrides = split_label(label)
-        except RetrosimError as e:
-            self.fail(field, str(e), table, key, index)
-        known_cpus, known_mem = presets.available(), memory_presets()
-        if preset not in known_cpus:
-            self.fail(field, f"unknown CPU preset '{preset}' (known: {', '.join(known_cpus)})", table, key, index)
-        if memory is not None and memory not in known_mem:
-            self.fail(field, f"unknown memory preset '{memory}' (known: {', '.join(known_mem)})", table, key, index)
-        try:
-            label = machine_label(preset, overrides)
-            model = make_model(label, memory)  # validates every override (and the geometry it makes)
-        except RetrosimError as e:
-            self.fail(field, f"CPU preset '{preset}' is unusable: {e}", table, key, index)
-        choice = CpuChoice(label, model.dram.name, memory is not None)
-        # the same machine spelled twice ('pentium2-233' and its default 'pentium2-233:edo')
-        same = next((m for m in machines if (m.preset, m.memory) == (choice.preset, choice.memory)), None)
-        if same is not None:
-            self.fail(field, f"repeats '{same.label}' (both are {choice.preset} with {choice.memory} memory)",
-                      table, key, index)
-        machines.append(choice)
-
-    def machines(self, cpus) -> list[CpuChoice]:
-        """run.cpus entries (preset{overrides}[:memory]) as CpuChoices, each checked by :meth:`machine`."""
-        machines: list[CpuChoice] = []
-        for i, entry in enumerate(cpus):
-            label, sep, memory = entry.partition(":")
-            self.machine(machines, label, memory if sep else None, f"run.cpus[{i}]", "run", "cpus")
-        return machines
-
-    def families(self, field: str, families, index: int) -> None:
-        """A claim's families = [...] name known families."""
-        for fam in families:
-            if fam not in FAMILIES:
-                self.fail(f"{field}.families", f"unknown family '{fam}' (known: {', '.join(FAMILIES)})",
-                          "claims", "families", index)
-
-    def require_cover(self, field: str, index: int, machines: list, covers) -> None:
-        """A claim must cover at least one of the scene's machines: covers(preset, memory, family)."""
-        from sim.cpus import family_of
-
-        if not any(covers(m.preset, m.memory, family_of(m.preset)) for m in machines):
-            self.fail(field, f"covers none of run.cpus ({', '.join(m.label for m in machines)})", "claims", None,
-                      index)
-
-    def claim_tables(self, doc: dict) -> list[dict]:
-        """The [[claims]] tables of a scene (none: an empty list)."""
-        raw = doc.get("claims", [])
-        if not isinstance(raw, list) or not all(isinstance(c, dict) for c in raw):
-            self.fail("claims", "expected an array of tables [[claims]]", None, "claims")
-        return raw
-
-    def keys(self, data: dict, allowed: dict, table: str, index: int | None = None, field: str | None = None,
-             note: str = "") -> None:
-        field = field or table
-        for key in data:
-            if key not in allowed:
-                self.fail(f"{field}.{key}", f"unknown key{note} (allowed: {', '.join(allowed)})", table, key, index)
-        for key, (_, required) in allowed.items():
-            if required and key not in data:
-                self.fail(f"{field}.{key}", f"missing required field{note}", table, None, index)
-
-    def typed(self, data: dict, key: str, kind: str, table: str, index: int | None = None,
-              field: str | None = None, default=None):
-        field = f"{field or table}.{key}"
-        if key not in data:
-            return default
-        value = data[key]
-
-        def wrong(what=None):
-            self.fail(field, f"expected {_KIND_NAMES[kind]}, got {what or _toml_type(value)} {_show(value)}",
-                      table, key, index)
-
-        if kind == "int":
-            if isinstance(value, bool) or not isinstance(value, int):
-                wrong()
-            return value
-        if kind == "number":
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                wrong()
-            if not math.isfinite(value):
-                self.fail(field, f"must be finite, got {value}", table, key, index)
-            return float(value)
-        if kind == "str":
-            if not isinstance(value, str):
-                wrong()
-            return value
-        if kind == "strlist":
-            if not isinstance(value, list):
-                wrong()
-            for i, item in enumerate(value):
-                if not isinstance(item, str):
-                    self.fail(f"{field}[{i}]", f"expected a string, got {_toml_type(item)} {_show(item)}",
-                              table, key, index)
-            return tuple(value)
-        if kind == "range":
-            if (not isinstance(value, list) or len(value) != 2
-                    or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in value)):
-                wrong()
-            lo, hi = float(value[0]), float(value[1])
-            if not (0.0 <= lo < hi <= 1.0):
-                self.fail(field, f"need 0 <= lo < hi <= 1, got {_show(value)}", table, key, index)
-            return lo, hi
-        if kind == "tables":
-            if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
-                wrong()
-            return value
-        return value
-
-    def at_least(self, value, minimum, field: str, table: str, key: str, what: str = "") -> None:
-        if value is not None and value < minimum:
-            self.fail(field, f"must be >= {minimum}{what}, got {value}", table, key)
-
-    def at_most(self, value, maximum, field: str, table: str, key: str, what: str = "") -> None:
-        if value is not None and value > maximum:
-            self.fail(field, f"must be <= {maximum}{what}, got {value}", table, key)
-
-
 def _numbers(v, shape: tuple[int, ...]) -> bool:
     if len(shape) == 0:
         return not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
@@ -543,7 +320,7 @@ def max_visits() -> int:
     return value
 
 
-def _check_visits(v: _Validator, geometry: GeometrySpec, width: int, height: int, span_bound: int) -> None:
+def _check_visits(v: Validator, geometry: GeometrySpec, width: int, height: int, span_bound: int) -> None:
     """Refuse a scene whose frame draws more pixels than host memory can follow (see MAX_VISITS_ENV).
     Cheap bound first (rows x width); only above the limit is the geometry rasterized to count."""
     limit = max_visits()
@@ -560,47 +337,14 @@ def _check_visits(v: _Validator, geometry: GeometrySpec, width: int, height: int
                "geometry")
 
 
-def load_scene(path: str | Path) -> Scene:
-    """Parse and validate a scene file; raises SceneError with one line naming file and field."""
+def load(path: Path, text: str, doc: dict) -> Scene:
+    """Validate a parsed Z-buffer scene (sim.scenes.registry.load_scene reads the file and dispatches
+    on [scene].kind); raises SceneError with one line naming file and field."""
     from sim.cpus import memory_presets
     from sim.cpus import presets as cpu_presets
     from sim.guest.emu import DEFAULT_ARENA
 
-    path = Path(path)
-    try:
-        st = path.stat()
-        # a scene is text of modest size: never read a device, a pipe or a sparse giant whole
-        if not stat.S_ISREG(st.st_mode):
-            raise SceneError(f"{path}: not a regular file (a device, pipe or folder)")
-        if st.st_size > MAX_SCENE_BYTES:
-            raise SceneError(f"{path}: {st.st_size:,} bytes, more than the {MAX_SCENE_BYTES >> 20} MB a scene file may have")
-        raw = path.read_bytes()
-    except OSError as e:
-        raise SceneError(f"{path}: cannot read scene file: {e.strerror or e}") from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as e:
-        raise SceneError(f"{path}: not UTF-8 text ({e.reason} at byte {e.start})") from None
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        msg = str(e)
-        m = re.search(r"\s*\(at line (\d+), column (\d+)\)\s*$", msg)
-        if m:
-            raise SceneError(f"{path}:{m.group(1)}: TOML syntax error: {msg[:m.start()]} "
-                             f"(column {m.group(2)})") from None
-        m = re.search(r"\s*\(at end of document\)\s*$", msg)
-        if m:
-            line = text.count("\n") + (0 if text.endswith("\n") else 1)
-            raise SceneError(f"{path}:{max(line, 1)}: TOML syntax error: {msg[:m.start()]} (at end of document)") from None
-        raise SceneError(f"{path}: TOML syntax error: {msg}") from None
-
-    v = _Validator(path, text)
-    kind = doc["scene"].get("kind", "zbuffer") if isinstance(doc.get("scene"), dict) else "zbuffer"
-    if kind not in KINDS:
-        v.fail("scene.kind", f"unknown kind {_show(kind)} (known: {', '.join(KINDS)})", "scene", "kind")
-    if kind != "zbuffer":
-        return kind_module(kind).load(path, text, doc)
+    v = Validator(path, text)
     for key in doc:
         if key not in ("scene", "geometry", "run", "claims"):
             v.fail(key, "unknown table (allowed: scene, geometry, run, claims)", key if isinstance(doc[key], dict) else None,
@@ -660,16 +404,16 @@ def load_scene(path: str | Path) -> Scene:
             tname, field = "geometry.triangle", f"geometry.triangle[{i}]"
             v.keys(t, _TRIANGLE_KEYS, tname, i, field)
             if not _numbers(t["xy"], (3, 2)):
-                v.fail(f"{field}.xy", f"expected three [x, y] pairs of finite numbers, got {_show(t['xy'])}",
+                v.fail(f"{field}.xy", f"expected three [x, y] pairs of finite numbers, got {show(t['xy'])}",
                        tname, "xy", i)
             if any(abs(float(c)) > MAX_COORDINATE for p in t["xy"] for c in p):
                 # the plane setup multiplies coordinate differences: far beyond the screen they overflow
-                v.fail(f"{field}.xy", f"coordinates must be within +-{MAX_COORDINATE:,} pixels, got {_show(t['xy'])}",
+                v.fail(f"{field}.xy", f"coordinates must be within +-{MAX_COORDINATE:,} pixels, got {show(t['xy'])}",
                        tname, "xy", i)
             if not _numbers(t["z"], (3,)):
-                v.fail(f"{field}.z", f"expected three finite numbers, got {_show(t['z'])}", tname, "z", i)
+                v.fail(f"{field}.z", f"expected three finite numbers, got {show(t['z'])}", tname, "z", i)
             if not all(0.0 <= float(z) < 1.0 for z in t["z"]):
-                v.fail(f"{field}.z", f"depths must be in [0, 1), got {_show(t['z'])}", tname, "z", i)
+                v.fail(f"{field}.z", f"depths must be in [0, 1), got {show(t['z'])}", tname, "z", i)
             colour = v.typed(t, "colour", "int", tname, i, field)
             if colour is not None and not 1 <= colour <= 0xFFFF:
                 v.fail(f"{field}.colour", f"must be 1..65535 (0 means 'no triangle'), got {colour}", tname, "colour", i)
@@ -710,8 +454,8 @@ def load_scene(path: str | Path) -> Scene:
         v.machine(machines, label, memory, field, table, key, index)
 
     for i, entry in enumerate(cpus):
-        preset, sep, memory = entry.partition(":")
-        machine(preset, memory if sep else None, f"run.cpus[{i}]", "run", "cpus")
+        key = MachineKey.parse(entry)
+        machine(key.label, key.memory, f"run.cpus[{i}]", "run", "cpus")
     for i, table in enumerate(v.typed(ru, "machine", "tables", "run", default=[])):
         field = f"run.machine[{i}]"
         v.keys(table, _MACHINE_KEYS, "run.machine", i, field)
@@ -719,7 +463,7 @@ def load_scene(path: str | Path) -> Scene:
         memory = v.typed(table, "memory", "str", "run.machine", i, field)
         sets = table["set"]
         if not isinstance(sets, dict) or not sets:
-            v.fail(f"{field}.set", f"expected a non-empty table of overrides, got {_toml_type(sets)} {_show(sets)}",
+            v.fail(f"{field}.set", f"expected a non-empty table of overrides, got {toml_type(sets)} {show(sets)}",
                    "run.machine", "set", i)
         flat = {}
 
@@ -728,7 +472,7 @@ def load_scene(path: str | Path) -> Scene:
                 if isinstance(x, dict):
                     walk(x, f"{prefix}{k}.")
                 elif isinstance(x, list):
-                    v.fail(f"{field}.set.{prefix}{k}", f"expected a number, a string or a boolean, got {_show(x)}",
+                    v.fail(f"{field}.set.{prefix}{k}", f"expected a number, a string or a boolean, got {show(x)}",
                            "run.machine", "set", i)
                 else:
                     flat[f"{prefix}{k}"] = x
@@ -788,12 +532,12 @@ def load_scene(path: str | Path) -> Scene:
             v.fail(field, "names no CPU: give cpus = [...] (presets or preset:memory) and/or families = [...]",
                    "claims", None, i)
         for entry in cover:
-            preset, sep, memory = entry.partition(":")
-            if preset not in known_cpus:
-                v.fail(f"{field}.cpus", f"unknown CPU preset '{preset}' (known: {', '.join(known_cpus)})",
+            key = MachineKey.parse(entry)
+            if key.label not in known_cpus:
+                v.fail(f"{field}.cpus", f"unknown CPU preset '{key.label}' (known: {', '.join(known_cpus)})",
                        "claims", "cpus" if "cpus" in c else "cpu", i)
-            if sep and memory not in known_mem:
-                v.fail(f"{field}.cpus", f"unknown memory preset '{memory}' in '{entry}' (known: {', '.join(known_mem)})",
+            if key.memory is not None and key.memory not in known_mem:
+                v.fail(f"{field}.cpus", f"unknown memory preset '{key.memory}' in '{entry}' (known: {', '.join(known_mem)})",
                        "claims", "cpus" if "cpus" in c else "cpu", i)
         v.families(field, families, i)
         for mem in memories:
@@ -801,7 +545,7 @@ def load_scene(path: str | Path) -> Scene:
                 v.fail(f"{field}.memories", f"unknown memory preset '{mem}' (known: {', '.join(known_mem)})",
                        "claims", "memories", i)
         if len(pair) != 2 or any(x not in variants for x in pair):
-            v.fail(f"{field}.variants", f"expected two of run.variants ({', '.join(variants)}), got {_show(list(pair))}",
+            v.fail(f"{field}.variants", f"expected two of run.variants ({', '.join(variants)}), got {show(list(pair))}",
                    "claims", "variants", i)
         if expect not in EXPECTATIONS:
             v.fail(f"{field}.expect", f"unknown expectation '{expect}' (known: {', '.join(EXPECTATIONS)})",

@@ -1,0 +1,56 @@
+"""Reading a TOML file a user or the package gives: one bounded loader for scenes, sweep specs,
+validation case files and the CPU and memory presets.
+
+A TOML input is text of modest size: the loader never reads a device, a pipe or a sparse giant
+whole (it checks the file's type and size before reading), and every problem is one error whose
+message names the file, with a line where TOML gives one:
+``scenes/a.toml:12: TOML syntax error: Expected '=' after a key in a key/value pair (column 11)``.
+"""
+
+from __future__ import annotations
+
+import re
+import stat
+import tomllib
+from pathlib import Path
+
+from sim.errors import RetrosimError
+
+MAX_TOML_BYTES = 64 << 20  # the largest inputs are scenes with many explicit triangles (~6 MB for 65535)
+
+
+def read_toml(path: str | Path, what: str = "TOML file", error: type[Exception] = RetrosimError,
+              max_bytes: int = MAX_TOML_BYTES) -> tuple[str, dict]:
+    """(text, parsed document) of the TOML file `path`; `what` names it in the messages ("scene
+    file", "sweep spec"), `error` is the exception class raised."""
+    path = Path(path)
+    try:
+        st = path.stat()
+        if not stat.S_ISREG(st.st_mode):
+            raise error(f"{path}: not a regular file (a device, pipe or folder)")
+        if st.st_size > max_bytes:
+            raise error(f"{path}: {st.st_size:,} bytes, more than the {max_bytes >> 20} MB a {what} may have")
+        raw = path.read_bytes()
+    except OSError as e:
+        raise error(f"{path}: cannot read {what}: {e.strerror or e}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise error(f"{path}: not UTF-8 text ({e.reason} at byte {e.start})") from None
+    try:
+        return text, tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise error(syntax_message(path, text, e)) from None
+
+
+def syntax_message(path: Path, text: str, e: tomllib.TOMLDecodeError) -> str:
+    """`file:line: TOML syntax error: problem (column n)`: tomllib's position moved to the front."""
+    msg = str(e)
+    m = re.search(r"\s*\(at line (\d+), column (\d+)\)\s*$", msg)
+    if m:
+        return f"{path}:{m.group(1)}: TOML syntax error: {msg[:m.start()]} (column {m.group(2)})"
+    m = re.search(r"\s*\(at end of document\)\s*$", msg)
+    if m:
+        line = text.count("\n") + (0 if text.endswith("\n") else 1)
+        return f"{path}:{max(line, 1)}: TOML syntax error: {msg[:m.start()]} (at end of document)"
+    return f"{path}: TOML syntax error: {msg}"
