@@ -66,3 +66,53 @@ def test_bad_spec_is_one_error_line(tmp_path):
         load_spec(path)
     r = CliRunner().invoke(main, ["sweep", str(path), "--scheduler", "serial"], catch_exceptions=False)
     assert r.exit_code == 2
+
+
+SNAP_SCENE = """[scene]
+name = "snap-sweep"
+kind = "snap"
+[workloads]
+names = ["screen"]
+vertices = 32
+seed = 7
+[run]
+variants = ["trick-24", "portable-64"]
+cpus = ["pentium-133", "k6-2-300"]
+"""
+
+
+def test_a_snap_scene_sweeps_with_the_cycles_its_own_run_reports(tmp_path):
+    """A sweep over a scene of another kind than Z-buffer times the same emulation the scene's run
+    times: with no overrides its points' counters equal the scene's baseline entries."""
+    from sim.scenes import baseline
+    from sim.scenes.registry import load_scene, run_scene
+
+    scene_path = tmp_path / "snap-sweep.toml"
+    scene_path.write_text(SNAP_SCENE)
+    spec_path = tmp_path / "s.toml"
+    spec_path.write_text(f'[sweep]\nscenes = ["{scene_path}"]\nvariants = ["portable-64"]\n'
+                         'cpus = ["pentium-133", "k6-2-300"]\n[grid]\n"l1d.latency_cycles" = [1, 3]\n'
+                         '[[point]]\nset = {}\n')
+    spec = load_spec(spec_path)
+    rows = run_sweep(spec, tmp_path / "out", "serial", plots=False).rows
+    assert len(rows) == 2 * 3 and not any(r["error"] for r in rows)
+    assert {r["scene"] for r in rows} == {"snap-sweep"} and all(r["pixels"] == 32 for r in rows)
+    cases = baseline.entries(run_scene(load_scene(scene_path), robustness=False))
+    plain = {f"portable-64@{r['cpu']}:{r['memory']}": r for r in rows if r["machine"] == r["cpu"]}
+    assert len(plain) == 2
+    for case, row in plain.items():
+        assert {c: row[c] for c in cases[case]} == cases[case]
+    # an override the model reads changes the count: the sweep does time the overridden machine
+    slow = {r["cpu"]: r["cycles"] for r in rows if r["set.l1d.latency_cycles"] == "3"}
+    fast = {r["cpu"]: r["cycles"] for r in rows if r["set.l1d.latency_cycles"] == "1"}
+    assert all(slow[c] >= fast[c] for c in slow)
+
+
+def test_the_sweep_module_imports_without_the_command_line():
+    """Dask workers import sim.sweep: it must not pull in click or rich (the CLI's libraries)."""
+    import subprocess
+    import sys
+
+    code = "import sys, sim.sweep; print(sorted(m for m in ('click', 'rich', 'sim.cli') if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
