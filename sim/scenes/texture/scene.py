@@ -54,6 +54,7 @@ import numpy as np
 
 from sim.scenes.texture import frame as F
 from sim.cpus import family_of
+from sim.cpus.families import FAMILIES, order as family_order
 from sim.errors import RetrosimError
 from sim.guest.kernels import kernels_root
 from sim.scenes.zbuffer.scene import CpuChoice, _show, _Validator
@@ -512,12 +513,7 @@ def quantity(result: TextureResult, claim: TextureClaim, key: str) -> float:
     return float(result.probes[key][claim.quantity])
 
 
-EXPLAIN = {"p5": ("pairs", "alone", "stall_agi", "stall_memory", "stall_write_buffer", "stall_fpu", "l1d_load_misses",
-                  "l1d_store_misses"),
-           "p6": ("uops", "stall_partial_register", "stall_dependency", "stall_port", "stall_rob", "stall_memory",
-                  "l1d_load_misses"),
-           "k6": ("uops", "stall_dependency", "stall_port", "stall_rob", "stall_memory", "stall_store_buffer",
-                  "l1d_load_misses")}
+EXPLAIN = {name: f.explain for name, f in FAMILIES.items()}  # per family: its record's explain columns
 
 
 def explanation(result: TextureResult, claim: TextureClaim, key: str) -> dict:
@@ -600,8 +596,7 @@ def _label(key: str) -> str:
 
 
 def _ordered_keys(result: TextureResult) -> list[str]:
-    order = {"p5": 0, "p6": 1, "k6": 2}
-    return sorted(result.keys, key=lambda k: (order.get(family_of(k), 9), result.keys.index(k)))
+    return sorted(result.keys, key=lambda k: (family_order(family_of(k)), result.keys.index(k)))
 
 
 def claim_lines(c: dict) -> list[str]:

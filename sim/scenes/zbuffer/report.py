@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from sim import output
+from sim.cpus.families import FAMILIES
 from sim.scenes.zbuffer.frames import VARIANT_LABELS
 
 if TYPE_CHECKING:
@@ -145,7 +146,7 @@ def breakdown_legend(key: str) -> str:
 
 # -- plot --------------------------------------------------------------------------------------
 # The scenes' plots share one form: a row per variant, cycles along x, a marker per machine.
-FAMILY_MARKERS = {"p5": "s", "p6": "o", "k6": "D"}  # a shape per family where a marker means a preset
+FAMILY_MARKERS = {n: f.marker for n, f in FAMILIES.items()}  # a shape per family where a marker means a preset
 
 
 def png_bytes(fig) -> bytes:

@@ -70,6 +70,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.scenes import raster
+from sim.cpus.families import FAMILIES as REGISTERED
 from sim.errors import RetrosimError
 
 VARIANTS = raster.VARIANTS
@@ -109,7 +110,7 @@ _MACHINE_KEYS = {"cpu": ("str", True), "memory": ("str", False), "set": ("any", 
 _CLAIM_KEYS = {"text": ("str", True), "cpu": ("str", False), "cpus": ("strlist", False),
                "families": ("strlist", False), "memories": ("strlist", False), "variants": ("strlist", True),
                "expect": ("str", True), "tolerance": ("number", False)}
-FAMILIES = ("p5", "p6", "k6")  # CPU families a claim may name (sim/cpus: cpu_model of the presets)
+FAMILIES = tuple(REGISTERED)  # CPU families a claim may name (the registry, sim/cpus/families.py)
 EXPECTATIONS = ("similar", "faster", "slower")
 _KIND_NAMES = {"int": "an integer", "number": "a number", "str": "a string", "strlist": "an array of strings",
                "range": "an array of two numbers [lo, hi]", "tables": "an array of tables", "any": "a value"}
