@@ -165,8 +165,8 @@ def caches(preset: CpuPreset) -> tuple[Hierarchy, Hierarchy]:
     side's caches. Kernels are a few hundred bytes, so code never competes with data for the L2."""
     try:
         dside = Hierarchy.from_preset(preset)
-    except ValueError as e:
-        raise RetrosimError(str(e)) from None
+    except ValueError as e:  # make_model names the machine (its label, overrides included)
+        raise ValueError(str(e).removeprefix(f"CPU preset {preset.raw.get('name', preset.name)}: ")) from None
     i = preset.l1i
     iside = Hierarchy([CacheGeometry("L1I", i.size_bytes, i.ways, i.line_bytes, replacement="lru",
                                      write_allocate=False)])
