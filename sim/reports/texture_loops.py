@@ -188,10 +188,12 @@ def report(cpus: list[str] | None = None, n: int = 256) -> str:
                          f"partial-register waits {r5.get('stall_partial_register', 0):.2f} per pixel, summed over the "
                          "instructions that wait (they overlap): MOV AL then ADD EAX reads EAX, ADC BL / ADC BH then "
                          "MOV AL,[EBX] reads EBX, and each such read waits for the partial write to retire.")
-        else:
+        elif p.family == "k6":
             lines.append(f"- **{p.name}**: tex5 {r5['cycles']:.2f} clocks per pixel; dependency stalls "
                          f"{r5.get('stall_dependency', 0):.2f}, store queue {r5.get('stall_store_buffer', 0):.2f}; "
                          f"L1 store misses {r5.get('l1d_store_misses', 0):.2f} per pixel.")
+        else:  # a family this report has no analysis of yet: its record's counters
+            lines.append(f"- **{p.name}**: tex5 {r5['cycles']:.2f} clocks per pixel; {_row_counters(p.family, r5)}.")
     lines += ["", "## The article's other Pentium claims", "",
               "`kernels/texture/fdiv.S`: 16-pixel sub-spans of the reordered loop with the perspective divide "
               "(FLD1 / FDIV before the inner loop, FSTP after it) against the same with FSTP right after FDIV, "
