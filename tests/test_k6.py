@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from sim.reports import views
-from sim.cpus import k6_core, make_model, p6_core, presets
+from sim.cpus import contract, k6_core, make_model, presets
 from sim.errors import RetrosimError
 from sim.timing.kernel import emulate, time_emulation, time_kernel
 
@@ -26,11 +26,11 @@ def per_iteration(source, entry, *, n=N, cpu="k6-233", buf_words=0):
     return r.last["cycles"] / n, r
 
 
-def test_counters_extend_the_p6_layout():
-    # views and reports index counters by the P6 core's names and positions
-    assert k6_core.C_NAMES[:p6_core.NC] == p6_core.C_NAMES
-    assert k6_core.S_NAMES[:p6_core.NS] == p6_core.S_NAMES
-    assert k6_core.T_NAMES == p6_core.T_NAMES and k6_core.CAUSES == p6_core.CAUSES
+def test_counters_extend_the_contract_layout():
+    # views and reports index counters by the contract's names and positions (sim/cpus/contract.py)
+    assert k6_core.C_NAMES[:contract.NC] == contract.C_NAMES
+    assert k6_core.S_NAMES[:contract.NS] == contract.S_NAMES
+    assert k6_core.T_NAMES == contract.T_NAMES and k6_core.CAUSES == contract.CAUSES
     assert make_model("k6-2-300").key == "k6-2" and make_model("k6-3-450").key == "k6-3"
 
 

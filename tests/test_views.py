@@ -81,8 +81,8 @@ def test_branch_stalls_are_explained_as_the_models_count_them():
     k6 = json.loads(CliRunner().invoke(cli.main, args + ["--cpu", "k6-233"]).output)
     assert p6["mispredicts"] <= 4 and p6["stall_mispredict"] >= 400  # a bubble per taken loop branch
     assert k6["mispredicts"] <= 4 and k6["stall_mispredict"] < 100
-    assert "taken branch" in vocabulary.P6.stall_help["mispredict"]
-    assert "taken" not in vocabulary.K6.stall_help["mispredict"]
+    assert "taken branch" in vocabulary.for_preset("pentium2-233").stall_help["mispredict"]
+    assert "taken" not in vocabulary.for_preset("k6-233").stall_help["mispredict"]
 
 
 @pytest.mark.parametrize("width", [80, 200])

@@ -8,7 +8,7 @@ import re
 
 from sim.errors import RetrosimError
 from sim.memory import dram
-from sim.cpus import presets
+from sim.cpus import families, presets
 
 
 def memory_presets() -> list[str]:
@@ -23,17 +23,6 @@ def load_dram(name: str) -> dram.DramTiming:
         if name not in memory_presets():
             raise RetrosimError(f"unknown memory preset '{name}' (choose one of: {', '.join(memory_presets())})") from None
         raise RetrosimError(f"memory preset '{name}': {e}") from None
-
-
-def _family_estimates(family: str) -> dict:
-    """The family model's ESTIMATES (name -> (value, reason))."""
-    if family == "p6":
-        from sim.cpus.p6 import ESTIMATES
-    elif family == "k6":
-        from sim.cpus.k6 import ESTIMATES
-    else:
-        return {}
-    return ESTIMATES
 
 
 MODEL_FIELDS = ("clock.core_mhz", "clock.fsb_mhz", "memory.overhead_bus_clocks") + tuple(
@@ -63,9 +52,9 @@ def overridable(cpu: str) -> dict[str, float]:
     for key in CHOICES:  # non-numeric fields that may be overridden, where the preset has the section
         if key.split(".")[0] in preset.raw:
             out[key] = CHOICES[key][0]
-    for name, (value, _) in _family_estimates(preset.family).items():
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            out[f"estimates.{name}"] = value
+    if preset.family in families.FAMILIES:  # the family's estimates (its machine table's [estimates])
+        for est in families.family(preset.family).overridable():
+            out[est.key] = est.default
     return out
 
 
@@ -214,19 +203,10 @@ def make_model(cpu: str, memory: str | None = None, overrides: dict | None = Non
     base, given = split_label(cpu)
     preset, estimates = _apply(base, {**given, **normalize_overrides(overrides)})
     mem = load_dram(memory or preset.memory)
+    if preset.family not in families.FAMILIES:
+        raise RetrosimError(f"CPU preset '{cpu}': no timing model for family '{preset.family}' yet")
+    model = families.family(preset.family).model_class()
     try:
-        if preset.family == "p6":
-            from sim.cpus.p6 import P6Model
-
-            return P6Model(preset, mem, estimates)
-        if preset.family == "k6":
-            from sim.cpus.k6 import K6Model
-
-            return K6Model(preset, mem, estimates)
-        if preset.family == "p5":
-            from sim.cpus.p5 import P5Model
-
-            return P5Model(preset, mem, estimates)
+        return model(preset, mem, estimates)
     except ValueError as e:  # e.g. an overridden cache geometry that is no cache
         raise RetrosimError(f"CPU preset '{cpu}': {e}") from None
-    raise RetrosimError(f"CPU preset '{cpu}': no timing model for family '{preset.family}' yet")

@@ -2,9 +2,9 @@
 sim/cpus/tables/k6_machine.toml and the CPU/memory presets, instruction facts (RISC86 ops, decoder,
 units, latency, throughput) from sim/cpus/tables/k6.toml, the cycle loop in :mod:`sim.cpus.k6_core`.
 
-The interface is the P6 model's (:class:`sim.cpus.p6.P6Model`): ``run(trace, decoder, segments,
-timeline, stat_first)`` returns a :class:`K6CoreRun` whose counters carry the P6 core's names at the
-P6 core's indices, followed by the K6's own (``k6_core.C_NAMES``).
+The interface is every family's (:class:`sim.cpus.contract.FamilyModel`): ``run(trace, decoder,
+segments, timeline, stat_first)`` returns a :class:`K6CoreRun` whose counters carry the contract's
+names at the contract's indices, followed by the K6's own (``k6_core.C_NAMES``).
 
 How a table row becomes ops (:class:`K6Rules`):
 - one op per entry of ``units``: int-x -> issue slot X, int-y -> Y, int-xy -> X or Y, load, store
@@ -31,15 +31,13 @@ Vector sequences. The table gives BSR/BSF one op with latency 10 and throughput 
 three K6 generations; the op count is 86Box's guess). One pipelined op cannot have throughput 10,
 and a non-pipelined op on X or Y would give 5 with two units; the model therefore reads such a
 throughput as the length of the ROM sequence: the vector decoder is busy for 10 clocks and decodes
-nothing else meanwhile (ESTIMATES["vector_sequence"]). The same rule gives ADC, ROL, CDQ, SETcc
+nothing else meanwhile (k6_machine.toml [rules] vector_sequence). The same rule gives ADC, ROL, CDQ, SETcc
 their measured 2-2.5 and RDTSC its 8.
 """
 
 from __future__ import annotations
 
-import functools
 import math
-import tomllib
 from dataclasses import dataclass
 
 import numpy as np
@@ -47,49 +45,36 @@ import numpy as np
 from sim.guest.decode import Decoder, InsnRecord
 from sim.guest.elf import EXIT_ADDR
 from sim.errors import RetrosimError
-from sim.memory.cache import CacheGeometry
-from sim.memory.dram import DramTiming, bus_ratio, core_clocks, line_costs
-from sim.memory.hierarchy import Hierarchy
+from sim.memory.dram import DramTiming, bus_ratio, core_clocks
 from sim.memory.replay import NO_LOG, AccessLogs
 from sim.guest.trace import Trace
 from sim.cpus import k6_core as core
+from sim.cpus.contract import CoreRun, FamilyModel
+from sim.cpus.families import machine_table
 from sim.cpus.locking import lock_cost, locked_match
 from sim.cpus.lowering import (
     BRANCH, COMPUTE, DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE, LOAD, STA, StaticProgram, lower,
 )
-from sim.cpus.p6 import CoreRun, DramCost
-from sim.cpus import vocabulary
-from sim.cpus.presets import CpuPreset, dram_overhead, model_by_cpuid
+from sim.cpus.presets import CpuPreset, model_by_cpuid
 from sim.cpus.session import CoreSession, grown_state
-from sim.cpus.table import TABLES, InstructionTable, Match, load_table
-
-# Model choices with no figure in the sources (each says why it is what it is).
-ESTIMATES = {
-    "mispredict_restart": (2, "cycles from a mispredicted branch's result to the decode of the correct path: "
-                           "a branch whose condition is ready completes 3 cycles after its decode (scheduler "
-                           "entry, issue, execute), so the correct path decodes 5 cycles after it instead of "
-                           "1: the 4-cycle penalty of k6_machine.toml [branch] (itself an estimate: NOT FOUND)"),
-    "store_queue": (8, "store-queue entries: NOT FOUND in any source (k6_machine.toml [units.store])"),
-    "bus_write_bus_clocks": (10, "front-side-bus clocks per write that misses L1 and is not allocated: "
-                             "InstLatX64 K6-233 measured 36 core clocks per such store (k6-233.toml "
-                             "[write_allocate]) = 10.3 bus clocks at 3.5x"),
-    "ondie_l2_port": (4, "core cycles the K6-III's on-die L2 port is busy per 32-byte line (four 8-byte "
-                      "transfers); width not found"),
-    "bht_history_bits": (13, "global-history bits XORed into the 8192-entry BHT index (gshare); AMD gives "
-                         "only 'two-level adaptive, global history' (k6_machine.toml [branch])"),
-    "vector_sequence": (None, "a vector instruction whose measured throughput no non-pipelined unit explains "
-                        "keeps the vector decoder busy that many clocks (BSR/BSF 10): see the module docstring"),
-}
+from sim.cpus.table import Match
+from sim.cpus.vocabulary import COMMON_STALLS, Vocabulary
 
 PORT_BITS = {"int-x": core.X, "int-y": core.Y, "int-xy": core.X | core.Y, "load": core.LOAD_SLOT,
              "store": core.STORE_SLOT, "branch": core.BRANCH_SLOT}
 NON_PIPELINED_INT = {"imul", "mul", "div", "idiv"}
 
 
-@functools.cache
 def _machine_table() -> dict:
-    with open(TABLES / "k6_machine.toml", "rb") as f:
-        return tomllib.load(f)
+    return machine_table("k6")
+
+
+def _locked_row(row, kind, throughput, extra, fields) -> None:
+    """A locked row on the K6 (sim/cpus/locking.py): the per-model figures of the measured systems
+    give way to the bus-ratio rule; the locked sequence is vector-decoded like XCHG m32,r32 (86Box),
+    holding the decoder for its length."""
+    extra.pop("model_overrides", None)
+    fields["decoder"] = "vector"
 
 
 def model_key(preset: CpuPreset) -> str:
@@ -264,50 +249,57 @@ class K6Rules:
         return cyc, first, pfx
 
 
-def dram_cost(memory: DramTiming, preset: CpuPreset) -> DramCost:
-    """DRAM behind the board cache, in core clocks (rounded up): lead-off = the board's overhead
-    (the preset's calibrated [memory] overhead_bus_clocks: Socket 7 bus, board-cache tag check,
-    chipset) + the memory's first transfer; a fill or writeback keeps the bus for the whole burst."""
-    try:
-        costs = line_costs(memory, preset.core_mhz, preset.fsb_mhz, dram_overhead(preset, memory.name))
-    except ValueError as e:
-        raise RetrosimError(f"{preset.name} with {memory.name}: {e}") from None
-    return DramCost(memory.name, costs.lead_off, costs.fill, costs.writeback)
+# The words views use for the contract's counters on a K6 (sim/cpus/vocabulary.py).
+VOCABULARY = Vocabulary(
+    family="k6", op="RISC86 op",
+    ports=("X", "Y", "load", "store", "branch"),
+    port_help=("X: integer/MMX unit X (the only one for shifts, multiply, divide)",
+               "Y: integer/MMX unit Y (MMX only on the K6-2 and K6-III)",
+               "load: load unit", "store: store unit (also LEA)", "branch: branch unit"),
+    extra_units=(("fpu_ops", "FPU"),),
+    decoders=("short 1 / long", "short 2", ""),
+    slot_marks=("S1", "S2", ""),
+    classes=("short", "long", "vector"),
+    class_marks=("", "L", "V"),
+    decode_help=("per clock either two short instructions (S1, S2: up to 7 bytes and 2 ops each), one "
+                 "long-decoded instruction (L: up to 4 ops) or one vector-decoded instruction (V: the ROM "
+                 "sequencer, alone, for 2 or more clocks)"),
+    sequencer="vector-decoded (ROM sequencer)",
+    group="opquads (groups of four op slots, NOP padding included)",
+    window="the scheduler (24 ops, 6 opquads) was full",
+    stall_help={**COMMON_STALLS,
+                "decode": "scheduler had room, waiting for the decoders (vector decode holds them)",
+                "window": "decoded, waiting for a free opquad in the scheduler",
+                "mispredict": "decoders idle, restarting after a mispredicted branch"},
+    mispredict_note=("'mispredicted' counts branches predicted wrongly; 'branch' stall cycles are the clocks "
+                     "the decoders waited to restart after them"),
+    unit="unit",
+    timeline="D decode, R enter the scheduler, = wait in the scheduler, E execute, - done, C retire",
+)
 
 
 @dataclass
 class K6CoreRun(CoreRun):
-    """A K6 run: the P6 run's fields; counters named by k6_core.C_NAMES (the P6 names first)."""
+    """A K6 run: the contract's fields; counters named by k6_core.C_NAMES (the contract's names first)."""
 
     def segment(self, k: int = -1) -> dict[str, int]:
         return dict(zip(core.C_NAMES, map(int, self.counters[k])))
 
 
-class K6Model:
+class K6Model(FamilyModel):
+    """The K6 model: parameters, caches and estimates as every family's (:class:`FamilyModel`), the
+    Socket 7 board cache (or the K6-III's on-die L2 and board cache) behind L1."""
+
     family = "k6"
-    vocabulary = vocabulary.K6  # the words views use for its ports, decoders and stalls
+    vocabulary = VOCABULARY  # the words views use for its ports, decoders and stalls
 
     def __init__(self, preset: CpuPreset, memory: DramTiming, estimates: dict | None = None):
-        if preset.family != "k6":
-            raise ValueError(f"{preset.name} is a {preset.family} part, not K6")
-        self.estimates = {k: v for k, (v, _) in ESTIMATES.items()} | dict(estimates or {})
-        self.preset = preset
-        self.memory = memory
+        super().__init__(preset, memory, estimates)
         self.key = model_key(preset)
-        self.machine = _machine_table()
-        self.table: InstructionTable = load_table("k6")
         self.rules = K6Rules(self.key, self.machine)
-        self.dram = dram_cost(memory, preset)
         self.ratio = bus_ratio(preset.core_mhz, preset.fsb_mhz)
         self.lock = lock_cost(self.machine["lock"], "k6_machine.toml", self.key, self.ratio)
         self.l1_latency = int(preset.l1d.latency_cycles or self.machine["units"]["load"]["l1_hit_latency"])
-        try:
-            self.dside = Hierarchy.from_preset(preset)
-        except ValueError as e:
-            raise RetrosimError(str(e)) from None
-        l1i = preset.l1i
-        self.iside = Hierarchy([CacheGeometry("L1I", l1i.size_bytes, l1i.ways, l1i.line_bytes, replacement="lru",
-                                              write_allocate=False)])
         self.params = self._params()
 
     def _board(self) -> tuple[int, dict]:
@@ -350,18 +342,13 @@ class K6Model:
         P[core.P_EXIT_ADDR] = EXIT_ADDR
         return P
 
-    def reset(self) -> None:
-        """Cold caches (each run starts from reset, as the P6 model's does)."""
-        for side in (self.dside, self.iside):
-            side.reset()
-
     def lower(self, records: list[InsnRecord], precisions: list[int | None] | None = None) -> StaticProgram:
         return lower(records, self.table, self.l1_latency, uops_for=self.rules.uops, decoder_for=self.rules.decoder,
                      precisions=precisions, adjust=self.locked)
 
     def locked(self, rec, match):
         """A locked instruction's row with the lock's cost at this preset's bus ratio (sim/cpus/locking.py)."""
-        return locked_match(rec, match, self.lock, "k6")
+        return locked_match(rec, match, self.lock, _locked_row)
 
     def run(self, trace: Trace, decoder: Decoder, segments: list[int] | None = None,
             timeline: tuple[int, int] = (0, 0), stat_first: int = 0, access_logs: AccessLogs | None = None) -> K6CoreRun:

@@ -17,8 +17,8 @@ Scheduler. The centralised scheduler holds QUADS opquads (24 ops = 6 x 4, NOP pa
 it is both the window and the reservation station. An opquad enters the clock after it is decoded
 if its slot is free (the opquad QUADS older has retired); otherwise the decoder holds it. Ops issue
 from any position, oldest first, to the units: X and Y (integer; shifts, multiplies, divides and on
-the K6 MMX only on X), load, store (also LEA), branch, each one op per clock (the ``_book_port``
-calendar shared with the P6 core), the x87 unit (not pipelined: busy for the op's reciprocal
+the K6 MMX only on X), load, store (also LEA), branch, each one op per clock (the ``book_port``
+calendar of sim/cpus/shared_core.py, shared with the P6 core), the x87 unit (not pipelined: busy for the op's reciprocal
 throughput) and, on the K6-2/K6-III, one MMX multiplier, one MMX shifter and one 3DNow! unit
 behind the X/Y issue slots. The multiplier and divider hold X for their whole occupancy. Opquads
 retire in order, one per clock (four ops, padding included).
@@ -30,8 +30,8 @@ mode says no, becomes a single write on the bus. Loads take data from an overlap
 the queue with the ordinary load latency once the store has issued (trace addresses: perfect
 disambiguation). Reading a full register after a partial write costs PARTIAL extra clocks.
 
-Counters, per-static columns, timeline and stall causes are those of :mod:`sim.cpus.p6_core`, with
-the same indices, so views and reports read both models alike; the K6 fills what applies and adds
+Counters, per-static columns, timeline and stall causes are the contract's (:mod:`sim.cpus.contract`),
+at the same indices, so views and reports read both models alike; the K6 fills what applies and adds
 its own counters after the shared ones. Mapping: decoder0 = the first short decoder or the long
 decoder, decoder1 = the second short decoder, decoder2 = 0, msrom_uops = vector-path ops,
 port0..port4 = X, Y, load, store, branch; fpu_ops counts the x87 unit; stall_rob = scheduler full,
@@ -49,18 +49,19 @@ from sim.memory.replay import LOG_OFF, LOGGED_HIT, logged_service, replayed_hit
 from sim.cpus.lowering import (
     BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, LOAD, NREGS, REG_ST0, STA,
 )
-from sim.cpus.p6_core import (
+from sim.cpus.contract import (
     C_BRANCHES, C_DECODE_GROUPS, C_DECODER0, C_DRAM_BUS_CYCLES, C_DRAM_FILLS, C_DRAM_WRITEBACKS,
     C_INSTRUCTIONS, C_L1D_LOAD_MISSES, C_L1D_LOADS, C_L1D_STORE_MISSES, C_L1D_STORES, C_L1I_MISSES,
-    C_L2_ACCESSES, C_L2_MISSES, C_LCP_STALLS, C_MISPREDICTS, C_MSROM_UOPS, C_NAMES as P6_C_NAMES, C_PORT0,
+    C_L2_ACCESSES, C_L2_MISSES, C_LCP_STALLS, C_MISPREDICTS, C_MSROM_UOPS, C_NAMES as SHARED_C_NAMES, C_PORT0,
     C_STALL_DECODE, C_STALL_DEPENDENCY, C_STALL_FETCH, C_STALL_MEMORY, C_STALL_MISPREDICT,
     C_STALL_PARTIAL_REGISTER, C_STALL_PORT, C_STALL_ROB, C_STALL_STORE_BUFFER, C_STALL_STORE_FORWARD,
     C_STORE_FORWARDS, C_UOPS, C_CYCLES, CAUSES, NT, S_DECODE_TO_RETIRE, S_DECODER0, S_EXECUTIONS,
-    S_ISSUE_TO_RETIRE, S_L1D_MISSES, S_L2_MISSES, S_MISPREDICTS, S_MSROM, S_NAMES as P6_S_NAMES, S_PORT0,
+    S_ISSUE_TO_RETIRE, S_L1D_MISSES, S_L2_MISSES, S_MISPREDICTS, S_MSROM, S_NAMES as SHARED_S_NAMES, S_PORT0,
     S_STALL_DECODE, S_STALL_DEPENDENCY, S_STALL_MEMORY, S_STALL_MISPREDICT, S_STALL_PARTIAL, S_STALL_PORT,
-    S_STALL_STORE_FORWARD, S_STALL_WINDOW, S_UOPS, T_NAMES, WINDOW, _book_port as _p6_book_port, _btb_alloc,
-    FW, _queued_store, _remember_store,
+    S_STALL_STORE_FORWARD, S_STALL_WINDOW, S_UOPS, T_NAMES,
 )
+from sim.cpus.shared_core import FW, WINDOW, btb_alloc, queued_store, remember_store
+from sim.cpus.shared_core import book_port as _shared_book_port
 from sim.memory.cache import HOT
 
 __all__ = ["C_NAMES", "S_NAMES", "T_NAMES", "CAUSES", "NC", "NS", "NT", "simulate"]
@@ -74,21 +75,21 @@ NPARAMS = 24
 # K6 execution resources behind the issue slots (u_unit of a lowered op)
 U_NONE, U_FPU, U_MMX_MUL, U_MMX_SHIFT, U_3DNOW, U_HOLD = range(6)
 NUNITS = 6
-# issue-slot bits (u_ports of a lowered op): the P6 "port" counters 0-4
+# issue-slot bits (u_ports of a lowered op): the contract's "port" counters 0-4
 X, Y, LOAD_SLOT, STORE_SLOT, BRANCH_SLOT = 1, 2, 4, 8, 16
 
-# the P6 counters first (same indices), then the K6's own
-C_NAMES = P6_C_NAMES + ("fpu_ops", "vector_cycles", "nop_slots", "l3_accesses", "l3_misses", "bus_writes")
+# the contract's counters first (same indices), then the K6's own
+C_NAMES = SHARED_C_NAMES + ("fpu_ops", "vector_cycles", "nop_slots", "l3_accesses", "l3_misses", "bus_writes")
 NC = len(C_NAMES)
-C_FPU_OPS = len(P6_C_NAMES)
+C_FPU_OPS = len(SHARED_C_NAMES)
 C_VECTOR_CYCLES = C_FPU_OPS + 1
 C_NOP_SLOTS = C_FPU_OPS + 2
 C_L3_ACCESSES = C_FPU_OPS + 3
 C_L3_MISSES = C_FPU_OPS + 4
 C_BUS_WRITES = C_FPU_OPS + 5
-S_NAMES = P6_S_NAMES + ("fpu",)
+S_NAMES = SHARED_S_NAMES + ("fpu",)
 NS = len(S_NAMES)
-S_FPU = len(P6_S_NAMES)
+S_FPU = len(SHARED_S_NAMES)
 
 # columns of simulate's per-static and per-op fact rows (copies of the lowering's arrays, row-major;
 # F_GPRS.., UF_SRCS..: row ranges of its operand table)
@@ -100,16 +101,16 @@ NUF = 8
 
 
 
-# The P6 core's port calendar, compiled as an ordinary call (which LLVM inlines) rather than inlined
+# The shared port calendar (sim/cpus/shared_core.py), compiled as an ordinary call (which LLVM inlines) rather than inlined
 # into numba's IR (inline="always"): IR inlining increfs and decrefs the array argument at each call.
-_book_port = njit(**HOT)(_p6_book_port.py_func)
+_book_port = njit(**HOT)(_shared_book_port.py_func)
 
 
 @njit(**HOT)
 def _book_run(book, ports, c, occ):
     """Earliest cycle >= c at which one allowed issue slot is free for `occ` consecutive cycles
     (a non-pipelined multiply or divide holds Integer X); books all of them. Same calendar as
-    p6_core._book_port, which books a single cycle. Returns (cycle, slot)."""
+    shared_core.book_port, which books a single cycle. Returns (cycle, slot)."""
     while True:
         for p in range(5):
             bit = 1 << p
@@ -470,7 +471,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 if j >= 0:
                     acc = j + 1
                     a, sz = np.int64(mem_addr[j]), np.int64(mem_size[j])
-                    e = _queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
+                    e = queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
                     if e >= 0:  # the queued store's data, with the ordinary load latency
                         counters[cs, C_STORE_FORWARDS] += 1
                         fwd_wait = max(0, fw_ready[e] - disp)
@@ -567,7 +568,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                         counters[cs, C_BUS_WRITES] += 1
                     if lvl == d_levels:
                         per_static[psid, S_L2_MISSES] += 1
-                fw_n = _remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_ready, commit)
+                fw_n = remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_ready, commit)
             sq_ring[sq_pos] = commit
             sq_pos = sq_pos + 1 if sq_pos + 1 < sq_n else 0
             nstores += 1
@@ -614,7 +615,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                         break
                 hit = way >= 0
                 if not hit:
-                    way = _btb_alloc(btc_tag, btc_stamp, 0, btc_ways, pc, i)
+                    way = btb_alloc(btc_tag, btc_stamp, 0, btc_ways, pc, i)
                 btc_target[way] = nxt
             if mispredicted:
                 counters[cs, C_MISPREDICTS] += 1

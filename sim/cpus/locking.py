@@ -22,7 +22,8 @@ assumes: the operand is cached (P6) and within one line; a line split (a bus loc
 locked access that misses the cache, and the lock's hold on neighbouring memory accesses (the P6
 drains its store buffer) are not modelled; on the P6 the hold is per mnemonic (lowering.p6_uops), so
 two different locked instructions do not wait for each other. The K6 holds its decoder (vector
-decode) and the P5 its pipes for the whole cost, so there every later instruction waits.
+decode) and the P5 its pipes for the whole cost, so there every later instruction waits (each family
+model's `rewrite` of the locked row, passed to :func:`locked_match`).
 """
 
 from __future__ import annotations
@@ -53,7 +54,8 @@ class LockCost:
         return "lock" if rec.lock else None
 
 
-def _whole(x: float) -> int:
+def whole_clocks(x: float) -> int:
+    """Clocks from a figure: nearest integer, halves up."""
     return math.floor(x + 0.5)
 
 
@@ -67,16 +69,18 @@ def lock_cost(section: dict, where: str, model: str | None = None, ratio: Fracti
             thr = {k: float(figures[k]["throughput"]) for k in KINDS}
         else:
             figures = section["bus_clocks"][model]
-            lat = {k: float(_whole(figures[k] * ratio)) for k in KINDS}
+            lat = {k: float(whole_clocks(figures[k] * ratio)) for k in KINDS}
             thr = dict(lat)
         return LockCost(lat, thr, section["source"])
     except (KeyError, TypeError) as e:
         raise RetrosimError(f"{where} [lock]: missing or bad field {e} (model {model!r})") from None
 
 
-def locked_match(rec: InsnRecord, match: Match, cost: LockCost, family: str) -> Match:
+def locked_match(rec: InsnRecord, match: Match, cost: LockCost, rewrite=None) -> Match:
     """The match with the lock's cost when `rec` is locked, else `match` itself. The new row keeps
-    the unlocked row's uops and units; its key names the lock ('lock add m32,r32')."""
+    the unlocked row's uops and units; its key names the lock ('lock add m32,r32'). `rewrite(row,
+    kind, throughput, extra, fields)`: the family's own changes to the locked row's extra fields and
+    timing fields (its model module defines it), in place."""
     kind = cost.kind(rec)
     if kind is None:
         return match
@@ -90,15 +94,8 @@ def locked_match(rec: InsnRecord, match: Match, cost: LockCost, family: str) -> 
     name = row.mnemonic if kind == "xchg" else f"lock {row.mnemonic}"
     extra = dict(row.extra)
     fields = {"latency": lat, "throughput": thr}
-    if family == "k6":
-        # the per-model figures of the measured systems give way to the bus-ratio rule; the locked
-        # sequence is vector-decoded like XCHG m32,r32 (86Box), holding the decoder for its length
-        extra.pop("model_overrides", None)
-        fields["decoder"] = "vector"
-    elif family == "p5":
-        cycles = _whole(thr)
-        extra["cycles"] = cycles if kind == "xchg" else max(cycles, int(row.extra.get("cycles", 0)))
-        extra["pairing"] = "NP"  # XCHG is NP; a LOCK prefix already keeps it out of the V pipe
+    if rewrite is not None:
+        rewrite(row, kind, thr, extra, fields)
     locked = replace(row, mnemonic=name, source=f"{cost.source} (locked); unlocked row: {row.source}",
                      note=f"Locked: the machine table's [lock] rule replaces the row's timing. {row.note}".strip(),
                      estimated=row.estimated or (kind == "lock" and row.mnemonic != "add"),  # LOCK ADD is the measured form

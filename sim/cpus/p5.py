@@ -2,9 +2,9 @@
 sim/cpus/tables/p5_machine.toml and the CPU/memory presets, instruction facts (pairing class,
 clocks, x87 overlap) from sim/cpus/tables/p5.toml, the cycle loop in :mod:`sim.cpus.p5_core`.
 
-The interface is the P6 model's (:class:`sim.cpus.p6.P6Model`): ``run(trace, decoder, segments,
-timeline, stat_first)`` returns a run whose ``segment(k)`` gives the counters of one call. The
-counters are the P5's own (``p5_core.C_NAMES``); the P6 names the reports read (cycles,
+The interface is every family's (:class:`sim.cpus.contract.FamilyModel`): ``run(trace, decoder,
+segments, timeline, stat_first)`` returns a run whose ``segment(k)`` gives the counters of one call.
+The counters are the P5's own (``p5_core.C_NAMES``); the contract's names the reports read (cycles,
 instructions, l1d_*, l2_*, dram_*, branches, mispredicts) mean the same here, and ``uops`` counts
 instructions (the P5 has no micro-ops). Views ask the model for its vocabulary:
 ``pipe_names``, ``counter_names``, ``summary_rows`` and ``explain_rows``.
@@ -20,26 +20,22 @@ per-element and the ECX = 0 clocks (p5_core.simulate).
 
 from __future__ import annotations
 
-import functools
-import tomllib
 from dataclasses import dataclass
 
 import numpy as np
 
 from sim.guest.decode import Decoder, InsnRecord
 from sim.errors import RetrosimError
-from sim.memory.cache import CacheGeometry
 from sim.memory.dram import DramTiming, bus_ratio, core_clocks
-from sim.memory.hierarchy import Hierarchy, family_policies
 from sim.guest.trace import Trace, access_spans
 from sim.cpus import p5_core as core
-from sim.cpus.k6 import dram_cost as socket7_dram_cost
-from sim.cpus.locking import lock_cost, locked_match
+from sim.cpus.contract import CoreRun, FamilyModel
+from sim.cpus.families import machine_table
+from sim.cpus.locking import lock_cost, locked_match, whole_clocks
 from sim.cpus.lowering import COMPUTE, DEC_SIMPLE, GPRS, PART_MASK, StaticProgram, lower
-from sim.cpus.p6 import CoreRun
 from sim.cpus.presets import CpuPreset, model_by_cpuid
 from sim.cpus.session import CoreSession, grown_state
-from sim.cpus.table import TABLES, InstructionTable, Match, load_table
+from sim.cpus.table import Match
 
 CLASSES = {"NP": core.NP, "UV": core.UV, "PU": core.PU, "PV": core.PV, "FX": core.FX, "FXCH": core.FXCH,
            "MMX": core.MMX}
@@ -47,23 +43,17 @@ MMX_UNITS = {"alu": core.MX_ALU, "shift": core.MX_SHIFT, "mul": core.MX_MUL}
 STACK_OPS = {"push", "pop", "call", "ret", "pushal", "popal", "pushfd", "popfd", "leave"}
 SEG_LOCK_REP = {0x26, 0x2E, 0x36, 0x3E, 0x64, 0x65, 0xF0, 0xF2, 0xF3}
 
-# Model choices with no figure in the sources (each says why it is what it is).
-ESTIMATES = {
-    "board_cache_line_bus_clocks": (6, "bus clocks the board cache keeps the bus per 32-byte line: the 3-1-1-1 "
-                                    "pipelined-burst read of the 82439TX data sheet"),
-    "btb_new_entry": (3, "2-bit counter state of a branch entering the BTB (entered when first taken): 3, "
-                      "strongly taken; the P54C's entry state was not found in a read source"),
-    "dram_lead_off": (None, "DRAM behind the board cache uses the K6 model's Socket 7 rule (sim/cpus/k6.py "
-                      "dram_cost: the preset's [memory] overhead_bus_clocks + the memory's first transfer, in "
-                      "bus clocks); the presets take the 12 bus clocks calibrated on a K6-233 on the same class "
-                      "of 430TX board"),
-}
-
-
-@functools.cache
 def _machine_table() -> dict:
-    with open(TABLES / "p5_machine.toml", "rb") as f:
-        return tomllib.load(f)
+    return machine_table("p5")
+
+
+def _locked_row(row, kind, throughput, extra, fields) -> None:
+    """A locked row on the P5 (sim/cpus/locking.py): its clocks are the lock's (XCHG's alone, a LOCK
+    prefix's at least the unlocked row's), and it does not pair (XCHG is NP; a LOCK prefix already
+    keeps it out of the V pipe)."""
+    cycles = whole_clocks(throughput)
+    extra["cycles"] = cycles if kind == "xchg" else max(cycles, int(row.extra.get("cycles", 0)))
+    extra["pairing"] = "NP"
 
 
 def model_key(preset: CpuPreset) -> str:
@@ -215,8 +205,8 @@ def p6_aliases(c: dict[str, int]) -> dict[str, int]:
 
 @dataclass
 class P5CoreRun(CoreRun):
-    """A P5 run: the P6 run's fields; counters named by p5_core.C_NAMES, then the P6 names the
-    scene reports read (:func:`p6_aliases`)."""
+    """A P5 run: the contract's fields; counters named by p5_core.C_NAMES, then the contract's names
+    the scene reports read (:func:`p6_aliases`)."""
 
     static: P5Static | None = None
 
@@ -226,7 +216,10 @@ class P5CoreRun(CoreRun):
         return c
 
 
-class P5Model:
+class P5Model(FamilyModel):
+    """The P5 model: caches, DRAM and estimates as every family's (:class:`FamilyModel`); the
+    board cache (L2) on the Socket 7 bus behind L1."""
+
     family = "p5"
     pipe_names = ("U", "V")
     counter_names = core.C_NAMES
@@ -241,33 +234,13 @@ class P5Model:
                        "C done; in-order U/V pipes; [alone: ...] why it did not pair (in full under 'alone because')")
 
     def __init__(self, preset: CpuPreset, memory: DramTiming, estimates: dict | None = None):
-        # `estimates`: make_model's overrides of ESTIMATES; none of the P5's is numeric, so none is
-        # overridable yet (sim/cpus/__init__.py overridable)
-        if preset.family != "p5":
-            raise ValueError(f"{preset.name} is a {preset.family} part, not P5")
-        self.preset = preset
-        self.memory = memory
+        # `estimates`: make_model's overrides; the P5's estimates (p5_machine.toml [estimates]) are
+        # not overridable yet, so this is always empty (sim/cpus/__init__.py overridable)
+        super().__init__(preset, memory, estimates)
         self.key = model_key(preset)
-        self.machine = _machine_table()
-        self.table: InstructionTable = load_table("p5")
         self.rules = P5Rules(self.key, self.machine)
-        self.dram = socket7_dram_cost(memory, preset)
         self.ratio = bus_ratio(preset.core_mhz, preset.fsb_mhz)
         self.lock = lock_cost(self.machine["lock"], "p5_machine.toml", self.key, self.ratio)
-        pol = family_policies()["p5"]["l1d"]
-        d = preset.l1d
-        levels = [CacheGeometry("L1D", d.size_bytes, d.ways, d.line_bytes, replacement=pol["replacement"],
-                                write_back=pol["write_back"], write_allocate=pol["write_allocate"])]
-        if preset.l2 is not None:
-            raw = preset.raw["l2"]
-            levels.append(CacheGeometry("L2", preset.l2.size_bytes, preset.l2.ways, preset.l2.line_bytes,
-                                        replacement=raw.get("replacement", "lru"),
-                                        write_back=bool(raw.get("write_back", True)),
-                                        write_allocate=bool(raw.get("write_allocate", False))))
-        self.dside = Hierarchy(levels)
-        i = preset.l1i
-        self.iside = Hierarchy([CacheGeometry("L1I", i.size_bytes, i.ways, i.line_bytes, replacement="lru",
-                                              write_allocate=False)])
         self.params = self._params()
 
     def _params(self) -> np.ndarray:
@@ -287,7 +260,7 @@ class P5Model:
         board = self.preset.raw.get("l2", {}).get("latency_bus_clocks", bus["board_cache_latency_bus_clocks"])
         l1 = int(self.preset.l1d.latency_cycles or 1)
         P[core.P_L2_LAT] = core_clocks(board, self.ratio) - l1
-        P[core.P_L2_BUSY] = core_clocks(ESTIMATES["board_cache_line_bus_clocks"][0], self.ratio)
+        P[core.P_L2_BUSY] = core_clocks(self.estimates["board_cache_line_bus_clocks"], self.ratio)
         P[core.P_DRAM_LAT] = self.dram.lead_off - l1
         P[core.P_DRAM_LINE] = self.dram.line_busy
         P[core.P_DRAM_WB] = self.dram.writeback_busy
@@ -306,9 +279,9 @@ class P5Model:
         P[core.P_FST_EARLY] = mm["x87"]["store_operand_early"]
         return P
 
-    def reset(self) -> None:
-        self.dside.reset()
-        self.iside.reset()
+    def board_cache_hit_clocks(self) -> int:
+        """A load that misses L1 and hits the board cache: clocks until its data."""
+        return int(self.params[core.P_L2_LAT]) + int(self.preset.l1d.latency_cycles or 1)
 
     def lower(self, records: list[InsnRecord], precisions: list[int | None] | None = None) -> StaticProgram:
         return lower(records, self.table, 1, uops_for=_one_op, decoder_for=lambda rec, match, uops: DEC_SIMPLE,
@@ -316,7 +289,7 @@ class P5Model:
 
     def locked(self, rec, match):
         """A locked instruction's clocks at this preset's bus ratio (sim/cpus/locking.py)."""
-        return locked_match(rec, match, self.lock, "p5")
+        return locked_match(rec, match, self.lock, _locked_row)
 
     def run(self, trace: Trace, decoder: Decoder, segments: list[int] | None = None,
             timeline: tuple[int, int] = (0, 0), stat_first: int = 0, access_logs=None) -> P5CoreRun:

@@ -49,7 +49,7 @@ from numba import njit
 
 from sim.memory.hierarchy import memory_fills, memory_writebacks, served_level, service
 from sim.cpus.lowering import BR_COND, BR_NONE, BR_RET, REG_ST0
-from sim.cpus.p6_core import _btb_alloc  # shared BTB victim choice (LRU by last use)
+from sim.cpus.shared_core import btb_alloc  # shared BTB victim choice (LRU by last use)
 
 # parameter vector indices
 (P_PFX_0F, P_AGI, P_MISALIGNED, P_BANK, P_NWB, P_WRITE_BUS, P_MISP_U, P_MISP_V, P_BTB_SETS, P_BTB_WAYS,
@@ -521,14 +521,14 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
                 else:
                     mispredicted = taken  # not in the BTB: predicted not taken
                     if taken:
-                        way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, base + li)
+                        way = btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, base + li)
                         btb_hist[bset, way] = 1 & ((1 << hist_bits) - 1)
                         for h in range(1 << hist_bits):
-                            pht[bset, way, h] = 3  # ESTIMATES["btb_new_entry"] in p5.py
+                            pht[bset, way, h] = 3  # p5_machine.toml [estimates.btb_new_entry]
             else:
                 mispredicted = way < 0 or btb_target[bset, way] != nxt
                 if way < 0:
-                    way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, base + li)
+                    way = btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, base + li)
                 if s_branch[sb] == BR_RET and last + 1 >= n and next_pc < 0:
                     mispredicted = False  # the return to the harness ends the stream
             if way >= 0 and taken:

@@ -4,101 +4,60 @@ sim/cpus/tables/p6.toml, the cycle loop in :mod:`sim.cpus.p6_core`."""
 
 from __future__ import annotations
 
-import functools
 import math
-import tomllib
-from dataclasses import dataclass
 
 import numpy as np
 
 from sim.guest.decode import Decoder
 from sim.guest.elf import EXIT_ADDR
-from sim.memory.cache import CacheGeometry
-from sim.errors import RetrosimError
-from sim.memory.dram import DramTiming, line_costs
-from sim.memory.hierarchy import Hierarchy, family_policies
+from sim.memory.dram import DramTiming
 from sim.memory.replay import NO_LOG, AccessLogs
 from sim.guest.trace import Trace
 from sim.cpus import p6_core as core
-from sim.cpus import vocabulary
+from sim.cpus.contract import CoreRun, FamilyModel
 from sim.cpus.locking import lock_cost, locked_match
 from sim.cpus.lowering import P6Limits, StaticProgram, lower
-from sim.cpus.presets import CacheSpec, CpuPreset, dram_overhead
+from sim.cpus.presets import CpuPreset
 from sim.cpus.session import CoreSession, grown_state
-from sim.cpus.table import TABLES, InstructionTable, load_table
+from sim.cpus.vocabulary import COMMON_STALLS, Vocabulary
 
-# Model choices with no figure in the sources (each says why it is what it is).
-ESTIMATES = {
-    "uop_queue": (6, "decoded-uop queue size: not found in any source; 6 = one cycle of full decode (4+1+1)"),
-    "mispredict_restart": (6, "cycles from a mispredicted branch's execution to the decode of the correct path; "
-                           "with decode->rename->dispatch (3) this gives the sourced minimum penalty of 9"),
-    "static_redirect": (3, "a taken branch missing the BTB (predicted at decode): a few cycles to redirect fetch; estimate"),
-    "partial_extra": (2, "cycles after the partial writer retires before the stalled read renames; with "
-                      "rename->dispatch->execute this reproduces the measured +5 of a partial-register read "
-                      "(p6_machine.toml [partial_register_stall], InstLatX64 PII/PPro chains)"),
-    "forward_latency": (4, "store data ready -> forwarded load data ready; with the 1-cycle store-data uop this "
-                        "makes the measured ~5-cycle store->load round trip (p6_machine.toml "
-                        "[store_forwarding] measured_roundtrips, MOVD/MOVQ 5.1)"),
-    "l2_bus_full_speed": (4, "core cycles the 64-bit backside bus is busy per 32-byte line at full speed (4 transfers)"),
-    "msrom_rate": (3, "microcode sequencer uops per cycle (p6_machine.toml [decode.microcode], itself estimated)"),
-}
-
-
-@functools.cache
-def _machine_table() -> dict:
-    with open(TABLES / "p6_machine.toml", "rb") as f:
-        return tomllib.load(f)
-
-
-@dataclass(frozen=True)
-class DramCost:
-    """Core-clock costs of the memory behind the last cache level."""
-
-    name: str
-    lead_off: int        # from the request leaving the CPU to the critical chunk (core clocks)
-    line_busy: int       # front-side bus busy per 32-byte line fill (core clocks)
-    writeback_busy: int  # front-side bus busy per line writeback (core clocks)
+# The words views use for the contract's counters on a P6 (sim/cpus/vocabulary.py).
+VOCABULARY = Vocabulary(
+    family="p6", op="uop",
+    ports=("p0", "p1", "p2", "p3", "p4"),
+    port_help=("p0: integer ALU, shifts, multiply, x87", "p1: integer ALU, branches",
+               "p2: loads", "p3: store address", "p4: store data"),
+    extra_units=(),
+    decoders=("decoder 0", "decoder 1", "decoder 2"),
+    slot_marks=("D0", "D1", "D2"),
+    classes=("simple", "complex", "microcode"),
+    class_marks=("", "", "MS"),
+    decode_help=("4-1-1 decode: decoder 0 (D0) takes any instruction of up to 4 uops, decoders 1 and 2 "
+                 "(D1, D2) one-uop instructions only; MS = the microcode sequencer (more than 4 uops)"),
+    sequencer="from the microcode sequencer",
+    group="decode groups (cycles in which the decoders took instructions)",
+    window="the reorder buffer or the reservation station was full",
+    stall_help={**COMMON_STALLS,
+                "decode": "rename idle, waiting for the decoders",
+                "window": "waiting for a free reorder-buffer or reservation-station entry",
+                "mispredict": ("decoders idle after a branch: the restart after a mispredicted branch plus "
+                               "the fetch bubble of every taken branch (1 cycle when the BTB predicts it)")},
+    mispredict_note=("'mispredicted' counts branches predicted wrongly; 'branch' stall cycles are the decoders' "
+                     "idle cycles after branches: each misprediction's restart and the bubble of every "
+                     "correctly predicted taken branch, so a loop with few mispredictions still shows many"),
+)
 
 
-def dram_cost(memory: DramTiming, preset: CpuPreset) -> DramCost:
-    """The memory preset's burst (bus clocks at the CPU's FSB) in core clocks, rounded up; the
-    lead-off adds the board's overhead (the preset's calibrated [memory] overhead_bus_clocks: bus
-    protocol and chipset) to the burst's first transfer."""
-    try:
-        costs = line_costs(memory, preset.core_mhz, preset.fsb_mhz, dram_overhead(preset, memory.name))
-    except ValueError as e:
-        raise RetrosimError(f"{preset.name} with {memory.name}: {e}") from None
-    return DramCost(memory.name, costs.lead_off, costs.fill, costs.writeback)
+class P6Model(FamilyModel):
+    """The P6 model: parameters, caches and estimates as every family's (:class:`FamilyModel`); an
+    L1I miss is charged the L2 latency (or the DRAM lead-off without an L2)."""
 
-
-def _geometry(name: str, spec: CacheSpec, policy: dict) -> CacheGeometry:
-    return CacheGeometry(name, spec.size_bytes, spec.ways, spec.line_bytes, replacement=policy["replacement"],
-                         write_back=policy["write_back"], write_allocate=policy["write_allocate"])
-
-
-class P6Model:
     family = "p6"
-    vocabulary = vocabulary.P6  # the words views use for its ports, decoders and stalls
+    vocabulary = VOCABULARY  # the words views use for its ports, decoders and stalls
 
     def __init__(self, preset: CpuPreset, memory: DramTiming, estimates: dict | None = None):
-        if preset.family != "p6":
-            raise ValueError(f"{preset.name} is a {preset.family} part, not P6")
-        self.estimates = {k: v for k, (v, _) in ESTIMATES.items()} | dict(estimates or {})
-        self.preset = preset
-        self.memory = memory
-        self.machine = _machine_table()
-        self.table: InstructionTable = load_table("p6")
-        self.dram = dram_cost(memory, preset)
-        policies = family_policies()["p6"]
+        super().__init__(preset, memory, estimates)
         self.l1_latency = int(preset.l1d.latency_cycles or self.machine["load"]["l1_hit_latency"])
-        levels = [_geometry("L1D", preset.l1d, policies["l1d"])]
-        if preset.l2 is not None:
-            levels.append(_geometry("L2", preset.l2, policies["l2"]))
-        self.dside = Hierarchy(levels)
-        # The instruction side is the L1I alone: an L1I miss is charged the L2 latency (or the
-        # DRAM lead-off without an L2) but does not enter the data side's L2. Kernels are a few
-        # hundred bytes, so code never competes with data for the L2 in practice.
-        self.iside = Hierarchy([_geometry("L1I", preset.l1i, {**policies["l1d"], "write_allocate": False})])
         self.params = self._params()
         self.lock = lock_cost(self.machine["lock"], "p6_machine.toml")
         P = self.params
@@ -108,7 +67,7 @@ class P6Model:
 
     def locked(self, rec, match):
         """A locked instruction's row with the lock's cost (sim/cpus/locking.py)."""
-        return locked_match(rec, match, self.lock, "p6")
+        return locked_match(rec, match, self.lock)
 
     def _params(self) -> np.ndarray:
         m, p = self.machine, self.preset
@@ -143,10 +102,6 @@ class P6Model:
         P[core.P_MSROM_RATE] = self.estimates["msrom_rate"]
         P[core.P_EXIT_ADDR] = EXIT_ADDR
         return P
-
-    def reset(self) -> None:
-        self.dside.reset()
-        self.iside.reset()
 
     def run(self, trace: Trace, decoder: Decoder, segments: list[int] | None = None,
             timeline: tuple[int, int] = (0, 0), stat_first: int = 0, access_logs: AccessLogs | None = None) -> "CoreRun":
@@ -192,16 +147,3 @@ class P6Session(CoreSession):
 
     def result(self, program, counters, per_static, timeline, rdtsc, total) -> "CoreRun":
         return CoreRun(program, counters, per_static, timeline, rdtsc, total)
-
-
-@dataclass
-class CoreRun:
-    program: StaticProgram
-    counters: np.ndarray     # [segments, NC]
-    per_static: np.ndarray   # [static instructions, NS]
-    timeline: np.ndarray     # [rows, NT]
-    rdtsc: np.ndarray        # cycle of each dynamic RDTSC, in order
-    total_cycles: int
-
-    def segment(self, k: int = -1) -> dict[str, int]:
-        return {name: int(v) for name, v in zip(core.C_NAMES, self.counters[k])}

@@ -43,142 +43,25 @@ from sim.cpus.lowering import (
     BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, DEC_SIMPLE, LOAD, NREGS, OCC_SCALE,
     REG_FLAGS, REG_ST0, SIDE, STA, STD,
 )
+from sim.cpus.contract import (
+    C_NAMES, NC, C_CYCLES, C_INSTRUCTIONS, C_UOPS, C_DECODE_GROUPS, C_DECODER0, C_DECODER1, C_DECODER2,
+    C_MSROM_UOPS, C_PORT0, C_PORT1, C_PORT2, C_PORT3, C_PORT4, C_STALL_DECODE, C_STALL_ROB, C_STALL_RS,
+    C_STALL_STORE_BUFFER, C_STALL_PARTIAL_REGISTER, C_STALL_PARTIAL_FLAGS, C_STALL_DEPENDENCY, C_STALL_PORT,
+    C_STALL_MISPREDICT, C_STALL_MEMORY, C_STALL_STORE_FORWARD, C_BRANCHES, C_MISPREDICTS, C_L1D_LOADS,
+    C_L1D_LOAD_MISSES, C_L1D_STORES, C_L1D_STORE_MISSES, C_L2_ACCESSES, C_L2_MISSES, C_DRAM_FILLS,
+    C_DRAM_WRITEBACKS, C_DRAM_BUS_CYCLES, C_L1I_MISSES, C_LCP_STALLS, C_STORE_FORWARDS, C_STALL_FETCH,
+    S_NAMES, NS, S_EXECUTIONS, S_UOPS, S_DECODER0, S_DECODER1, S_DECODER2, S_MSROM, S_ISSUE_TO_RETIRE,
+    S_STALL_DEPENDENCY, S_STALL_PORT, S_STALL_DECODE, S_STALL_PARTIAL, S_STALL_MEMORY, S_STALL_MISPREDICT,
+    S_MISPREDICTS, S_PORT0, S_PORT1, S_PORT2, S_PORT3, S_PORT4, S_DECODE_TO_RETIRE, S_STALL_STORE_FORWARD,
+    S_STALL_WINDOW, S_L1D_MISSES, S_L2_MISSES, T_NAMES, NT, CAUSES,
+)
+from sim.cpus.shared_core import FW, WINDOW, book_port, btb_alloc, queued_store, remember_store
 
-# parameter vector indices
+# parameter vector indices (the counter, per-instruction and timeline schemas are the contract's)
 (P_ROB, P_RS, P_RENAME, P_RETIRE, P_QUEUE, P_FETCH_BLOCK, P_L1_LAT, P_L2_LAT, P_DRAM_LAT, P_DRAM_LINE,
  P_DRAM_WB, P_MSHR, P_SB, P_MISPREDICT, P_TAKEN_BUBBLE, P_BTB_SETS, P_BTB_WAYS, P_HIST_BITS, P_PARTIAL_EXTRA,
  P_FWD_FAIL, P_LCP, P_STATIC_REDIRECT, P_HAS_L2, P_L2_BUS, P_RSB, P_MSROM_RATE, P_EXIT_ADDR, P_FWD_LAT) = range(28)
 NPARAMS = 32
-
-# counter indices (per segment)
-C_NAMES = ("cycles", "instructions", "uops", "decode_groups", "decoder0", "decoder1", "decoder2", "msrom_uops",
-           "port0", "port1", "port2", "port3", "port4", "stall_decode", "stall_rob", "stall_rs", "stall_store_buffer",
-           "stall_partial_register", "stall_partial_flags", "stall_dependency", "stall_port", "stall_mispredict",
-           "stall_memory", "stall_store_forward", "branches", "mispredicts", "l1d_loads", "l1d_load_misses",
-           "l1d_stores", "l1d_store_misses", "l2_accesses", "l2_misses", "dram_fills", "dram_writebacks",
-           "dram_bus_cycles", "l1i_misses", "lcp_stalls", "store_forwards", "stall_fetch")
-NC = len(C_NAMES)
-# numba needs plain integer globals, not a dict
-C_CYCLES = 0
-C_INSTRUCTIONS = 1
-C_UOPS = 2
-C_DECODE_GROUPS = 3
-C_DECODER0 = 4
-C_DECODER1 = 5
-C_DECODER2 = 6
-C_MSROM_UOPS = 7
-C_PORT0 = 8
-C_PORT1 = 9
-C_PORT2 = 10
-C_PORT3 = 11
-C_PORT4 = 12
-C_STALL_DECODE = 13
-C_STALL_ROB = 14
-C_STALL_RS = 15
-C_STALL_STORE_BUFFER = 16
-C_STALL_PARTIAL_REGISTER = 17
-C_STALL_PARTIAL_FLAGS = 18
-C_STALL_DEPENDENCY = 19
-C_STALL_PORT = 20
-C_STALL_MISPREDICT = 21
-C_STALL_MEMORY = 22
-C_STALL_STORE_FORWARD = 23
-C_BRANCHES = 24
-C_MISPREDICTS = 25
-C_L1D_LOADS = 26
-C_L1D_LOAD_MISSES = 27
-C_L1D_STORES = 28
-C_L1D_STORE_MISSES = 29
-C_L2_ACCESSES = 30
-C_L2_MISSES = 31
-C_DRAM_FILLS = 32
-C_DRAM_WRITEBACKS = 33
-C_DRAM_BUS_CYCLES = 34
-C_L1I_MISSES = 35
-C_LCP_STALLS = 36
-C_STORE_FORWARDS = 37
-C_STALL_FETCH = 38
-
-# per-static-instruction columns (for explain)
-S_NAMES = ("executions", "uops", "decoder0", "decoder1", "decoder2", "msrom", "issue_to_retire", "stall_dependency",
-           "stall_port", "stall_decode", "stall_partial", "stall_memory", "stall_mispredict", "mispredicts",
-           "port0", "port1", "port2", "port3", "port4", "decode_to_retire", "stall_store_forward", "stall_window",
-           "l1d_misses", "l2_misses")
-NS = len(S_NAMES)
-S_EXECUTIONS = 0
-S_UOPS = 1
-S_DECODER0 = 2
-S_DECODER1 = 3
-S_DECODER2 = 4
-S_MSROM = 5
-S_ISSUE_TO_RETIRE = 6
-S_STALL_DEPENDENCY = 7
-S_STALL_PORT = 8
-S_STALL_DECODE = 9
-S_STALL_PARTIAL = 10
-S_STALL_MEMORY = 11
-S_STALL_MISPREDICT = 12
-S_MISPREDICTS = 13
-S_PORT0 = 14
-S_PORT1 = 15
-S_PORT2 = 16
-S_PORT3 = 17
-S_PORT4 = 18
-S_DECODE_TO_RETIRE = 19
-S_STALL_STORE_FORWARD = 20
-S_STALL_WINDOW = 21
-S_L1D_MISSES = 22
-S_L2_MISSES = 23
-
-# timeline columns
-T_NAMES = ("insn", "static", "decode", "alloc", "dispatch", "complete", "retire", "cause")
-NT = len(T_NAMES)
-CAUSES = ("none", "decode", "window", "partial", "dependency", "port", "memory", "store_forward", "mispredict")
-WINDOW = 8192  # port reservation ring: no in-flight uop dispatches more than this far from another
-
-
-FW = 16  # recent stores remembered for forwarding (more than either family's store queue holds)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _queued_store(fw_addr, fw_size, fw_commit, fw_n, a, size, t):
-    """The youngest remembered store not yet in the cache at cycle t that overlaps [a, a + size), or -1."""
-    for back in range(1, min(fw_n, FW) + 1):
-        e = (fw_n - back) % FW
-        if fw_commit[e] > t and a < fw_addr[e] + fw_size[e] and fw_addr[e] < a + size:
-            return e
-    return -1
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, size, ready, commit):
-    """Record a store (its data is ready at `ready`, it reaches the cache at `commit`); returns fw_n + 1."""
-    e = fw_n % FW
-    fw_addr[e] = a
-    fw_size[e] = size
-    fw_ready[e] = ready
-    fw_commit[e] = commit
-    return fw_n + 1
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _book_port(book, ports, c):
-    """Earliest cycle >= c where one of the allowed ports is free; books it. Callers go in program
-    order, so an older uop always gets the earlier slot (oldest first). `book` is a ring of WINDOW
-    cycles, each slot holding cycle << 5 | the ports already taken in it. Returns (cycle, port)."""
-    while True:
-        slot = c & (WINDOW - 1)
-        entry = book[slot]
-        used = entry & 31 if (entry >> 5) == c else 0
-        free = ports & ~used
-        if free != 0:
-            p = 0
-            while not free & (1 << p):
-                p += 1
-            book[slot] = (c << 5) | used | (1 << p)
-            return c, p
-        c += 1
-
 
 # Loop-carried scalar state: kept in an int64 vector between calls, so a trace can be timed in
 # chunks (a streamed emulation) exactly as in one call (see :func:`new_state`).
@@ -649,7 +532,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if u_ports[u] == 0:
                 disp, port = ready_unit, -1
             else:
-                disp, port = _book_port(book, u_ports[u], ready_unit)
+                disp, port = book_port(book, u_ports[u], ready_unit)
             port_wait = disp - ready  # includes waiting for a busy non-pipelined unit
             if u_unit[u] != 0:
                 # a resource held for a fractional throughput (EMMS 5.67) averages it: the hold
@@ -667,7 +550,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     sz = np.int64(mem_size[acc])
                     acc += 1
                     # store forwarding: newest older store still in the store buffer that overlaps
-                    fwd = _queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
+                    fwd = queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
                     n_loads += 1
                     hit_row, hit_way = (_l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
                                         _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
@@ -808,7 +691,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                                                            per_static, seg, psid)
                     d_now = dclock[0]
                     commit += w
-                fw_n = _remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_std, commit)
+                fw_n = remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_std, commit)
             sb_ring[sb_pos] = commit
             sb_pos = sb_pos + 1 if sb_pos + 1 < sb_n else 0
             nstores += 1
@@ -838,7 +721,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     predict = target >= 0 and target < pc  # static: backward taken, forward not taken
                     redirect = predict  # a static taken prediction redirects fetch at decode
                     if taken:
-                        way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, i)
+                        way = btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, i)
                         btb_hist[bset, way] = 1
                         for h in range(1 << hist_bits):
                             pht[bset, way, h] = 2
@@ -860,7 +743,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 else:
                     redirect = True  # direct target known at decode: a short redirect bubble
                 if way < 0:
-                    way = _btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, i)
+                    way = btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, i)
             if way >= 0:
                 btb_target[bset, way] = nxt if taken else btb_target[bset, way]
             if mispredicted:
@@ -985,17 +868,3 @@ def _miss_latency(r, lvl, levels, start, P, mshr, bus_free, l2bus_free, ctr):
         done = b + P[P_DRAM_LAT] if fills > 0 else t2
         mshr[k] = b + busy
     return max(0, done - start), bus_free, l2bus_free
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _btb_alloc(tag, stamp, s, ways, pc, now):
-    victim = 0
-    for w in range(ways):
-        if tag[s, w] == -1:
-            victim = w
-            break
-        if stamp[s, w] < stamp[s, victim]:
-            victim = w
-    tag[s, victim] = pc
-    stamp[s, victim] = now
-    return victim

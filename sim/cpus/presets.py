@@ -8,6 +8,7 @@ from pathlib import Path
 
 from sim.errors import RetrosimError
 from sim.tomlfile import read_toml
+from sim.cpus import families
 
 PRESETS = Path(__file__).resolve().parent / "presets"
 
@@ -48,6 +49,9 @@ class CpuPreset:
     memory: str          # default memory preset
     core: str = ""
     raw: dict = field(default_factory=dict, compare=False, hash=False, repr=False)
+    # from the family's record (sim/cpus/families.py), for the layers that may not read it (sim/guest/isa.py)
+    family_name: str = ""                    # "the P6 family"
+    family_lacks: frozenset = frozenset()    # extensions no CPU of the family has
 
     @property
     def multiplier(self) -> float:
@@ -80,12 +84,15 @@ def load(name: str) -> CpuPreset:
 
 def from_raw(raw: dict, name: str, where: str | Path) -> CpuPreset:
     """A :class:`CpuPreset` from a parsed preset file (also used for overridden copies)."""
+    record = families.FAMILIES.get(raw.get("cpu_model"))
     try:
         return CpuPreset(
             name=raw.get("name", name), family=raw["cpu_model"], core_mhz=float(raw["clock"]["core_mhz"]),
             fsb_mhz=float(raw["clock"]["fsb_mhz"]), l1i=_cache(raw["l1i"]), l1d=_cache(raw["l1d"]),
             l2=_cache(raw.get("l2")), board_cache=_cache(raw.get("board_cache") or raw.get("l3")),
-            memory=raw["memory"]["default"], core=raw.get("core", ""), raw=raw)
+            memory=raw["memory"]["default"], core=raw.get("core", ""), raw=raw,
+            family_name=record.display_name if record else raw["cpu_model"],
+            family_lacks=record.lacks if record else frozenset())
     except KeyError as e:
         raise RetrosimError(f"{where}: missing field {e}") from None
 

@@ -26,6 +26,7 @@ from functools import cached_property
 from pathlib import Path
 
 from sim.errors import RetrosimError
+from sim.cpus import families
 
 TABLES = Path(__file__).resolve().parent / "tables"
 
@@ -36,20 +37,9 @@ _WIDER = {"r8": ("r32",), "r16": ("r32",), "m8": ("m32",), "m16": ("m32",), "i8"
 
 
 # Every field a row may have: a field the models do not read is removed from the tables, and the
-# loader refuses one it does not know, so an ignored figure cannot come back unnoticed.
+# loader refuses one it does not know, so an ignored figure cannot come back unnoticed. A family's
+# own fields are its record's (machine table [family] table_fields, sim/cpus/families.py).
 ROW_FIELDS = {"mnemonic", "signature", "uops", "decoder", "latency", "throughput", "source", "note", "estimated"}
-FAMILY_FIELDS = {
-    # one port per uop (sim/cpus/lowering.py); latency and throughput by x87 precision (at_precision);
-    # why the model does not reproduce the row's figures, with its source (sim/conformance.py reports it)
-    "p6": {"ports", "precision_latency", "precision_throughput", "unreproduced"},
-    # RISC86 ops per unit, models, per-model values (k6.py); by x87 precision (at_precision); the
-    # measured chain where it is not the execution latency (read only by sim/conformance.py)
-    "k6": {"units", "models", "model_overrides", "precision_latency", "precision_throughput", "measured_latency"},
-    # pairing class, clocks, x87 overlap and units, FDIV clocks by precision, REP string start-up and
-    # ECX = 0 clocks (p5.py)
-    "p5": {"pairing", "cycles", "acc_only", "i_ov", "fp_ov", "fmul", "waits_fpu", "mmx_unit", "precision_cycles",
-           "rep_startup", "rep_ecx0"},
-}
 OVERRIDABLE = {"latency", "throughput", "precision_throughput"}  # what a K6 model_overrides entry may replace
 # x87 precision control: a row field `precision_F = [24-bit, 53-bit, 64-bit]` gives field F at each
 # precision (the control word in force, sim/trace.py); F itself holds the 64-bit (FNINIT) figure
@@ -162,7 +152,7 @@ class InstructionTable:
         family = family or self.path.stem
         self.rows: dict[tuple[str, str], TimingRow] = {}
         known = ROW_FIELDS | {"ports"}
-        allowed = ROW_FIELDS | FAMILY_FIELDS.get(family, set())
+        allowed = ROW_FIELDS | (families.FAMILIES[family].table_fields if family in families.FAMILIES else set())
         for key in data:
             if key not in TOP_LEVEL:
                 raise RetrosimError(f"{self.path}: unknown table [{key}] (known: {', '.join(sorted(TOP_LEVEL))})")

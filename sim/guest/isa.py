@@ -64,7 +64,6 @@ _WHY = {
     "sse2": "has no SSE2 or later SIMD extension",
     "nopl": "has no multi-byte NOP (0F 1F)",
 }
-_FAMILY_NAME = {"p6": "the P6 family", "k6": "the K6 family", "p5": "the P5 family"}
 
 
 class IsaError(RetrosimError):
@@ -135,11 +134,6 @@ def march(preset, assembler: str) -> str:
     return value
 
 
-# Extensions no CPU of a family has (the refusal then names the family, not the preset).
-_FAMILY_LACKS = {"k6": {"cmov", "fcmov", "sse", "fxsr", "sse2", "nopl"}, "p6": {"3dnow", "sse2"},
-                 "p5": {"cmov", "fcmov", "sse", "3dnow", "fxsr", "sse2", "nopl"}}
-
-
 def record_extension(rec: InsnRecord) -> str | None:
     """The extension a decoded instruction needs (:func:`required_extension`, plus what only the
     encoding tells: NOP with the 0F escape is the multi-byte NOP)."""
@@ -149,8 +143,11 @@ def record_extension(rec: InsnRecord) -> str | None:
 
 
 def why_missing(preset, ext: str) -> str:
-    if ext in _FAMILY_LACKS.get(preset.family, ()):
-        return f"{_FAMILY_NAME.get(preset.family, preset.family)} {_WHY[ext]}"
+    """Why `preset` refuses `ext`. When no CPU of its family has it (the preset's ``family_lacks``,
+    from the family's record: this layer does not read sim.cpus), the refusal names the family
+    (``family_name``), else the preset."""
+    if ext in getattr(preset, "family_lacks", ()):
+        return f"{preset.family_name} {_WHY[ext]}"
     return f"{preset.name} {_WHY[ext]}"
 
 

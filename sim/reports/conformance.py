@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from sim.cpus import make_model, presets
+from sim.cpus.families import FAMILIES
 from sim.cpus.table import TimingRow, load_table
 from sim.errors import RetrosimError
 from sim.guest.isa import mnemonic_extension
@@ -29,7 +30,7 @@ COPIES = 48       # instructions per loop iteration
 ITERATIONS = 24   # loop iterations per call
 BUDGET = 100_000  # instructions per call: a benchmark is ~2,500
 STRING_ELEMENTS = 32  # elements of a REP string benchmark (and twice as many): 256 bytes of dwords
-FAMILY_ISA = {"p6": "pentium3-500", "k6": "k6-2-300"}  # the preset whose instruction set has every row
+FAMILY_ISA = {n: f.conformance_isa for n, f in FAMILIES.items() if f.conformance_isa}  # the preset whose instruction set has every row
 
 # register names per operand token: the chain writes the first; throughput rotates the destination
 # through all but the last and reads the last. Only low bytes for r8 (AH..DH would merge with AL..DL).
@@ -428,7 +429,7 @@ def render(family_results: dict[str, tuple[list[RowResult], list[str]]]) -> str:
     return "\n".join(out) + "\n"
 
 
-def write_report(path: Path, families=("p6", "k6"), progress=None) -> dict:
+def write_report(path: Path, families=tuple(FAMILY_ISA), progress=None) -> dict:
     start = time.monotonic()
     results = {fam: run_family(fam, progress) for fam in families}
     text = render(results)

@@ -15,8 +15,10 @@ import io
 from pathlib import Path
 
 from sim import output
+from sim.cpus.families import FAMILIES
 
 FORMATS = ("md", "png", "json", "csv", "html")
+FAMILY_MARKERS = {n: f.marker for n, f in FAMILIES.items()}  # a plot marker shape per CPU family (the registry)
 
 
 def atomic_write(path: Path, data: bytes) -> None:

@@ -10,7 +10,7 @@ from rich import box
 from rich.markup import escape
 from rich.table import Table
 
-from sim.cpus import p6_core as core
+from sim.cpus import contract as core  # the counter, per-instruction and timeline schemas
 from sim.cpus import vocabulary
 from sim.cpus.vocabulary import STALL_KINDS, Vocabulary
 from sim.cpus.lowering import DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE

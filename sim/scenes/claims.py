@@ -4,10 +4,11 @@ A scene's ``[[claims]]`` (sim.scene.Claim) name the machines their words cover. 
 checks each claim on every covered machine of the run (holds / does not hold, with the counters
 that explain the difference) and lists the covered machines of the scene that the run left out.
 
-Robustness. Some model parameters have no sourced figure: the ``ESTIMATES`` of the family models
-(sim/cpus/p6.py, k6.py), the cache latencies a preset marks ``latency_estimated`` and the board's
-DRAM overhead (``[memory] overhead_bus_clocks``, calibrated on one measured system or carried over
-from another). :data:`PLAUSIBLE` states a range for each. While a variant's emulation is alive the
+Robustness. Some model parameters have no sourced figure: the estimates of the family models (each
+family's machine table [estimates], read through sim/cpus/families.py, with its plausible range and
+mechanism counter), the cache latencies a preset marks ``latency_estimated`` and the board's DRAM
+overhead (``[memory] overhead_bus_clocks``, calibrated on one measured system or carried over from
+another), each with a range here. While a variant's emulation is alive the
 runner re-times the same trace (no re-emulation) with each parameter set to either end of its range,
 one at a time (:func:`perturbed_timings`); no such parameter changes the data caches, so the re-timings
 after the first read the caches' results back instead of walking them (sim/memory/replay.py). A parameter whose mechanism never fires in a variant (no
@@ -21,25 +22,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-# (override key, low, high, why this range). Keys are sim.cpus.make_model overrides.
-PLAUSIBLE = {
-    "p6": [
-        ("estimates.uop_queue", 4, 12, "decoded-uop queue: one decode cycle (6) could be anything from 4 to two cycles' worth"),
-        ("estimates.mispredict_restart", 6, 10, "6 gives the sourced minimum penalty of 9 (with 3 pipeline stages); up to a 13-cycle penalty"),
-        ("estimates.static_redirect", 1, 6, "BTB-miss taken branch: a few cycles; no figure"),
-        ("estimates.partial_extra", 1, 3, "reproduces the measured +5 partial-register stall; +-1"),
-        ("estimates.forward_latency", 3, 5, "measured store->load round trip ~5 (MMX 5.1); +-1"),
-        ("estimates.l2_bus_full_speed", 2, 8, "backside-bus cycles per line: 4 transfers of 64 bits; 2 (wider) to 8 (no overlap)"),
-        ("estimates.msrom_rate", 1, 4, "microcode sequencer uops per cycle: 1 to the decoder's 4"),
-    ],
-    "k6": [
-        ("estimates.mispredict_restart", 1, 4, "4-cycle penalty itself estimated (range 3-6 from the six-stage pipeline)"),
-        ("estimates.store_queue", 4, 12, "store-queue entries: not found"),
-        ("estimates.bus_write_bus_clocks", 8, 12, "measured 36 core clocks = 10.3 bus clocks per non-allocated store"),
-        ("estimates.ondie_l2_port", 2, 8, "K6-III on-die L2 port cycles per line: width not found"),
-        ("estimates.bht_history_bits", 4, 13, "gshare history bits: 'two-level, global history' only"),
-    ],
-}
 # Estimated cache latencies (preset ``latency_estimated = true``): +-30 % of the estimate, the
 # spread between the proxies they were derived from (full-speed 13 vs half-speed 23 on the P6).
 CACHE_SPREAD = 0.30
@@ -50,15 +32,10 @@ CACHE_SPREAD = 0.30
 OVERHEAD_CARRIED = (9.0, 16.5)
 OVERHEAD_MEASURED = 2.0
 
-# A parameter's mechanism fires only when one of these counters is non-zero (None: always).
-MECHANISM = {
-    "estimates.mispredict_restart": "mispredicts", "estimates.partial_extra": "stall_partial_register",
-    "estimates.forward_latency": "store_forwards", "estimates.l2_bus_full_speed": "l2_accesses",
-    "estimates.msrom_rate": "msrom_uops", "estimates.bht_history_bits": "branches",
-    "memory.overhead_bus_clocks": "dram_fills", "l2.latency_cycles": "l1d_load_misses",
-    "l3.latency_cycles": "l3_accesses", "estimates.bus_write_bus_clocks": "bus_writes",
-    "estimates.ondie_l2_port": "l2_accesses",
-}
+# A preset parameter's mechanism fires only when this counter is non-zero (a family estimate names
+# its own: machine table [estimates.NAME] mechanism).
+MECHANISM = {"memory.overhead_bus_clocks": "dram_fills", "l2.latency_cycles": "l1d_load_misses",
+             "l3.latency_cycles": "l3_accesses"}
 
 
 @dataclass(frozen=True)
@@ -68,6 +45,7 @@ class Param:
     low: float
     high: float
     why: str
+    mechanism: str | None = None  # the counter that must be non-zero for it to matter (None: always)
 
     def describe(self) -> str:
         return f"{self.key} {_n(self.low)}..{_n(self.high)} (model {_n(self.nominal)})"
@@ -79,19 +57,20 @@ def _n(x: float) -> str:
 
 def parameters(cpu: str) -> list[Param]:
     """The estimated parameters of a CPU preset and their plausible ranges."""
-    from sim.cpus import overridable, presets
+    from sim.cpus import families, overridable, presets
 
     preset = presets.load(cpu)
     values = overridable(cpu)
-    out = [Param(k, values[k], lo, hi, why) for k, lo, hi, why in PLAUSIBLE.get(preset.family, []) if k in values]
-    if preset.family == "k6" and preset.board_cache is None:
-        out = [p for p in out if p.key != "estimates.ondie_l2_port"]  # no on-die L2: never read
+    estimates = families.FAMILIES[preset.family].estimates.values() if preset.family in families.FAMILIES else ()
+    out = [Param(e.key, values[e.key], e.low, e.high, e.range_reason, None if e.mechanism == families.ALWAYS else e.mechanism)
+           for e in estimates if e.key in values and e.applies_to(preset)]  # applies_to: e.g. no on-die L2, never read
     for level in ("l2", "l3"):
         section = preset.raw.get(level) or {}
         if section.get("present", True) and section.get("latency_estimated") and f"{level}.latency_cycles" in values:
             v = values[f"{level}.latency_cycles"]
             out.append(Param(f"{level}.latency_cycles", v, max(1, round(v * (1 - CACHE_SPREAD))),
-                             round(v * (1 + CACHE_SPREAD)), f"estimated {level.upper()} latency +-30 %"))
+                             round(v * (1 + CACHE_SPREAD)), f"estimated {level.upper()} latency +-30 %",
+                             MECHANISM[f"{level}.latency_cycles"]))
     mem = preset.raw.get("memory", {})
     if "memory.overhead_bus_clocks" in values:
         v = float(values["memory.overhead_bus_clocks"])
@@ -99,12 +78,12 @@ def parameters(cpu: str) -> list[Param]:
             lo, hi, why = min(v, OVERHEAD_CARRIED[0]), max(v, OVERHEAD_CARRIED[1]), "board overhead carried over from another system"
         else:
             lo, hi, why = max(0.0, v - OVERHEAD_MEASURED), v + OVERHEAD_MEASURED, "board overhead calibrated on this CPU: +-2 bus clocks"
-        out.append(Param("memory.overhead_bus_clocks", v, lo, hi, why))
+        out.append(Param("memory.overhead_bus_clocks", v, lo, hi, why, MECHANISM["memory.overhead_bus_clocks"]))
     return out
 
 
 def exercised(param: Param, counters: dict) -> bool:
-    name = MECHANISM.get(param.key)
+    name = param.mechanism
     return name is None or counters.get(name, 1) != 0
 
 

@@ -15,12 +15,13 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from sim.cpus.families import FAMILIES as REGISTERED
 from sim.cpus.machine import MachineKey
 from sim.errors import RetrosimError
 from sim.tomlfile import read_toml
 
 MAX_SCENE_BYTES = 64 << 20  # 65535 explicit triangles take about 6 MB
-FAMILIES = ("p5", "p6", "k6")  # CPU families a claim may name (sim/cpus: cpu_model of the presets)
+FAMILIES = tuple(REGISTERED)  # CPU families a claim may name (the registry, sim/cpus/families.py)
 _KIND_NAMES = {"int": "an integer", "number": "a number", "str": "a string", "strlist": "an array of strings",
                "range": "an array of two numbers [lo, hi]", "tables": "an array of tables", "any": "a value"}
 

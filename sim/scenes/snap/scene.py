@@ -475,7 +475,7 @@ def figure(result: SnapResult):
 
     from sim.cpus import family_of, presets
     from sim.reports.render import row_offset
-    from sim.scenes.zbuffer.report import FAMILY_MARKERS
+    from sim.reports.render import FAMILY_MARKERS
 
     s = result.scene
     in_range = [w for w in s.workloads if w in snap.IN_RANGE] or list(s.workloads)

@@ -55,6 +55,7 @@ import numpy as np
 
 from sim.cpus import family_of
 from sim.cpus.machine import MachineKey
+from sim.cpus.families import FAMILIES, order as family_order
 from sim.errors import RetrosimError
 from sim.guest.kernels import kernels_root
 from sim.reports.render import FORMATS, md_table, render_html, write_payloads
@@ -511,12 +512,7 @@ def quantity(result: TextureResult, claim: TextureClaim, key: str) -> float:
     return float(result.probes[key][claim.quantity])
 
 
-EXPLAIN = {"p5": ("pairs", "alone", "stall_agi", "stall_memory", "stall_write_buffer", "stall_fpu", "l1d_load_misses",
-                  "l1d_store_misses"),
-           "p6": ("uops", "stall_partial_register", "stall_dependency", "stall_port", "stall_rob", "stall_memory",
-                  "l1d_load_misses"),
-           "k6": ("uops", "stall_dependency", "stall_port", "stall_rob", "stall_memory", "stall_store_buffer",
-                  "l1d_load_misses")}
+EXPLAIN = {name: f.explain for name, f in FAMILIES.items()}  # per family: its record's explain columns
 
 
 def explanation(result: TextureResult, claim: TextureClaim, key: str) -> dict:
@@ -593,8 +589,7 @@ def _label(key: str) -> str:
 
 
 def _ordered_keys(result: TextureResult) -> list[str]:
-    order = {"p5": 0, "p6": 1, "k6": 2}
-    return sorted(result.keys, key=lambda k: (order.get(family_of(k), 9), result.keys.index(k)))
+    return sorted(result.keys, key=lambda k: (family_order(family_of(k)), result.keys.index(k)))
 
 
 def claim_lines(c: dict) -> list[str]:
@@ -758,7 +753,7 @@ def error_cycles_png(result: TextureResult) -> bytes:
 
     from sim.cpus import presets
     from sim.reports.render import finish_rows, png_bytes, row_offset
-    from sim.scenes.zbuffer.report import FAMILY_MARKERS
+    from sim.reports.render import FAMILY_MARKERS
 
     names = presets.available()
     palette = plt.get_cmap("tab10" if len(names) <= 10 else "tab20")

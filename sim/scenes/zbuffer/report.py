@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from sim.cpus.machine import MachineKey
-from sim.reports.render import FORMATS, finish_rows, md_table, png_bytes, render_html, row_offset, timings_csv, write_payloads
+from sim.reports.render import FAMILY_MARKERS, FORMATS, finish_rows, md_table, png_bytes, render_html, row_offset, timings_csv, write_payloads
 from sim.scenes.zbuffer.frames import VARIANT_LABELS
 
 if TYPE_CHECKING:
@@ -127,7 +127,6 @@ def breakdown_legend(key: str) -> str:
 
 # -- plot --------------------------------------------------------------------------------------
 # The scenes' plots share one form: a row per variant, cycles along x, a marker per machine.
-FAMILY_MARKERS = {"p5": "s", "p6": "o", "k6": "D"}  # a shape per family where a marker means a preset
 
 
 def work_precision_png(result: SceneResult) -> bytes | None:

@@ -1,0 +1,66 @@
+"""Compiled helpers the family cores share (numba): the port/issue-slot calendar, the BTB victim
+choice and the queue of recent stores for store-to-load forwarding. Family-neutral: each core
+imports them from here, never from another family's core."""
+
+from __future__ import annotations
+
+from numba import njit
+
+WINDOW = 8192  # port reservation ring: no in-flight uop dispatches more than this far from another
+FW = 16  # recent stores remembered for forwarding (more than either family's store queue holds)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def queued_store(fw_addr, fw_size, fw_commit, fw_n, a, size, t):
+    """The youngest remembered store not yet in the cache at cycle t that overlaps [a, a + size), or -1."""
+    for back in range(1, min(fw_n, FW) + 1):
+        e = (fw_n - back) % FW
+        if fw_commit[e] > t and a < fw_addr[e] + fw_size[e] and fw_addr[e] < a + size:
+            return e
+    return -1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, size, ready, commit):
+    """Record a store (its data is ready at `ready`, it reaches the cache at `commit`); returns fw_n + 1."""
+    e = fw_n % FW
+    fw_addr[e] = a
+    fw_size[e] = size
+    fw_ready[e] = ready
+    fw_commit[e] = commit
+    return fw_n + 1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def book_port(book, ports, c):
+    """Earliest cycle >= c where one of the allowed ports is free; books it. Callers go in program
+    order, so an older uop always gets the earlier slot (oldest first). `book` is a ring of WINDOW
+    cycles, each slot holding cycle << 5 | the ports already taken in it. Returns (cycle, port)."""
+    while True:
+        slot = c & (WINDOW - 1)
+        entry = book[slot]
+        used = entry & 31 if (entry >> 5) == c else 0
+        free = ports & ~used
+        if free != 0:
+            p = 0
+            while not free & (1 << p):
+                p += 1
+            book[slot] = (c << 5) | used | (1 << p)
+            return c, p
+        c += 1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def btb_alloc(tag, stamp, s, ways, pc, now):
+    """The way of BTB set `s` that a new branch `pc` takes (an empty way, else the least recently
+    used), stamped `now`; returns the way."""
+    victim = 0
+    for w in range(ways):
+        if tag[s, w] == -1:
+            victim = w
+            break
+        if stamp[s, w] < stamp[s, victim]:
+            victim = w
+    tag[s, victim] = pc
+    stamp[s, victim] = now
+    return victim
