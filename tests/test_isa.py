@@ -10,8 +10,8 @@ import pytest
 from sim.guest.asm import assemble
 from sim.cpus import presets
 from sim.errors import RetrosimError
-from sim.guest.isa import EXTENSIONS, march
-from sim.timing.kernel import emulate, time_emulation, time_kernel
+from sim.guest.isa import EXTENSIONS
+from sim.timing.kernel import emulate, guest_cpu, time_emulation, time_kernel
 from conftest import KERNELS
 
 PRESETS = presets.available()
@@ -28,7 +28,8 @@ def kernel(tmp_path, body: str, name="k.S"):
 def test_every_preset_declares_its_instruction_set(cpu):
     p = presets.load(cpu)
     assert set(p.raw["isa_extensions"]) <= set(EXTENSIONS)
-    assert march(p, "gnu") and march(p, "zig")
+    target = guest_cpu(cpu)
+    assert target.march("gnu") and target.march("zig")
 
 
 @pytest.mark.parametrize("cpu", PRESETS)
@@ -39,17 +40,17 @@ def test_shipped_kernels_are_plain_i686_and_assemble_for_every_preset(cpu):
     for src in sorted(KERNELS.rglob("*.S")):
         needs = set(re.findall(r"^# @requires (\w+)", src.read_text(), re.M))
         if needs <= have:
-            assert assemble(src, "gnu", cpu).is_file()
+            assert assemble(src, "gnu", guest_cpu(cpu)).is_file()
         else:
             with pytest.raises(RetrosimError, match=f"not available on {cpu}"):
-                assemble(src, "gnu", cpu)
+                assemble(src, "gnu", guest_cpu(cpu))
     article = [p for folder in ("zbuffer", "convert", "texture") for p in (KERNELS / folder).glob("*.S")]
     assert article and not any("@requires" in p.read_text() for p in article)  # the article kernels stay i686
 
 
 def test_the_cache_key_includes_the_cpu(tmp_path):
     src = kernel(tmp_path, "    nop\n")
-    assert assemble(src, "gnu", "k6-233") != assemble(src, "gnu", "pentium3-500") != assemble(src, "gnu")
+    assert assemble(src, "gnu", guest_cpu("k6-233")) != assemble(src, "gnu", guest_cpu("pentium3-500")) != assemble(src, "gnu")
 
 
 # (preset, instruction, what the message must say) -- the CPUID feature bits of each CPU

@@ -2,7 +2,8 @@
 kernel is assembled for a preset.
 
 A preset (sim/cpus/presets/*.toml) declares ``isa_extensions`` (from the vocabulary below) and the
-assembler's CPU names: ``gnu_march`` (GNU as ``-march=``) and ``zig_mcpu`` (clang ``-mcpu=``).
+assembler's CPU names: ``gnu_march`` (GNU as ``-march=``) and ``zig_mcpu`` (clang ``-mcpu=``). The
+guest stages see them as a :class:`sim.guest.cpu.GuestCpu`, resolved from the preset by the caller.
 The base set of every modelled family is i586 (CPUID, CMPXCHG8B, RDTSC; Intel SDM vol. 2,
 "CPUID: Feature Information"); the extensions on top of it are:
 
@@ -29,8 +30,9 @@ kernel: they fault at CPL 3, so no user-mode timing exists for them.
 
 from __future__ import annotations
 
-from sim.guest.decode import InsnRecord
 from sim.errors import RetrosimError
+from sim.guest.cpu import GuestCpu
+from sim.guest.decode import InsnRecord
 
 EXTENSIONS = ("cmov", "fcmov", "mmx", "sse", "3dnow", "fxsr", "sse2", "nopl")
 
@@ -122,19 +124,6 @@ def is_system(rec: InsnRecord) -> bool:
     return "privilege" in rec.groups or rec.mnemonic in _SYSTEM
 
 
-def extensions_of(preset) -> frozenset[str]:
-    return frozenset(preset.raw.get("isa_extensions", ()))
-
-
-def march(preset, assembler: str) -> str:
-    """The assembler's CPU name for a preset (GNU as -march= / clang -mcpu=)."""
-    key = "zig_mcpu" if assembler == "zig" else "gnu_march"
-    value = preset.raw.get(key)
-    if not value:
-        raise RetrosimError(f"CPU preset '{preset.name}': missing field '{key}' (the assembler's name for the CPU)")
-    return value
-
-
 # Extensions no CPU of a family has (the refusal then names the family, not the preset).
 _FAMILY_LACKS = {"k6": {"cmov", "fcmov", "sse", "fxsr", "sse2", "nopl"}, "p6": {"3dnow", "sse2"},
                  "p5": {"cmov", "fcmov", "sse", "3dnow", "fxsr", "sse2", "nopl"}}
@@ -148,22 +137,22 @@ def record_extension(rec: InsnRecord) -> str | None:
     return required_extension(rec.mnemonic, rec.groups)
 
 
-def why_missing(preset, ext: str) -> str:
-    if ext in _FAMILY_LACKS.get(preset.family, ()):
-        return f"{_FAMILY_NAME.get(preset.family, preset.family)} {_WHY[ext]}"
-    return f"{preset.name} {_WHY[ext]}"
+def why_missing(cpu: GuestCpu, ext: str) -> str:
+    if ext in _FAMILY_LACKS.get(cpu.family, ()):
+        return f"{_FAMILY_NAME.get(cpu.family, cpu.family)} {_WHY[ext]}"
+    return f"{cpu.name} {_WHY[ext]}"
 
 
-def check_record(rec: InsnRecord, preset, where) -> None:
-    """Raise IsaError if `rec` may not run on `preset` (a system instruction or a missing extension).
+def check_record(rec: InsnRecord, cpu: GuestCpu, where) -> None:
+    """Raise IsaError if `rec` may not run on `cpu` (a system instruction or a missing extension).
     `where`: the location for the message, or a callable making it (only called on an error)."""
-    if not is_system(rec) and record_extension(rec) in (None, *extensions_of(preset)):
+    if not is_system(rec) and record_extension(rec) in (None, *cpu.extensions):
         return
     where = where() if callable(where) else where
     text = f"{rec.mnemonic} {rec.op_str}".strip()
     if is_system(rec):
         raise IsaError(f"{where}: {text} is a privileged or system instruction; a user-mode kernel cannot "
-                       f"execute it on {preset.name} (it faults at CPL 3), so it has no timing")
+                       f"execute it on {cpu.name} (it faults at CPL 3), so it has no timing")
     ext = record_extension(rec)
-    if ext is not None and ext not in extensions_of(preset):
-        raise IsaError(f"{where}: {rec.mnemonic} is not available on {preset.name} ({why_missing(preset, ext)})")
+    if ext is not None and ext not in cpu.extensions:
+        raise IsaError(f"{where}: {rec.mnemonic} is not available on {cpu.name} ({why_missing(cpu, ext)})")
