@@ -40,6 +40,7 @@ MEASURED = [
 
 
 @pytest.mark.parametrize("cpu,lock_add,xchg,dump", MEASURED)
+@pytest.mark.table_check
 def test_a_locked_rmw_costs_the_measured_lock(tmp_path, cpu, lock_add, xchg, dump):
     plain = per_insn(tmp_path, cpu, "add [ebx+{o}], eax")
     locked = per_insn(tmp_path, cpu, "lock add [ebx+{o}], eax")
@@ -49,6 +50,7 @@ def test_a_locked_rmw_costs_the_measured_lock(tmp_path, cpu, lock_add, xchg, dum
 
 
 @pytest.mark.parametrize("cpu,lock_add,xchg,dump", MEASURED)
+@pytest.mark.table_check
 def test_xchg_with_memory_costs_the_locked_figure(tmp_path, cpu, lock_add, xchg, dump):
     # XCHG with memory is locked with or without the prefix (Intel SDM vol. 2, XCHG)
     implicit = per_insn(tmp_path, cpu, "xchg [ebx+{o}], eax")
@@ -77,6 +79,7 @@ def test_the_p6_locks_its_cache_the_p5_and_k6_their_bus(tmp_path):
     assert k6[1] > k6[0]
 
 
+@pytest.mark.table_check
 def test_a_dependent_lock_add_chain_runs_at_the_measured_latency(tmp_path):
     # InstLatX64 Deschutes LOCK ADD [m32],r32 L 21.0: a chain through one address waits for the lock
     assert per_insn(tmp_path, "pentium2-233", "lock add [ebx], eax", independent=False) == pytest.approx(21, abs=1)
@@ -106,6 +109,7 @@ def test_sbb_times_as_adc(tmp_path, cpu):
     assert chain["sbb"] > chain["add"]
 
 
+@pytest.mark.table_check
 def test_p6_bound_takes_agners_line_for_both_sizes():
     table = load_table("p6")
     r32, r16 = table.rows[("bound", "r32,m64")], table.rows[("bound", "r16,m32")]

@@ -294,6 +294,7 @@ r:
 
 @pytest.mark.parametrize("op", sorted(REP_COSTS))
 @pytest.mark.parametrize("cpu", ["pentium-133", "pentium-mmx-233"])
+@pytest.mark.table_check
 def test_rep_string_cost_is_start_up_plus_n_elements(tmp_path, op, cpu):
     # the same kernel with ECX = 0, 1, 2, 10, 100: everything but the REP instruction is the same, so the
     # differences are the source's figures (the trace holds one execution per element)

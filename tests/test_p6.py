@@ -24,6 +24,7 @@ def per_iteration(entry, *, n=N, cpu="pentium2-233", buf_words=64, extra=()):
     return r.last["cycles"] / n, r
 
 
+@pytest.mark.table_check
 def test_dependency_chain_runs_at_imul_latency():
     # IMUL r32,r32 latency 4 (sim/cpus/tables/p6.toml: Agner Fog sec. 29; InstLatX64 PII)
     cycles, r = per_iteration("imul_chain", buf_words=0)
@@ -58,6 +59,7 @@ def test_run_of_two_uop_instructions_decodes_one_per_cycle():
     ("fmul_stream", 8, 2.0, "InstLat-PII FMUL T 2.00; GCC fmul issue latency 2"),
     ("div_stream", 4, 37, "AF29 DIV r32 throughput 1/37; GCC ppro_idiv issue latency 37"),
 ])
+@pytest.mark.table_check
 def test_measured_throughput_is_honoured(entry, per_iteration, expected, source):
     # independent instances run at the row's reciprocal throughput even where the ports would
     # allow more (kernels/micro/throughput.S; sim/cpus/lowering.py, "Throughput")
