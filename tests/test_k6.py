@@ -10,7 +10,7 @@ from sim.cpus import k6_core, make_model, p6_core, presets
 from sim.errors import RetrosimError
 from sim.timing.kernel import emulate, time_emulation, time_kernel
 
-from conftest import KERNELS, rdtsc_kernel
+from conftest import KERNELS, RDTSC_KERNEL
 from test_p6 import chase_setup
 
 PIPE = KERNELS / "micro" / "pipeline.S"
@@ -197,8 +197,8 @@ def test_deterministic():
     np.testing.assert_array_equal(a.run.timeline, b.run.timeline)
 
 
-def test_rdtsc_returns_simulated_cycles(tmp_path):
-    src = rdtsc_kernel(tmp_path)
+def test_rdtsc_returns_simulated_cycles(write_kernel):
+    src = write_kernel(RDTSC_KERNEL, "tsc.S")
     r = time_kernel(src, "timed", lambda m: [200], cpu="k6-233", repeat=2)
     assert r.run.rdtsc.size == 4
     measured = r.run.rdtsc[3] - r.run.rdtsc[2]  # the warm call
