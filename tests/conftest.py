@@ -48,8 +48,25 @@ timed:
 """
 
 
-def rdtsc_kernel(tmp_path):
-    """A kernel that times n dependent IMULs with RDTSC itself (for the timing models' RDTSC tests)."""
-    src = tmp_path / "tsc.S"
-    src.write_text(RDTSC_KERNEL)
-    return src
+INTEL = ".intel_syntax noprefix\n"
+
+
+@pytest.fixture
+def write_kernel(tmp_path):
+    """write_kernel(body, name="k.S", entry=None, *, text=True, tail="", folder=None) -> Path:
+    the one way a test writes a tiny kernel. The file (in `folder`, default the test's tmp_path)
+    holds `.intel_syntax noprefix`, `.text` (unless text=False), `.globl ENTRY` and `ENTRY:` when
+    an entry is named, the body and `tail`; a body that starts with `.intel_syntax` is written as
+    it is. Line numbers in messages count from that header."""
+
+    def write(body: str, name: str = "k.S", entry: str | None = None, *, text: bool = True, tail: str = "",
+              folder: Path | None = None) -> Path:
+        path = (folder or tmp_path) / name
+        if body.startswith(".intel_syntax"):
+            path.write_text(body)
+            return path
+        head = INTEL + (".text\n" if text else "") + (f".globl {entry}\n{entry}:\n" if entry else "")
+        path.write_text(head + body + tail)
+        return path
+
+    return write

@@ -6,6 +6,7 @@ from sim.reports.conformance import RowResult, _judge, _operands, render, run_fa
 from sim.cpus.table import load_table
 
 
+@pytest.mark.table_check
 def test_benchmarks_reproduce_rows_the_models_implement():
     # InstLatX64 Deschutes: IMUL r32,r32 L 4 T 1; ADD r32,r32 L 1 T 0.5; PADDW mm,mm L 1
     results, presets = run_family("p6", only={"imul r32,r32", "add r32,r32", "paddw mm,mm"})
@@ -45,6 +46,7 @@ def test_report_counts_estimated_rows_apart():
     assert f"| k6 | 2 | 2 | {sum(r.ok for r in results if not r.row.estimated)} / {2 - est} " in text
 
 
+@pytest.mark.table_check
 def test_k6_divide_benchmarks_reproduce_the_rows():
     # the chain divides its own result and copies reload the dividend with MOVs, which read nothing
     # (IL-all: DIV r32 20 / 20, DIV r16 13 / 13, as the rows say)
@@ -54,6 +56,7 @@ def test_k6_divide_benchmarks_reproduce_the_rows():
     assert by_key["div r16"].measured["k6-233"] == pytest.approx((13, 13), abs=0.05)
 
 
+@pytest.mark.table_check
 def test_a_decode_bound_chain_is_judged_against_the_measured_chain():
     # ADD r16,imm16: execution latency 1, but the chain runs at the 2-clock decode rate of 0x66 + imm16
     # (IL-all L 2.0 T 2.00): the row's measured_latency is what the chain is compared with

@@ -136,6 +136,7 @@ def _encode_chunk(start: int, size: int) -> tuple[int, int, int, int]:
     return int(h[0]), int(h[-1]), int(steps.min()), int(np.count_nonzero(steps))
 
 
+@pytest.mark.slow  # all 2^32 inputs: deselected by README's test command, run by .ci/run
 def test_exhaustive_order_preservation():
     """Over all 2^32 inputs (with EDX and ECX cleared), the encoding never decreases, and it has
     exactly 21*2048 + 2047 distinct values: exponents 11..31 keep all 11 mantissa bits, exponent

@@ -29,6 +29,7 @@ def _compare_chunk(start: int, size: int) -> int:
     return int(z[bad[0]]) if bad.size else -1
 
 
+@pytest.mark.slow  # all 2^32 inputs: deselected by README's test command, run by .ci/run
 def test_model_equals_fp16z_encode_on_all_inputs():
     """All 2^32 depths: the table-and-shift model (the kernel's steps, including the byte-wise
     normalisation below 2^24) gives exactly the hazard-free encoding. numpy releases the GIL, so

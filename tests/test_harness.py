@@ -12,24 +12,18 @@ from sim.errors import (
 from sim.guest.trace import Trace
 
 
-def kernel(tmp_path, body: str, name: str = "k.S"):
-    src = tmp_path / name
-    src.write_text(".intel_syntax noprefix\n.text\n" + body)
-    return src
-
-
 # -- assembler -------------------------------------------------------------------------------
-def test_assembler_error_is_file_line_message(tmp_path):
-    src = kernel(tmp_path, ".globl f\nf:\n  mov eax, 1\n  frobnicate eax\n  ret\n")
+def test_assembler_error_is_file_line_message(write_kernel):
+    src = write_kernel(".globl f\nf:\n  mov eax, 1\n  frobnicate eax\n  ret\n")
     with pytest.raises(AssemblerError) as e:
         asm.assemble(src)
     assert str(e.value).startswith(f"{src}:6: ")
     assert "frobnicate" in str(e.value)
 
 
-def test_assembler_cache_is_keyed_on_content(tmp_path, monkeypatch):
+def test_assembler_cache_is_keyed_on_content(write_kernel, tmp_path, monkeypatch):
     monkeypatch.setenv(asm.CACHE_ENV, str(tmp_path / "cache"))
-    src = kernel(tmp_path, ".globl f\nf:\n  mov eax, 1\n  ret\n")
+    src = write_kernel(".globl f\nf:\n  mov eax, 1\n  ret\n")
     first = asm.assemble(src)
     assert asm.assemble(src) == first  # cached
     src.write_text(src.read_text().replace("mov eax, 1", "mov eax, 2"))
@@ -38,10 +32,10 @@ def test_assembler_cache_is_keyed_on_content(tmp_path, monkeypatch):
     assert Machine(elf.load_object(second)).call("f").eax == 2
 
 
-def test_included_file_changes_the_cache_key(tmp_path, monkeypatch):
+def test_included_file_changes_the_cache_key(write_kernel, tmp_path, monkeypatch):
     monkeypatch.setenv(asm.CACHE_ENV, str(tmp_path / "cache"))
     (tmp_path / "value.inc").write_text(".set VALUE, 5\n")
-    src = kernel(tmp_path, '.include "value.inc"\n.globl f\nf:\n  mov eax, VALUE\n  ret\n')
+    src = write_kernel('.include "value.inc"\n.globl f\nf:\n  mov eax, VALUE\n  ret\n')
     a = asm.assemble(src)
     (tmp_path / "value.inc").write_text(".set VALUE, 6\n")
     b = asm.assemble(src)
@@ -63,8 +57,8 @@ def test_missing_gnu_as_says_how_to_get_it(monkeypatch):
 
 
 # -- loader ----------------------------------------------------------------------------------
-def test_relocations_are_applied(tmp_path):
-    src = kernel(tmp_path, """
+def test_relocations_are_applied(write_kernel):
+    src = write_kernel("""
 .globl f
 f:
     mov eax, [table+4]          # R_386_32 with an addend
@@ -91,14 +85,14 @@ scratch: .space 64
     assert img.symbol("helper") > img.symbol("f")
 
 
-def test_unknown_relocation_type_is_an_error(tmp_path):
-    src = kernel(tmp_path, ".globl f\nf:\n  mov eax, OFFSET sym@GOTOFF\n  ret\nsym: .long 0\n")
+def test_unknown_relocation_type_is_an_error(write_kernel):
+    src = write_kernel(".globl f\nf:\n  mov eax, OFFSET sym@GOTOFF\n  ret\nsym: .long 0\n")
     with pytest.raises(LoadError, match="unsupported relocation type 9"):
         Machine.from_source(src)
 
 
-def test_undefined_symbol_is_an_error(tmp_path):
-    src = kernel(tmp_path, ".globl f\nf:\n  call elsewhere\n  ret\n")
+def test_undefined_symbol_is_an_error(write_kernel):
+    src = write_kernel(".globl f\nf:\n  call elsewhere\n  ret\n")
     with pytest.raises(LoadError, match="undefined symbol 'elsewhere'"):
         Machine.from_source(src)
 
@@ -130,8 +124,8 @@ def test_bad_argument_values(machine, bad):
         m.call("fp16z_convert", bad)
 
 
-def test_unmapped_read_names_pc_instruction_and_address(tmp_path):
-    src = kernel(tmp_path, ".globl f\nf:\n  mov eax, 0x20000000\n  mov eax, [eax+8]\n  ret\n")
+def test_unmapped_read_names_pc_instruction_and_address(write_kernel):
+    src = write_kernel(".globl f\nf:\n  mov eax, 0x20000000\n  mov eax, [eax+8]\n  ret\n")
     m = Machine.from_source(src)
     with pytest.raises(GuestFault) as e:
         m.call("f")
@@ -141,15 +135,15 @@ def test_unmapped_read_names_pc_instruction_and_address(tmp_path):
     assert "f+0x5" in msg and "mov eax, dword ptr [eax + 8]" in msg and "0x20000008" in msg
 
 
-def test_write_to_code_is_a_fault(tmp_path):
-    src = kernel(tmp_path, ".globl f\nf:\n  mov dword ptr [f], 0\n  ret\n")
+def test_write_to_code_is_a_fault(write_kernel):
+    src = write_kernel(".globl f\nf:\n  mov dword ptr [f], 0\n  ret\n")
     m = Machine.from_source(src)
     with pytest.raises(GuestFault, match="write of unmapped or protected address 0x00400000"):
         m.call("f")
 
 
-def test_invalid_opcode_and_divide_error(tmp_path):
-    src = kernel(tmp_path, ".globl f, g\nf:\n  ud2\n  ret\ng:\n  xor ecx, ecx\n  div ecx\n  ret\n")
+def test_invalid_opcode_and_divide_error(write_kernel):
+    src = write_kernel(".globl f, g\nf:\n  ud2\n  ret\ng:\n  xor ecx, ecx\n  div ecx\n  ret\n")
     m = Machine.from_source(src)
     with pytest.raises(GuestFault, match=r"f\+0x0\): ud2"):
         m.call("f")
@@ -158,14 +152,14 @@ def test_invalid_opcode_and_divide_error(tmp_path):
 
 
 @pytest.mark.parametrize("traced", [False, True])
-def test_runaway_kernel_stops_at_budget(tmp_path, traced):
-    src = kernel(tmp_path, ".globl f\nf:\n  xor eax, eax\n1:\n  inc eax\n  jmp 1b\n")
+def test_runaway_kernel_stops_at_budget(write_kernel, traced):
+    src = write_kernel(".globl f\nf:\n  xor eax, eax\n1:\n  inc eax\n  jmp 1b\n")
     m = Machine.from_source(src)
     with pytest.raises(RunawayKernel, match="budget of 10,000 instructions") as e:
         m.call("f", budget=10_000, trace=traced)
     assert m.symbol("f") <= e.value.pc < m.symbol("f") + 8
     assert m.call is not None  # the machine is still usable afterwards:
-    src2 = kernel(tmp_path, ".globl g\ng:\n  mov eax, 3\n  ret\n", "ok.S")
+    src2 = write_kernel(".globl g\ng:\n  mov eax, 3\n  ret\n", "ok.S")
     assert Machine.from_source(src2).call("g", trace=traced).eax == 3
 
 
@@ -180,9 +174,9 @@ def test_budget_exactly_enough_passes(machine):
         m.call("fp16z_convert", 12345, budget=n - 1)
 
 
-def test_fpu_starts_in_fninit_state(tmp_path):
+def test_fpu_starts_in_fninit_state(write_kernel):
     """Unicorn's own start state is control word 0 (24-bit precision, exceptions unmasked)."""
-    src = kernel(tmp_path, """
+    src = write_kernel("""
 .globl cw, cw_after_fninit
 cw:
     sub esp, 4
@@ -201,9 +195,9 @@ cw_after_fninit:
     assert (m.reg("fpsw"), m.reg("fptag")) == state  # status and tag words as FNINIT leaves them
 
 
-def test_precision_control_changes_x87_results(tmp_path):
+def test_precision_control_changes_x87_results(write_kernel):
     """1/3 at 24-bit precision (the state Unicorn would silently start in) differs from 64-bit."""
-    src = kernel(tmp_path, """
+    src = write_kernel("""
 .globl third
 # @entry third(cw) -> EAX = float32 bits of 1/3 computed at that control word
 third:
@@ -287,8 +281,8 @@ def test_trace_save_load_roundtrip_and_invariants(tmp_path, machine):
         broken.validate()
 
 
-def test_rdtsc_answers_from_a_timing_source(tmp_path):
-    src = kernel(tmp_path, """
+def test_rdtsc_answers_from_a_timing_source(write_kernel):
+    src = write_kernel("""
 .globl f
 f:
     rdtsc

@@ -30,12 +30,6 @@ AS_LIMIT = 3 << 30  # the CLI needs ~1.5 GB of address space (numba, Unicorn); t
 OK = ".intel_syntax noprefix\n.globl f\n# @entry f() -> 7\nf:\n    mov eax, 7\n    ret\n"
 
 
-def kernel(folder: Path, name: str, body: str) -> Path:
-    path = folder / name
-    path.write_text(body if body.startswith(".intel") else f".intel_syntax noprefix\n.globl f\nf:\n{body}\n")
-    return path
-
-
 @pytest.fixture(autouse=True)
 def own_cache(tmp_path, monkeypatch):
     """A private assembler cache per test (the damage tests must not touch the shared one)."""
@@ -81,8 +75,8 @@ def one_error(proc: subprocess.CompletedProcess) -> str:
 
 
 # -- 0. output paths that destroy files ---------------------------------------------------------
-def test_trace_refuses_to_replace_a_device_a_fifo_or_a_folder(tmp_path):
-    src = kernel(tmp_path, "k.S", OK)
+def test_trace_refuses_to_replace_a_device_a_fifo_or_a_folder(write_kernel, tmp_path):
+    src = write_kernel(OK, "k.S")
     # never /dev/null itself: a regression run as root would replace the system's device
     device = tmp_path / "null"
     try:
@@ -100,10 +94,10 @@ def test_trace_refuses_to_replace_a_device_a_fifo_or_a_folder(tmp_path):
     assert not list(tmp_path.glob(".*tmp*")) and not list(tmp_path.glob(".pipe*"))
 
 
-def test_impossible_out_paths_fail_before_the_work(tmp_path):
+def test_impossible_out_paths_fail_before_the_work(write_kernel):
     # a runaway kernel: if --out were checked after the run, the message would be about the budget
-    src = kernel(tmp_path, "loop.S", "1:  jmp 1b")
-    a_file = kernel(tmp_path, "k.S", OK)
+    src = write_kernel("1:  jmp 1b", "loop.S", entry="f", text=False, tail="\n")
+    a_file = write_kernel(OK, "k.S")
     for out in (a_file / "t.npz", "/proc/retrosim-none/t.npz", "/proc/self/t.npz"):
         line = fails("trace", src, "--budget", "100000", "--out", out)
         assert f"--out {out}" in line and "budget" not in line
@@ -113,8 +107,8 @@ def test_impossible_out_paths_fail_before_the_work(tmp_path):
     assert "/proc/self/reports" in line
 
 
-def test_outputs_follow_the_umask(tmp_path):
-    src = kernel(tmp_path, "k.S", OK)
+def test_outputs_follow_the_umask(write_kernel, tmp_path):
+    src = write_kernel(OK, "k.S")
     old = os.umask(0o022)
     try:
         succeeds("trace", src, "--out", tmp_path / "t.npz")
@@ -126,8 +120,8 @@ def test_outputs_follow_the_umask(tmp_path):
 
 
 # -- 1. a cache that verifies what it serves ----------------------------------------------------
-def test_a_damaged_cached_object_is_rebuilt_not_served(tmp_path):
-    src = kernel(tmp_path, "k.S", OK)
+def test_a_damaged_cached_object_is_rebuilt_not_served(write_kernel):
+    src = write_kernel(OK, "k.S")
     obj = asm.assemble(src)
     data = bytearray(obj.read_bytes())
     at = data.find(bytes([0xB8, 7, 0, 0, 0]))  # mov eax, 7
@@ -139,24 +133,24 @@ def test_a_damaged_cached_object_is_rebuilt_not_served(tmp_path):
     assert obj.with_name(obj.name + asm.DIGEST_SUFFIX).is_file()
 
 
-def test_an_unwritable_cache_folder_is_one_line(tmp_path):
-    src = kernel(tmp_path, "k.S", OK)
+def test_an_unwritable_cache_folder_is_one_line(write_kernel):
+    src = write_kernel(OK, "k.S")
     line = fails("run-kernel", src, env={"RETROSIM_CACHE": "/proc/retrosim-none"})
     assert "RETROSIM_CACHE" in line and "/proc/retrosim-none" in line
 
 
-def test_objects_of_kernels_rejected_for_size_leave_the_cache(tmp_path):
-    src = kernel(tmp_path, "big.S", "    ret\n.data\n.space 13 << 20")
+def test_objects_of_kernels_rejected_for_size_leave_the_cache(write_kernel, tmp_path):
+    src = write_kernel("    ret\n.data\n.space 13 << 20", "big.S", entry="f", text=False, tail="\n")
     line = fails("run-kernel", src)
     assert line.startswith(f"retrosim: error: {src}: code and data need")
     assert not list((tmp_path / "cache" / "asm").glob("*.o"))
 
 
 # -- 3. messages are printed literally ----------------------------------------------------------
-def test_square_brackets_survive_and_never_crash(tmp_path):
+def test_square_brackets_survive_and_never_crash(write_kernel, tmp_path):
     folder = tmp_path / "br [bold]"
     folder.mkdir()
-    src = kernel(folder, "k.S", "    mov eax, dword ptr [ebx]\n    ret")
+    src = write_kernel("    mov eax, dword ptr [ebx]\n    ret", "k.S", entry="f", text=False, tail="\n", folder=folder)
     line = fails("run-kernel", src)
     assert "dword ptr [ebx]" in line
     assert "[/]" in fails("run-kernel", src, "--entry", "[/]")
@@ -165,12 +159,12 @@ def test_square_brackets_survive_and_never_crash(tmp_path):
 
 
 # -- 4. bounded memory and no hangs -------------------------------------------------------------
-def test_include_of_dev_zero_and_of_a_fifo(tmp_path):
-    zero = kernel(tmp_path, "zero.S", '.intel_syntax noprefix\n.include "/dev/zero"\n')
+def test_include_of_dev_zero_and_of_a_fifo(write_kernel, tmp_path):
+    zero = write_kernel('.intel_syntax noprefix\n.include "/dev/zero"\n', "zero.S")
     line = one_error(cli("run-kernel", zero, timeout=60))
     assert f"{zero}:2:" in line and "/dev/zero" in line and "not a regular file" in line
     os.mkfifo(tmp_path / "pipe.inc")
-    fifo = kernel(tmp_path, "fifo.S", '.intel_syntax noprefix\n.include "pipe.inc"\n')
+    fifo = write_kernel('.intel_syntax noprefix\n.include "pipe.inc"\n', "fifo.S")
     assert "pipe.inc" in one_error(cli("run-kernel", fifo, timeout=30))  # never waits for a writer
 
 
@@ -182,14 +176,14 @@ def test_kernel_listing_skips_nothing_forever(tmp_path):
     assert "z.S" in line and "not a regular file" in line
 
 
-def test_argument_buffers_are_checked_before_allocating(tmp_path):
-    src = kernel(tmp_path, "k.S", OK)
+def test_argument_buffers_are_checked_before_allocating(write_kernel):
+    src = write_kernel(OK, "k.S")
     line = one_error(cli("run-kernel", src, "--args", "buf:u32:1000000000"))
     assert "does not fit in the workload arena" in line
 
 
-def test_trace_memory_is_bounded_with_the_limit_named(tmp_path):
-    src = kernel(tmp_path, "loop.S", "1:  mov eax, [esp]\n    jmp 1b")
+def test_trace_memory_is_bounded_with_the_limit_named(write_kernel, tmp_path):
+    src = write_kernel("1:  mov eax, [esp]\n    jmp 1b", "loop.S", entry="f", text=False, tail="\n")
     proc = cli("trace", src, "--budget", "0", "--out", tmp_path / "t.npz", env={"RETROSIM_TRACE_MB": "32"})
     line = one_error(proc)
     assert "RETROSIM_TRACE_MB=32" in line
@@ -212,8 +206,8 @@ def test_a_scene_too_big_for_host_memory_is_refused_by_validation(tmp_path):
     ("buf:u32:-5", "COUNT"), ("buf:u8:10:-1", "FILL -1"), ("buf:u16:4:70000", "FILL 70000"),
     ("buf:u32:99999999999999999999", "arena"), ("1e40f", "out of range"), ("0x1FFFFFFFF", "32-bit"),
 ])
-def test_bad_argument_values(tmp_path, args, field):
-    src = kernel(tmp_path, "k.S", OK)
+def test_bad_argument_values(write_kernel, args, field):
+    src = write_kernel(OK, "k.S")
     line = fails("run-kernel", src, "--args", args)
     assert f"--args item 1 '{args}'" in line and field in line
 
@@ -223,8 +217,8 @@ def test_bad_argument_values(tmp_path, args, field):
     (("run-kernel", "k.S", "--budget", "-1"), "--budget -1: must be at least 0"),
     (("time", "k.S", "--repeat", "0"), "--repeat"),
 ])
-def test_bad_option_values(tmp_path, args, option):
-    kernel(tmp_path, "k.S", OK)
+def test_bad_option_values(write_kernel, args, option):
+    write_kernel(OK, "k.S")
     assert option in fails(*args)
 
 
@@ -314,43 +308,43 @@ def test_a_failing_scene_keeps_the_finished_ones(tmp_path):
 
 
 # -- 8. smaller ones -----------------------------------------------------------------------------
-def test_a_source_named_like_an_option(tmp_path):
-    kernel(tmp_path, "-k.S", OK)
+def test_a_source_named_like_an_option(write_kernel):
+    write_kernel(OK, "-k.S")
     assert json.loads(succeeds("run-kernel", "--json", "--", "-k.S").stdout)["eax"] == 7
 
 
-def test_an_error_in_an_included_file_names_that_file(tmp_path):
+def test_an_error_in_an_included_file_names_that_file(write_kernel, tmp_path):
     (tmp_path / "inc.inc").write_text("\n\n    bogus eax\n")
-    src = kernel(tmp_path, "k.S", '.intel_syntax noprefix\n.include "inc.inc"\n.globl f\nf:\n    ret\n')
+    src = write_kernel('.intel_syntax noprefix\n.include "inc.inc"\n.globl f\nf:\n    ret\n', "k.S")
     line = fails("run-kernel", src)
     assert "inc.inc:3:" in line and "bogus" in line
 
 
-def test_errors_name_the_source_not_the_cache_object(tmp_path):
+def test_errors_name_the_source_not_the_cache_object(write_kernel, tmp_path):
     empty = tmp_path / "empty.S"
     empty.write_text("")
     line = fails("run-kernel", empty)
     assert f"{empty}:" in line and "cache" not in line
-    undef = kernel(tmp_path, "undef.S", "    call g\n    ret")
+    undef = write_kernel("    call g\n    ret", "undef.S", entry="f", text=False, tail="\n")
     line = fails("run-kernel", undef)
     assert f"{undef}:" in line and "'g'" in line and "cache" not in line
-    huge = kernel(tmp_path, "huge.S", "    ret\n.space 1 << 30")
+    huge = write_kernel("    ret\n.space 1 << 30", "huge.S", entry="f", text=False, tail="\n")
     line = one_error(cli("run-kernel", huge, env={"RETROSIM_CACHE": str(tmp_path / "cache")}))
     assert f"{huge}:" in line and "MB" in line and "cache" not in line
     assert not list((tmp_path / "cache" / "asm").glob("*.o")) and not list((tmp_path / "cache" / "asm").glob(".tmp*"))
 
 
-def test_execute_and_software_interrupt_faults_name_the_right_thing(tmp_path):
-    nx = kernel(tmp_path, "nx.S", "    lea eax, [dat]\n    jmp eax\n.data\ndat: .byte 0x90")
+def test_execute_and_software_interrupt_faults_name_the_right_thing(write_kernel):
+    nx = write_kernel("    lea eax, [dat]\n    jmp eax\n.data\ndat: .byte 0x90", "nx.S", entry="f", text=False, tail="\n")
     line = fails("run-kernel", nx)
     assert "execution of non-executable memory" in line and "0x00401000" in line and "read" not in line
-    i80 = kernel(tmp_path, "i80.S", "    nop\n    int 0x80\n    ret")
+    i80 = write_kernel("    nop\n    int 0x80\n    ret", "i80.S", entry="f", text=False, tail="\n")
     line = fails("run-kernel", i80)
     assert "0x00400001 (f+0x1): int 0x80" in line
 
 
-def test_sigterm_during_assembly_leaves_no_temporary_file(tmp_path):
-    src = kernel(tmp_path, "slow.S", ".rept 3000000\n    add eax, 1\n.endr\n    ret")
+def test_sigterm_during_assembly_leaves_no_temporary_file(write_kernel, tmp_path):
+    src = write_kernel(".rept 3000000\n    add eax, 1\n.endr\n    ret", "slow.S", entry="f", text=False, tail="\n")
     cache = tmp_path / "cache"
     env = {**os.environ, "PYTHONPATH": str(ROOT), "NUMBA_NUM_THREADS": "1", "RETROSIM_CACHE": str(cache)}
     proc = subprocess.Popen([sys.executable, "-m", "sim.cli", "run-kernel", str(src)], env=env,
@@ -366,15 +360,15 @@ def test_sigterm_during_assembly_leaves_no_temporary_file(tmp_path):
     assert not list((cache / "asm").iterdir())
 
 
-def test_includes_are_hashed_with_a_size_limit_and_incbin_counts(tmp_path):
+def test_includes_are_hashed_with_a_size_limit_and_incbin_counts(write_kernel, tmp_path):
     sparse = tmp_path / "big.inc"
     with open(sparse, "wb") as f:
         f.truncate(1 << 30)  # 1 GB, sparse: reading it whole is what must not happen
-    src = kernel(tmp_path, "k.S", '.intel_syntax noprefix\n# a comment\n.include "big.inc"\n')
+    src = write_kernel('.intel_syntax noprefix\n# a comment\n.include "big.inc"\n', "k.S")
     line = one_error(cli("run-kernel", src))
     assert f"{src}:3:" in line and "big.inc" in line and "MB" in line
-    src = kernel(tmp_path, "bin.S", '.intel_syntax noprefix\n.globl f\nf:\n    mov eax, [d]\n    ret\n'
-                 '.data\nd: .incbin "d.bin"\n')
+    src = write_kernel('.intel_syntax noprefix\n.globl f\nf:\n    mov eax, [d]\n    ret\n'
+                 '.data\nd: .incbin "d.bin"\n', "bin.S", entry="f", text=False, tail="\n")
     (tmp_path / "d.bin").write_bytes(bytes([1, 0, 0, 0]))
     assert json.loads(succeeds("run-kernel", src, "--json").stdout)["eax"] == 1
     (tmp_path / "d.bin").write_bytes(bytes([2, 0, 0, 0]))  # the object depends on it: not served stale
@@ -384,9 +378,9 @@ def test_includes_are_hashed_with_a_size_limit_and_incbin_counts(tmp_path):
     assert "not a regular file" in one_error(cli("run-kernel", src, env={"RETROSIM_CACHE": str(tmp_path / "cache")}))
 
 
-def test_sigterm_during_a_trace_save_leaves_no_temporary_file(tmp_path):
+def test_sigterm_during_a_trace_save_leaves_no_temporary_file(write_kernel, tmp_path):
     # ~8 M instructions: saving (compressing) the trace takes a good fraction of a second
-    src = kernel(tmp_path, "loop.S", "    mov ecx, 2000000\n1:  mov eax, [esp]\n    dec ecx\n    jnz 1b\n    ret")
+    src = write_kernel("    mov ecx, 2000000\n1:  mov eax, [esp]\n    dec ecx\n    jnz 1b\n    ret", "loop.S", entry="f", text=False, tail="\n")
     out = tmp_path / "out"
     out.mkdir()
     env = {**os.environ, "PYTHONPATH": str(ROOT), "NUMBA_NUM_THREADS": "1"}
@@ -408,8 +402,8 @@ def test_a_scene_name_with_markup_is_shown_literally(tmp_path):
     assert "x[bold]y" in r.stdout and (tmp_path / "out" / "x[bold]y.md").is_file()
 
 
-def test_timing_memory_is_bounded_with_the_limit_named(tmp_path):
-    src = kernel(tmp_path, "cnt.S", "    mov ecx, 200000\n1:  dec ecx\n    jnz 1b\n    ret")
+def test_timing_memory_is_bounded_with_the_limit_named(write_kernel):
+    src = write_kernel("    mov ecx, 200000\n1:  dec ecx\n    jnz 1b\n    ret", "cnt.S", entry="f", text=False, tail="\n")
     # explain picks its timeline from the whole trace, so the model holds it all
     line = fails("explain", src, env={"RETROSIM_MODEL_MB": "10"})  # 2 x 400,002 instructions x 90 bytes > 10 MB
     assert "RETROSIM_MODEL_MB=10" in line and "800,004 instructions" in line  # 2 calls (--repeat 2)

@@ -10,25 +10,20 @@ import pytest
 from sim.guest.asm import assemble
 from sim.cpus import presets
 from sim.errors import RetrosimError
-from sim.guest.isa import EXTENSIONS, march
-from sim.timing.kernel import emulate, time_emulation, time_kernel
+from sim.guest.isa import EXTENSIONS
+from sim.timing.kernel import emulate, guest_cpu, time_emulation, time_kernel
 from conftest import KERNELS
 
 PRESETS = presets.available()
 HEAD = ".intel_syntax noprefix\n.text\n.globl k\nk:\n"
 
 
-def kernel(tmp_path, body: str, name="k.S"):
-    src = tmp_path / name
-    src.write_text(HEAD + body + "    ret\n")
-    return src
-
-
 @pytest.mark.parametrize("cpu", PRESETS)
 def test_every_preset_declares_its_instruction_set(cpu):
     p = presets.load(cpu)
     assert set(p.raw["isa_extensions"]) <= set(EXTENSIONS)
-    assert march(p, "gnu") and march(p, "zig")
+    target = guest_cpu(cpu)
+    assert target.march("gnu") and target.march("zig")
 
 
 @pytest.mark.parametrize("cpu", PRESETS)
@@ -39,17 +34,17 @@ def test_shipped_kernels_are_plain_i686_and_assemble_for_every_preset(cpu):
     for src in sorted(KERNELS.rglob("*.S")):
         needs = set(re.findall(r"^# @requires (\w+)", src.read_text(), re.M))
         if needs <= have:
-            assert assemble(src, "gnu", cpu).is_file()
+            assert assemble(src, "gnu", guest_cpu(cpu)).is_file()
         else:
             with pytest.raises(RetrosimError, match=f"not available on {cpu}"):
-                assemble(src, "gnu", cpu)
+                assemble(src, "gnu", guest_cpu(cpu))
     article = [p for folder in ("zbuffer", "convert", "texture") for p in (KERNELS / folder).glob("*.S")]
     assert article and not any("@requires" in p.read_text() for p in article)  # the article kernels stay i686
 
 
-def test_the_cache_key_includes_the_cpu(tmp_path):
-    src = kernel(tmp_path, "    nop\n")
-    assert assemble(src, "gnu", "k6-233") != assemble(src, "gnu", "pentium3-500") != assemble(src, "gnu")
+def test_the_cache_key_includes_the_cpu(write_kernel):
+    src = write_kernel("    nop\n", entry="k", tail="    ret\n")
+    assert assemble(src, "gnu", guest_cpu("k6-233")) != assemble(src, "gnu", guest_cpu("pentium3-500")) != assemble(src, "gnu")
 
 
 # (preset, instruction, what the message must say) -- the CPUID feature bits of each CPU
@@ -67,16 +62,16 @@ REFUSED = [
 
 
 @pytest.mark.parametrize("cpu,insn,message", REFUSED)
-def test_what_the_cpu_lacks_is_refused_with_its_line(tmp_path, cpu, insn, message):
-    src = kernel(tmp_path, f"    nop\n    {insn}\n")
+def test_what_the_cpu_lacks_is_refused_with_its_line(write_kernel, cpu, insn, message):
+    src = write_kernel(f"    nop\n    {insn}\n", entry="k", tail="    ret\n")
     with pytest.raises(RetrosimError) as e:
         time_kernel(src, "k", cpu=cpu, repeat=1)
     assert str(e.value) == f"{src}:6: {message}"
 
 
-def test_refusal_of_an_executed_encoding_the_assembler_cannot_see(tmp_path):
+def test_refusal_of_an_executed_encoding_the_assembler_cannot_see(write_kernel):
     # CMOVE EAX,ECX as bytes: assembles anywhere, refused when it executes on a K6
-    src = kernel(tmp_path, "    .byte 0x0f, 0x44, 0xc1\n")
+    src = write_kernel("    .byte 0x0f, 0x44, 0xc1\n", entry="k", tail="    ret\n")
     emu = emulate(src, "k", repeat=1)  # plain i686, like a scene's kernels
     time_emulation(emu, "pentium2-233")
     with pytest.raises(RetrosimError, match=r"pc 0x0040000\d \(k\+0x0\): cmove is not available on k6-233 "
@@ -86,21 +81,21 @@ def test_refusal_of_an_executed_encoding_the_assembler_cannot_see(tmp_path):
 
 @pytest.mark.parametrize("insn", ["cli", "sti", "hlt", "in al, dx", "out dx, al", "lgdt [esp]", "wbinvd",
                                   "invd", "mov cr0, eax", "sysenter"])
-def test_system_instructions_get_their_own_error(tmp_path, insn):
-    src = kernel(tmp_path, f"    {insn}\n")
+def test_system_instructions_get_their_own_error(write_kernel, insn):
+    src = write_kernel(f"    {insn}\n", entry="k", tail="    ret\n")
     with pytest.raises(RetrosimError, match=r"k\+0x0\): .* is a privileged or system instruction"):
         time_kernel(src, "k", cpu="pentium2-233", repeat=1)
 
 
 @pytest.mark.parametrize("insn", ["int 0x80", "rdpmc"])
-def test_traps_stop_the_emulation_with_a_guest_fault(tmp_path, insn):
-    src = kernel(tmp_path, f"    {insn}\n")
+def test_traps_stop_the_emulation_with_a_guest_fault(write_kernel, insn):
+    src = write_kernel(f"    {insn}\n", entry="k", tail="    ret\n")
     with pytest.raises(RetrosimError, match="guest fault at 0x004000"):
         time_kernel(src, "k", cpu="pentium2-233", repeat=1)
 
 
-def test_cli_refusal_is_one_line_exit_2(tmp_path):
-    src = kernel(tmp_path, "    cmove eax, ecx\n")
+def test_cli_refusal_is_one_line_exit_2(write_kernel):
+    src = write_kernel("    cmove eax, ecx\n", entry="k", tail="    ret\n")
     out = subprocess.run([sys.executable, "-m", "sim.cli", "time", str(src), "--cpu", "k6-2-300"],
                          capture_output=True, text=True)
     assert out.returncode == 2
@@ -108,9 +103,9 @@ def test_cli_refusal_is_one_line_exit_2(tmp_path):
         f"retrosim: error: {src}:5: cmove is not available on k6-2-300 (the K6 family has no CMOV)"]
 
 
-def test_mmx_assembles_for_a_cpu_that_has_it(tmp_path):
+def test_mmx_assembles_for_a_cpu_that_has_it(write_kernel):
     # issue 8: with -march=i686 `movd mm0, eax` took mm0 for a symbol
-    src = kernel(tmp_path, "    movd mm0, eax\n    paddd mm0, mm0\n    movd eax, mm0\n    emms\n")
+    src = write_kernel("    movd mm0, eax\n    paddd mm0, mm0\n    movd eax, mm0\n    emms\n", entry="k", tail="    ret\n")
     r = time_kernel(src, "k", cpu="pentium2-233", repeat=1)
     assert r.last["instructions"] == 5
 
@@ -143,12 +138,12 @@ def extension_kernel(exts) -> str:
 
 
 @pytest.mark.parametrize("cpu", PRESETS)
-def test_every_extension_form_times_on_the_cpu_that_has_it(tmp_path, cpu):
+def test_every_extension_form_times_on_the_cpu_that_has_it(write_kernel, cpu):
     exts = set(presets.load(cpu).raw["isa_extensions"])
     body = extension_kernel(exts)
     if not body:
         pytest.skip(f"{cpu} has no SIMD extension")
-    r = time_kernel(kernel(tmp_path, body), "k", cpu=cpu, repeat=1)
+    r = time_kernel(write_kernel(body, entry="k", tail="    ret\n"), "k", cpu=cpu, repeat=1)
     assert r.last["instructions"] == body.count("\n") + 1
 
 
@@ -171,22 +166,22 @@ def test_rep_cost_follows_ecx(tmp_path, cpu):
     assert abs((cyc[2] - cyc[1]) - (cyc[1] - cyc[0])) <= 10  # linear in ECX
 
 
-def test_div_cost_follows_the_operand_size(tmp_path):
+def test_div_cost_follows_the_operand_size(write_kernel):
     # InstLatX64 Deschutes: DIV r8 ~19, r16 23, r32 39 clocks (p6.toml div rows)
     cyc = {}
     for reg, clear in (("cl", "mov ah, 0"), ("cx", "xor edx, edx"), ("ecx", "xor edx, edx")):
         body = "    mov ecx, 3\n    xor edx, edx\n    mov eax, 100\n" + f"    div {reg}\n    {clear}\n" * 20
-        cyc[reg] = time_kernel(kernel(tmp_path, body, f"div_{reg}.S"), "k", cpu="pentium2-233", repeat=2).last["cycles"]
+        cyc[reg] = time_kernel(write_kernel(body, f"div_{reg}.S", entry="k", tail="    ret\n"), "k", cpu="pentium2-233", repeat=2).last["cycles"]
     assert cyc["cl"] < cyc["cx"] < cyc["ecx"]
     assert (cyc["ecx"] - cyc["cx"]) / 20 == pytest.approx(39 - 23, abs=2)
 
 
-def test_refusal_names_the_line_with_the_zig_assembler_too(tmp_path):
+def test_refusal_names_the_line_with_the_zig_assembler_too(write_kernel):
     # clang assembles CMOV for -mcpu=k6_2 without complaint; the refusal still names the line
     from sim.guest.asm import available_assemblers
 
     if "zig" not in available_assemblers():
         pytest.skip("zig assembler not installed")
-    src = kernel(tmp_path, "    cmove eax, ecx\n")
+    src = write_kernel("    cmove eax, ecx\n", entry="k", tail="    ret\n")
     with pytest.raises(RetrosimError, match=r"k\.S:5: cmove is not available on k6-2-300"):
         time_kernel(src, "k", cpu="k6-2-300", repeat=1, assembler="zig")

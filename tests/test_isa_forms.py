@@ -19,6 +19,7 @@ from elftools.elf.elffile import ELFFile
 
 from isa_forms import forms
 from sim.guest import isa
+from sim.guest.cpu import GuestCpu
 from sim.cpus import presets
 from sim.cpus.table import load_table
 from sim.guest.decode import iter_decode
@@ -76,7 +77,7 @@ def classify(records, preset, table) -> str:
             kinds.add("system")
             continue
         try:
-            isa.check_record(rec, preset, "form")
+            isa.check_record(rec, GuestCpu.from_preset(preset), "form")
         except isa.IsaError:
             kinds.add("refused")
             continue
@@ -95,7 +96,7 @@ def assembled(tmp_path_factory):
     def get(cpu):
         """The forms GNU as accepts for the preset `cpu` (None: with no -march, every extension)."""
         if cpu not in cache:
-            march = isa.march(presets.load(cpu), "gnu") if cpu else None
+            march = GuestCpu.from_preset(presets.load(cpu)).march("gnu") if cpu else None
             cache[cpu] = assemble_each(forms(), march, tmp_path_factory.mktemp(cpu or "all"))
         return cache[cpu]
 

@@ -10,7 +10,7 @@ from sim.cpus import contract, k6_core, make_model, presets
 from sim.errors import RetrosimError
 from sim.timing.kernel import emulate, time_emulation, time_kernel
 
-from conftest import KERNELS, rdtsc_kernel
+from conftest import KERNELS, RDTSC_KERNEL
 from test_p6 import chase_setup
 
 PIPE = KERNELS / "micro" / "pipeline.S"
@@ -59,6 +59,7 @@ def test_operand_size_prefix_decode_rate():
     assert r.last["lcp_stalls"] >= 12 * N
 
 
+@pytest.mark.table_check
 def test_imul_chain_runs_at_k6_latency():
     # IMUL r32,r32 latency 3 (k6.toml: InstLatX64 L 3.0 on all three K6 generations)
     cycles, r = per_iteration(PIPE, "imul_chain")
@@ -67,6 +68,7 @@ def test_imul_chain_runs_at_k6_latency():
 
 
 @pytest.mark.parametrize("entry", ["bsr_chain", "bsr_streams"])
+@pytest.mark.table_check
 def test_bsr_costs_ten_cycles_on_every_k6(entry):
     # BSR r32,r32: vector decoded, L 10.0 T 10.00 (InstLatX64 K6, K6-2, K6-III); the article:
     # "exorbitant ... including the K6-family". Dependent or not, each costs ~10 clocks.
@@ -82,6 +84,7 @@ def test_bsr_costs_ten_cycles_on_every_k6(entry):
     assert 8 * per_bsr <= p6 <= 8 * per_bsr + (0.5 if entry == "bsr_chain" else 1.5)
 
 
+@pytest.mark.table_check
 def test_shrd_chain_runs_at_two_cycles():
     # SHRD r32,r32,imm8: vector, L 2.0 T 2.00 (InstLatX64, all K6s)
     cycles, _ = per_iteration(K6, "shrd_chain")
@@ -134,6 +137,7 @@ def test_write_allocate_mode_decides_the_cost_of_a_store():
     assert fast <= 1.2 and c["bus_writes"] == 0 and c["l1d_store_misses"] == 0
 
 
+@pytest.mark.table_check
 def test_measured_throughput_of_a_short_or_long_row_is_honoured():
     # XCHG r32,r32: long-decoded, 3 ops on X|Y, which alone would allow 1.5 clocks; measured T 2.00 on
     # every K6 (IL-all XCHG r1_32,r2_32); the Pentium II's 1.50 (InstLat-PII) for contrast
@@ -193,8 +197,8 @@ def test_deterministic():
     np.testing.assert_array_equal(a.run.timeline, b.run.timeline)
 
 
-def test_rdtsc_returns_simulated_cycles(tmp_path):
-    src = rdtsc_kernel(tmp_path)
+def test_rdtsc_returns_simulated_cycles(write_kernel):
+    src = write_kernel(RDTSC_KERNEL, "tsc.S")
     r = time_kernel(src, "timed", lambda m: [200], cpu="k6-233", repeat=2)
     assert r.run.rdtsc.size == 4
     measured = r.run.rdtsc[3] - r.run.rdtsc[2]  # the warm call

@@ -11,7 +11,8 @@ from sim.memory import (
     OpenRowModel, bus_ratio, line_costs, line_costs_for_cpu, line_span, lines_touched, load_memory_preset,
     memory_fills, memory_writebacks, row_access, served_level, service, victim_address,
 )
-from sim.memory.hierarchy import family_policies, load_cpu_preset
+from sim.cpus import presets
+from sim.memory.hierarchy import family_policies
 
 KB = 1024
 
@@ -230,10 +231,10 @@ def test_k6_presets_on_the_zbuffer_trace(fp16z_traces):
     and goes to the board cache; on the k6-2-300 (full write allocate) only the first per line."""
     trace = fp16z_traces[0]
     n_fb_writes = 20000
-    k6 = Hierarchy.from_preset("k6-233").run(trace)
+    k6 = Hierarchy.from_preset(presets.load("k6-233")).run(trace)
     assert k6.levels[0].store_misses >= n_fb_writes and k6.levels[0].forwarded == k6.levels[0].store_misses
     assert k6.levels[1].stores == k6.levels[0].forwarded
-    k62 = Hierarchy.from_preset("k6-2-300").run(trace)
+    k62 = Hierarchy.from_preset(presets.load("k6-2-300")).run(trace)
     assert k62.levels[0].forwarded == 0
     assert n_fb_writes * 2 // 32 <= k62.levels[0].store_misses < n_fb_writes * 2 // 32 + 10
 
@@ -315,20 +316,22 @@ def test_geometry_validation_messages():
 
 
 def test_hierarchy_from_cpu_presets():
-    h = Hierarchy.from_preset("pentium2-233")
+    h = Hierarchy.from_preset(presets.load("pentium2-233"))
     assert [(g.name, g.size_bytes, g.ways, g.sets) for g in h.geometries] == [
         ("L1D", 16 * KB, 4, 128), ("L2", 512 * KB, 4, 4096)]
     assert all(g.write_back and g.write_allocate and g.replacement == "lru" for g in h.geometries)
-    assert [g.name for g in Hierarchy.from_preset("celeron-266").geometries] == ["L1D"]  # no L2
+    assert [g.name for g in Hierarchy.from_preset(presets.load("celeron-266")).geometries] == ["L1D"]  # no L2
     k6 = {"name": "k6-test", "cpu_model": "k6", "l1d": {"size_kb": 32, "ways": 2, "line_bytes": 32},
           "l2": {"size_kb": 512, "ways": 2, "write_back": False, "write_allocate": False}}
     l1, l2 = Hierarchy.from_preset(k6).geometries
     assert (l1.replacement, l1.write_allocate) == ("fifo", True)  # LRA; WHCR-enabled write allocate
-    assert Hierarchy.from_preset("k6-233").geometries[0].write_allocate == "page+sector"  # as measured
-    assert [g.name for g in Hierarchy.from_preset("k6-3-450").geometries] == ["L1D", "L2", "L3"]
+    assert Hierarchy.from_preset(presets.load("k6-233")).geometries[0].write_allocate == "page+sector"  # as measured
+    assert [g.name for g in Hierarchy.from_preset(presets.load("k6-3-450")).geometries] == ["L1D", "L2", "L3"]
     assert (l2.write_back, l2.write_allocate) == (False, False)    # preset overrides the defaults
-    with pytest.raises(ValueError, match=r"unknown CPU preset 'pentium5'.*celeron-300a"):
-        Hierarchy.from_preset("pentium5")
+    with pytest.raises(presets.UnknownPreset, match=r"unknown CPU preset 'pentium5'.*celeron-300a"):
+        presets.load("pentium5")
+    with pytest.raises(TypeError, match="not its name"):  # memory never reads CPU presets itself
+        Hierarchy.from_preset("pentium2-233")
     with pytest.raises(ValueError, match="cpu_model 'z80'"):
         Hierarchy.from_preset({"name": "x", "cpu_model": "z80", "l1d": {"size_kb": 8, "ways": 2}})
 
@@ -357,11 +360,11 @@ def test_line_fill_costs_in_core_clocks():
     expect = {"pentium2-233": {"edo": 39, "sdram-pc66": 28, "sdram-pc100": 25},
               "celeron-300a": {"edo": 50, "sdram-pc66": 36, "sdram-pc100": 32}}
     for cpu, per_memory in expect.items():
-        preset = load_cpu_preset(cpu)
+        preset = presets.load(cpu).raw
         for memory, clocks in per_memory.items():
             costs = line_costs_for_cpu(preset, memory)
             assert (costs.fill, costs.writeback) == (clocks, clocks), (cpu, memory)
-    assert line_costs_for_cpu(load_cpu_preset("pentium2-233")).memory == "edo"  # the article's PC
+    assert line_costs_for_cpu(presets.load("pentium2-233").raw).memory == "edo"  # the article's PC
     assert load_memory_preset("edo").burst == (5, 2, 2, 2)
     assert bus_ratio(233.33, 66.67) == bus_ratio(233.0, 66.6) == pytest.approx(3.5)
 
@@ -489,7 +492,7 @@ def test_table_rows_for_reports():
 
 def test_cache_throughput_benchmark():
     from sim.memory.bench import cache_throughput
-    rate = cache_throughput(n=1_000_000, repeat=1)
+    rate = cache_throughput(presets.load("pentium2-233"), n=1_000_000, repeat=1)
     print(f"cache hierarchy: {rate / 1e6:.1f} M accesses/s")
     assert rate > 0
 

@@ -7,7 +7,7 @@ import pytest
 from sim.cpus import make_model, presets
 from sim.timing.kernel import time_kernel
 
-from conftest import KERNELS, rdtsc_kernel
+from conftest import KERNELS, RDTSC_KERNEL
 
 PIPE = KERNELS / "micro" / "pipeline.S"
 N = 400
@@ -24,6 +24,7 @@ def per_iteration(entry, *, n=N, cpu="pentium2-233", buf_words=64, extra=()):
     return r.last["cycles"] / n, r
 
 
+@pytest.mark.table_check
 def test_dependency_chain_runs_at_imul_latency():
     # IMUL r32,r32 latency 4 (sim/cpus/tables/p6.toml: Agner Fog sec. 29; InstLatX64 PII)
     cycles, r = per_iteration("imul_chain", buf_words=0)
@@ -58,6 +59,7 @@ def test_run_of_two_uop_instructions_decodes_one_per_cycle():
     ("fmul_stream", 8, 2.0, "InstLat-PII FMUL T 2.00; GCC fmul issue latency 2"),
     ("div_stream", 4, 37, "AF29 DIV r32 throughput 1/37; GCC ppro_idiv issue latency 37"),
 ])
+@pytest.mark.table_check
 def test_measured_throughput_is_honoured(entry, per_iteration, expected, source):
     # independent instances run at the row's reciprocal throughput even where the ports would
     # allow more (kernels/micro/throughput.S; sim/cpus/lowering.py, "Throughput")
@@ -194,8 +196,8 @@ def test_too_many_register_operands_is_an_error_naming_the_instruction(monkeypat
         lowering.lower([rec], load_table("p6"))
 
 
-def test_rdtsc_returns_simulated_cycles(tmp_path):
-    src = rdtsc_kernel(tmp_path)
+def test_rdtsc_returns_simulated_cycles(write_kernel):
+    src = write_kernel(RDTSC_KERNEL, "tsc.S")
     r = time_kernel(src, "timed", lambda m: [200], cpu="pentium2-233", repeat=1)
     measured = r.run.rdtsc[1] - r.run.rdtsc[0]
     # 200 IMULs at latency 4, plus the loop-exit mispredict, the RDTSC microcode and, from a cold
@@ -208,42 +210,40 @@ def test_rdtsc_returns_simulated_cycles(tmp_path):
     assert Machine.from_source(src, rdtsc=lambda ev: next(answers)).call("timed", 200).eax == measured
 
 
-def _loop_kernel(tmp_path, body: str, setup: str = ""):
+def _loop_kernel(write_kernel, body: str, setup: str = ""):
     """A kernel `k(n)` running `body` n times (with DEC/JNZ)."""
-    src = tmp_path / "k.S"
-    src.write_text(".intel_syntax noprefix\n.text\n.globl k\n.p2align 4\nk:\n    push ebx\n    push esi\n    push edi\n"
-                   f"    mov ecx, [esp+16]\n{setup}\n    jmp 1f\n.p2align 4\n1:\n{body}\n    dec ecx\n    jnz 1b\n"
-                   "    pop edi\n    pop esi\n    pop ebx\n    ret\n")
-    return src
+    return write_kernel(".globl k\n.p2align 4\nk:\n    push ebx\n    push esi\n    push edi\n"
+                        f"    mov ecx, [esp+16]\n{setup}\n    jmp 1f\n.p2align 4\n1:\n{body}\n    dec ecx\n    jnz 1b\n"
+                        "    pop edi\n    pop esi\n    pop ebx\n    ret\n")
 
 
 def _cycles_per_iteration(src, n=200, cpu="pentium2-233"):
     return time_kernel(src, "k", lambda m: [n], cpu=cpu, repeat=2).last["cycles"] / n
 
 
-def test_six_byte_instructions_decode_two_per_cycle(tmp_path):
+def test_six_byte_instructions_decode_two_per_cycle(write_kernel):
     # 16-byte IFETCH blocks start at an instruction boundary (Agner Fog, PPro/PII/PIII instruction
     # fetch): two 6-byte ADD r32,imm32 per block, one block per cycle. InstLat-PII ADD r32,imm32
     # T 0.50. With blocks aligned to 16 bytes a 6-byte instruction straddles every third boundary.
     body = "\n".join(f"    add {r}, 0x12345" for r in ("eax", "ebx", "edx", "esi", "edi", "eax") * 4)
-    per_add = _cycles_per_iteration(_loop_kernel(tmp_path, body)) / 24
+    per_add = _cycles_per_iteration(_loop_kernel(write_kernel, body)) / 24
     assert 0.5 <= per_add <= 0.55
 
 
-def test_fxch_is_renamed_and_does_not_wait_for_its_operands(tmp_path):
+def test_fxch_is_renamed_and_does_not_wait_for_its_operands(write_kernel):
     # FXCH is done in the register renamer (AF29n note f): two FSQRT chains alternated with FXCH
     # overlap, so each FSQRT costs its throughput (68, InstLat-PII FSQRT80 T 68.08), not its
     # latency (69), and not latency + 1 for an FXCH waiting for the root
     setup = "    fld1\n    fld1"
-    alternating = _cycles_per_iteration(_loop_kernel(tmp_path, "    fsqrt\n    fxch st(1)\n" * 4, setup), n=50) / 4
+    alternating = _cycles_per_iteration(_loop_kernel(write_kernel, "    fsqrt\n    fxch st(1)\n" * 4, setup), n=50) / 4
     assert 67.5 <= alternating <= 68.5
-    chained = _cycles_per_iteration(_loop_kernel(tmp_path, "    fsqrt\n" * 4, setup), n=50) / 4
+    chained = _cycles_per_iteration(_loop_kernel(write_kernel, "    fsqrt\n" * 4, setup), n=50) / 4
     assert 68.5 <= chained <= 69.5
 
 
-def test_pushad_popad_are_split_into_their_stores_and_loads(tmp_path):
+def test_pushad_popad_are_split_into_their_stores_and_loads(write_kernel):
     # AF29: PUSHA(D) = 2 p01 + 8 store-address + 8 store-data uops, POPA(D) = 2 p01 + 8 loads
-    r = time_kernel(_loop_kernel(tmp_path, "    pushad\n    popad"), "k", lambda m: [100], cpu="pentium2-233", repeat=2)
+    r = time_kernel(_loop_kernel(write_kernel, "    pushad\n    popad"), "k", lambda m: [100], cpu="pentium2-233", repeat=2)
     c = r.last
     assert c["port2"] >= 8 * 100 and c["port3"] >= 8 * 100 and c["port4"] >= 8 * 100
     assert 28 * 100 <= c["uops"] - 2 * 100 <= 28 * 100 + 30  # DEC, JNZ: 1 uop each; the call's own few

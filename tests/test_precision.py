@@ -122,6 +122,7 @@ def chains():
 
 
 @pytest.mark.parametrize("cpu", ALL)
+@pytest.mark.table_check
 def test_24_bit_divides_are_faster_on_every_preset(chains, cpu):
     """Chains of 4 * 32 and 4 * 64 dependent divides at each precision: the difference between
     the two lengths is 128 divides in steady state, and each takes the sources' figure for the
@@ -150,6 +151,7 @@ def test_precision_changed_mid_run_times_each_divide_at_its_own_precision(cpu):
     assert counts == {0: n // 3, 1: n // 3, 2: n // 3}
 
 
+@pytest.mark.table_check
 def test_k6_fsqrt_throughput_by_model_and_precision():
     """IL-K6/IL-K62: FSQRT T 23/38/43; IL-K63 (K6-III): T = L = 21/36/41."""
     from sim.cpus.k6 import K6Rules, _machine_table
@@ -175,6 +177,7 @@ def test_table_loader_checks_precision_fields(tmp_path, fields, message):
         InstructionTable(path, "p6")
 
 
+@pytest.mark.table_check
 def test_fsqrt_follows_precision_where_the_sources_say_so():
     """P6 (InstLatX64 Pentium II) and K6 (InstLatX64) FSQRT depend on precision; the P5's does not
     (AF28.2 gives 70 clocks, one figure)."""

@@ -72,13 +72,16 @@ def main():
     """Cycle-level timing of i686 kernels on late-1990s x86 CPUs."""
 
 
-def _machine(source: str, assembler: str | None, cpu: str | None = None):
+def load_machine(source: str, assembler: str | None, cpu: str | None = None):
+    """A machine holding the kernel `source`, assembled for the CPU preset `cpu` (None: plain
+    i686). The preset is read here, once; the guest stages get its GuestCpu."""
     from sim.guest.emu import Machine
+    from sim.timing.kernel import guest_cpu
 
-    return Machine.from_source(catalogue_mod.resolve(source), assembler=assembler, cpu=cpu)
+    return Machine.from_source(catalogue_mod.resolve(source), assembler=assembler, cpu=guest_cpu(cpu))
 
 
-def _entry(machine, entry: str | None) -> str:
+def choose_entry(machine, entry: str | None) -> str:
     if entry:
         return entry
     # declared entry points first; a file without `# @entry` comments offers its global symbols
@@ -89,7 +92,7 @@ def _entry(machine, entry: str | None) -> str:
     raise ArgumentError(f"{machine.image.path}: choose an entry point with --entry ({names})")
 
 
-def _buffer_summary(machine, buffers) -> list[dict]:
+def buffer_summary(machine, buffers) -> list[dict]:
     out = []
     for spec, address, dtype, count in buffers:
         data = machine.arena.get(address, dtype, count)
@@ -106,7 +109,7 @@ def _set_syntax(ctx, param, value):
     return value
 
 
-def _bounded(low: int, high: int | None = None, note: str = ""):
+def bounded(low: int, high: int | None = None, note: str = ""):
     """An option callback refusing integers outside [low, high] with one line naming the option."""
     def check(ctx, param, value):
         if value is None:
@@ -125,7 +128,7 @@ kernel_options = [
     click.argument("source"),
     click.option("--entry", "-e", help="entry point symbol (default: the only one the file declares)"),
     click.option("--args", "args_text", help=ARGS_HELP),
-    click.option("--budget", default=200_000_000, show_default=True, callback=_bounded(0),
+    click.option("--budget", default=200_000_000, show_default=True, callback=bounded(0),
                  help="instruction budget (0 = unlimited; traces are still bounded by RETROSIM_TRACE_MB)"),
     click.option("--assembler", type=click.Choice(["gnu", "zig"]), help="assembler back end (default: GNU as)"),
     click.option("--syntax", type=click.Choice(["intel", "att"]), expose_value=False, callback=_set_syntax,
@@ -140,7 +143,7 @@ def with_kernel_options(fn):
     return fn
 
 
-def _cpu_choice(ctx, param, value):
+def cpu_choice(ctx, param, value):
     from sim.cpus import presets
 
     if value not in presets.available():
@@ -149,10 +152,10 @@ def _cpu_choice(ctx, param, value):
 
 
 timing_options = [
-    click.option("--cpu", "-c", default="pentium2-233", show_default=True, callback=_cpu_choice,
+    click.option("--cpu", "-c", default="pentium2-233", show_default=True, callback=cpu_choice,
                  help="CPU preset (see `retrosim cpus`)"),
     click.option("--memory", "-m", help="memory preset (default: the CPU preset's)"),
-    click.option("--repeat", "-n", default=2, show_default=True, callback=_bounded(1, MAX_REPEAT),
+    click.option("--repeat", "-n", default=2, show_default=True, callback=bounded(1, MAX_REPEAT),
                  help="calls in one machine state; the last is reported (caches and predictors warm)"),
     click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
                  help="override a preset field (l2.size_kb=256, l2.size_kb=none, l2.latency_cycles=10, "
@@ -177,16 +180,18 @@ def _overrides(sets) -> tuple[dict, str | None]:
     return out, memory
 
 
-def _label(cpu: str, sets) -> tuple[str, str | None]:
-    """(machine label, memory from --set) for a CPU preset and --set items, validated now."""
+def resolve_machine(cpu: str, sets, memory: str | None = None) -> tuple[str, str | None, object]:
+    """(machine label, memory preset or None, timing model) for a CPU preset, --set items and
+    --memory (which wins over a --set memory=...), validated now: the preset is resolved and the
+    model built once, here, and the commands pass the model down."""
     from sim.cpus import load_dram, machine_label, make_model
 
-    overrides, memory = _overrides(sets)
+    overrides, set_memory = _overrides(sets)
     label = machine_label(cpu, overrides)
-    if memory is not None:
-        load_dram(memory)
-    make_model(label, memory)  # one clear error for an unknown key or an impossible value
-    return label, memory
+    if set_memory is not None:
+        load_dram(set_memory)
+    memory = memory or set_memory
+    return label, memory, make_model(label, memory)  # one clear error for an unknown key or an impossible value
 
 
 def with_timing_options(fn):
@@ -195,7 +200,7 @@ def with_timing_options(fn):
     return fn
 
 
-def _cpu_list(values) -> list[str]:
+def cpu_list(values) -> list[str]:
     """--cpu may repeat, take comma-separated presets, or `all` (every preset)."""
     from sim.cpus import presets
 

@@ -15,8 +15,8 @@ from rich.table import Table
 from sim.guest import kernels as catalogue_mod
 from sim.errors import ArgumentError
 from sim.cli.app import (
-    _bounded, _buffer_summary, _cpu_choice, _cpu_list, _entry, _label, _machine, console, err_console, main,
-    parse_args, with_kernel_options, with_timing_options,
+    bounded, buffer_summary, choose_entry, console, cpu_choice, cpu_list, err_console, load_machine, main,
+    parse_args, resolve_machine, with_kernel_options, with_timing_options,
 )
 
 
@@ -44,7 +44,7 @@ def kernels_cmd(as_json: bool):
 
 
 def _isa_cpu_choice(ctx, param, value):
-    return None if value is None else _cpu_choice(ctx, param, value)
+    return None if value is None else cpu_choice(ctx, param, value)
 
 
 _isa_cpu_option = click.option("--cpu", "-c", "isa_cpu", callback=_isa_cpu_choice,
@@ -57,8 +57,8 @@ _isa_cpu_option = click.option("--cpu", "-c", "isa_cpu", callback=_isa_cpu_choic
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
 def run_kernel_cmd(source, entry, args_text, budget, assembler, isa_cpu, as_json):
     """Call a kernel once and print its results and instruction / memory-access counts."""
-    m = _machine(source, assembler, isa_cpu)
-    entry = _entry(m, entry)
+    m = load_machine(source, assembler, isa_cpu)
+    entry = choose_entry(m, entry)
     values, buffers = parse_args(args_text, m)
     r = m.call(entry, *values, budget=budget, trace=True)
     t = r.trace
@@ -66,7 +66,7 @@ def run_kernel_cmd(source, entry, args_text, budget, assembler, isa_cpu, as_json
               "distinct_pcs": int(np.unique(t.pc).size), "accesses": t.accesses, "reads": t.reads,
               "writes": t.writes, "bytes_read": int(t.mem_size[~t.mem_write].sum(dtype=np.int64)),
               "bytes_written": int(t.mem_size[t.mem_write].sum(dtype=np.int64)),
-              "buffers": _buffer_summary(m, buffers)}
+              "buffers": buffer_summary(m, buffers)}
     if as_json:
         click.echo(json.dumps(report, indent=2))
         return
@@ -90,8 +90,8 @@ def trace_cmd(source, entry, args_text, budget, assembler, isa_cpu, out):
     from sim.output import check_output_file
 
     check_output_file(out, "--out")  # before the work: a bad path fails in a second, not after the run
-    m = _machine(source, assembler, isa_cpu)
-    entry = _entry(m, entry)
+    m = load_machine(source, assembler, isa_cpu)
+    entry = choose_entry(m, entry)
     values, _ = parse_args(args_text, m)
     t = m.call(entry, *values, budget=budget, trace=True).trace
     t.save(out)
@@ -100,17 +100,18 @@ def trace_cmd(source, entry, args_text, budget, assembler, isa_cpu, out):
 
 
 def _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations=0, sets=()):
+    from sim.guest.cpu import GuestCpu
     from sim.guest.emu import Machine
     from sim.timing.kernel import time_kernel
 
-    cpu, set_memory = _label(cpu, sets)
-    memory = memory or set_memory
+    # the preset is resolved and the model built once, here; the model is not run until time_kernel
+    label, memory, model = resolve_machine(cpu, sets, memory)
     path = catalogue_mod.resolve(source)
-    probe = Machine.from_source(path, assembler=assembler, cpu=cpu)  # resolve the entry and check --args once
-    entry = _entry(probe, entry)
+    probe = Machine.from_source(path, assembler=assembler, cpu=GuestCpu.from_preset(model.preset))
+    entry = choose_entry(probe, entry)  # resolve the entry and check --args once
     parse_args(args_text, probe)
     if repeat < 20:
-        result = time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=cpu, memory=memory,
+        result = time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=model,
                              repeat=repeat, budget=budget, timeline_iterations=iterations, assembler=assembler)
     else:
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -120,10 +121,10 @@ def _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iter
                       TextColumn("{task.completed}/{task.total}"), TimeElapsedColumn(), console=err_console,
                       transient=True) as bar:
             task = bar.add_task(f"emulating {entry} x {repeat:,}", total=repeat)
-            result = time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=cpu, memory=memory,
+            result = time_kernel(path, entry, setup=lambda m: parse_args(args_text, m)[0], cpu=model,
                                  repeat=repeat, budget=budget, timeline_iterations=iterations, assembler=assembler,
                                  progress=lambda done, total: bar.update(task, completed=done))
-    result.cpu = cpu  # the machine label: the preset with its overrides
+    result.cpu = label  # the machine label: the preset with its overrides
     return result
 
 
@@ -171,7 +172,7 @@ Narrow terminals get the table in three parts keyed by the instruction."""
 @main.command("explain", help=EXPLAIN_HELP)
 @with_kernel_options
 @with_timing_options
-@click.option("--iterations", default=3, show_default=True, callback=_bounded(0, 1000), help="hot-loop iterations in the timeline")
+@click.option("--iterations", default=3, show_default=True, callback=bounded(0, 1000), help="hot-loop iterations in the timeline")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object (rows and timeline)")
 def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets, iterations, as_json):
     from sim.reports import views
@@ -236,7 +237,7 @@ def loop_cmd(source, cpus, syntax, iterations, regs, timeline, brief, assembler,
         if not path.is_file():
             raise ArgumentError(f"{source}: no such file")
         text, name = path.read_text(errors="replace"), source
-    timings = loop.time_body(text, _cpu_list(cpus), name, syntax, iterations, loop.parse_regs(regs), assembler,
+    timings = loop.time_body(text, cpu_list(cpus), name, syntax, iterations, loop.parse_regs(regs), assembler,
                              timeline)
     if as_json:
         click.echo(json.dumps({"source": name, "registers": {k: f"{v:#010x}" for k, v in loop.parse_regs(regs).items()},
@@ -272,7 +273,7 @@ def loop_cmd(source, cpus, syntax, iterations, regs, timeline, brief, assembler,
 
 
 @main.command("bench")
-@click.option("--pixels", default=1 << 20, show_default=True, callback=_bounded(1, 1 << 22, " (the Python-hook mode keeps every instruction as Python objects, about 1 GB per million pixels)"), help="pixels in the Z-buffer span workload")
+@click.option("--pixels", default=1 << 20, show_default=True, callback=bounded(1, 1 << 22, " (the Python-hook mode keeps every instruction as Python objects, about 1 GB per million pixels)"), help="pixels in the Z-buffer span workload")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object with the figures")
 def bench_cmd(pixels: int, as_json: bool):
     """Emulation speed: Unicorn bare, with Python hooks, with the native trace (same workload)."""

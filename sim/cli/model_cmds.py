@@ -43,7 +43,7 @@ def cpus_cmd(as_json):
 def _cpu_tables(cpus, width: int) -> list:
     """The presets in one wide table (every cache in full) when `width` holds it, else a compact one:
     sizes only, with the latencies and clock ratios one `--json` away."""
-    from sim.reports.views import _natural_width
+    from sim.reports.views import natural_width
 
     def level(c, section: dict | None) -> str:
         return ("board " if "motherboard" in str((section or {}).get("location", "")) else "") + f"{c.size_kb}"
@@ -78,7 +78,7 @@ def _cpu_tables(cpus, width: int) -> list:
         return t
 
     wide = build(True)
-    return [wide] if _natural_width(wide) <= width else [build(False)]
+    return [wide] if natural_width(wide) <= width else [build(False)]
 
 
 @main.command("validate")

@@ -9,12 +9,12 @@ from rich.table import Table
 
 from sim.errors import ArgumentError, RetrosimError
 from sim.cli.app import (
-    REPORTS_DIR, SCENES_DIR, _cpu_choice, _label, console, err_console, main, one_line, say,
+    REPORTS_DIR, SCENES_DIR, console, cpu_choice, err_console, main, one_line, resolve_machine, say,
 )
 
 
 @main.command("texture-loops")
-@click.option("--cpu", "cpus", multiple=True, callback=lambda c, p, v: [_cpu_choice(c, p, x) for x in v],
+@click.option("--cpu", "cpus", multiple=True, callback=lambda c, p, v: [cpu_choice(c, p, x) for x in v],
               help="CPU preset (repeatable; default: every preset)")
 @click.option("--out", default=None, type=click.Path(path_type=Path), help="Markdown file to write")
 def texture_loops_cmd(cpus, out):
@@ -106,7 +106,7 @@ def _with_sets(chosen, cpus, sets) -> list[str]:
     out = []
     for spec in (list(cpus) or [c for s in chosen for c in s.cpus]):
         key = MachineKey.parse(spec)
-        label, set_memory = _label(key.label, sets)
+        label, set_memory, _ = resolve_machine(key.label, sets)
         memory = set_memory or key.memory
         out.append(f"{label}:{memory}" if memory else label)
     return list(dict.fromkeys(out))

@@ -29,8 +29,10 @@ from contextvars import ContextVar
 from dataclasses import dataclass
 from pathlib import Path
 
-from sim.guest.elf import CODE_BASE, CODE_LIMIT
 from sim.errors import AssemblerError, AssemblerMissing
+from sim.guest.cpu import GuestCpu
+from sim.guest.cpu import require as require_cpu
+from sim.guest.elf import CODE_BASE, CODE_LIMIT
 from sim.output import file_mode, temporary_file
 
 CACHE_ENV = "RETROSIM_CACHE"
@@ -245,7 +247,7 @@ _UNSUPPORTED = re.compile(r"^(?P<where>.*?:\d+): `(?P<mnemonic>[^']+)' is not su
 
 
 def _for_cpu(message: str, cpu) -> str:
-    """GNU as's "`cmove' is not supported on `k6'" in the preset's terms (see sim/isa.py)."""
+    """GNU as's "`cmove' is not supported on `k6'" in the preset's terms (see sim/guest/isa.py)."""
     m = _UNSUPPORTED.match(message)
     if cpu is None or m is None:
         return message
@@ -309,12 +311,12 @@ def _prepare_cache(out_dir: Path) -> None:
                              "to a writable folder") from None
 
 
-def assemble(source: str | os.PathLike, assembler: str | None = None, cpu: str | None = None,
+def assemble(source: str | os.PathLike, assembler: str | None = None, cpu: GuestCpu | None = None,
              syntax: str | None = None) -> Path:
     """Assemble `source` and return the path of its cached ELF32 object (verified against its
-    digest). `cpu`: a CPU preset name; the kernel is then assembled for that CPU's instruction set
-    (default: plain i686). `syntax`: 'intel' or 'att' for a source without its own directive
-    (default: source_syntax(), else detected)."""
+    digest). `cpu`: the kernel is then assembled for that CPU's instruction set, with the
+    assembler's name for it (default: plain i686). `syntax`: 'intel' or 'att' for a source without
+    its own directive (default: source_syntax(), else detected)."""
     source = Path(source)
     if not source.exists():
         raise AssemblerError(f"{source}: no such kernel source file")
@@ -323,13 +325,8 @@ def assemble(source: str | os.PathLike, assembler: str | None = None, cpu: str |
     if not text.strip():
         raise AssemblerError(f"{source}: empty source file (no instructions to assemble)")
     flags = _syntax_flags(asm, syntax or _syntax.get() or detect_syntax(text))
-    preset = march = None
-    if cpu is not None:
-        from sim.cpus import presets
-        from sim.guest.isa import march as isa_march
-
-        preset = presets.load(cpu)
-        march = isa_march(preset, asm.name)
+    cpu = require_cpu(cpu)
+    march = cpu.march(asm.name) if cpu is not None else None
     key = _content_key(source, asm, march) + "-".join(("", *flags))  # also checks every include
     key = hashlib.sha256(key.encode()).hexdigest() if flags else key
     out_dir = cache_dir()
@@ -347,7 +344,7 @@ def assemble(source: str | os.PathLike, assembler: str | None = None, cpu: str |
                                      "a huge .space or .fill?)")
             # a binary or non-UTF-8 source is echoed back in the messages: never fail on decoding them
             raise AssemblerError(_for_cpu(format_diagnostics(proc.stderr.decode("utf-8", errors="replace"), source, tmp),
-                                          preset))
+                                          cpu))
         data = tmp.read_bytes()
         os.chmod(tmp, file_mode())
         digest_tmp.write_text(_digest(data) + "\n", encoding="ascii")

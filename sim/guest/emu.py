@@ -22,9 +22,10 @@ from unicorn import (UC_ARCH_X86, UC_ERR_EXCEPTION, UC_ERR_FETCH_PROT, UC_ERR_FE
 from unicorn import x86_const as X
 from unicorn.unicorn_py3.unicorn import uclib
 
+from sim.errors import ArgumentError, GuestFault, LoadError, RunawayKernel
 from sim.guest import asm
 from sim.guest import elf
-from sim.errors import ArgumentError, GuestFault, LoadError, RunawayKernel
+from sim.guest.cpu import GuestCpu
 from sim.guest.kernels import EntryPoint, entry_points
 from sim.guest.trace import CONTROL_WORD_WRITERS, NativeTracer, Trace
 
@@ -165,15 +166,13 @@ class Machine:
                           None, ctypes.c_uint64(1), ctypes.c_uint64(0), X.UC_X86_INS_RDTSC)
 
     @classmethod
-    def from_source(cls, source: str | Path, assembler: str | None = None, cpu: str | None = None,
+    def from_source(cls, source: str | Path, assembler: str | None = None, cpu: GuestCpu | None = None,
                     **kwargs) -> Machine:
-        """`cpu`: assemble for that CPU preset's instruction set (default plain i686), and emulate
-        with the Unicorn CPU model the preset names (`emulator_cpu`), if any."""
+        """`cpu`: assemble for that CPU's instruction set (default plain i686), and emulate with the
+        Unicorn CPU model it names (`emulator_cpu`), if any."""
         obj = asm.assemble(source, assembler, cpu)
         if cpu is not None and "emulator_cpu" not in kwargs:
-            from sim.cpus import presets
-
-            kwargs["emulator_cpu"] = presets.load(cpu).raw.get("emulator_cpu")
+            kwargs["emulator_cpu"] = cpu.emulator_cpu
         try:
             image = elf.load_object(obj, source)
         except LoadError:

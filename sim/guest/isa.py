@@ -2,7 +2,8 @@
 kernel is assembled for a preset.
 
 A preset (sim/cpus/presets/*.toml) declares ``isa_extensions`` (from the vocabulary below) and the
-assembler's CPU names: ``gnu_march`` (GNU as ``-march=``) and ``zig_mcpu`` (clang ``-mcpu=``).
+assembler's CPU names: ``gnu_march`` (GNU as ``-march=``) and ``zig_mcpu`` (clang ``-mcpu=``). The
+guest stages see them as a :class:`sim.guest.cpu.GuestCpu`, resolved from the preset by the caller.
 The base set of every modelled family is i586 (CPUID, CMPXCHG8B, RDTSC; Intel SDM vol. 2,
 "CPUID: Feature Information"); the extensions on top of it are:
 
@@ -29,8 +30,9 @@ kernel: they fault at CPL 3, so no user-mode timing exists for them.
 
 from __future__ import annotations
 
-from sim.guest.decode import InsnRecord
 from sim.errors import RetrosimError
+from sim.guest.cpu import GuestCpu
+from sim.guest.decode import InsnRecord
 
 EXTENSIONS = ("cmov", "fcmov", "mmx", "sse", "3dnow", "fxsr", "sse2", "nopl")
 
@@ -121,19 +123,6 @@ def is_system(rec: InsnRecord) -> bool:
     return "privilege" in rec.groups or rec.mnemonic in _SYSTEM
 
 
-def extensions_of(preset) -> frozenset[str]:
-    return frozenset(preset.raw.get("isa_extensions", ()))
-
-
-def march(preset, assembler: str) -> str:
-    """The assembler's CPU name for a preset (GNU as -march= / clang -mcpu=)."""
-    key = "zig_mcpu" if assembler == "zig" else "gnu_march"
-    value = preset.raw.get(key)
-    if not value:
-        raise RetrosimError(f"CPU preset '{preset.name}': missing field '{key}' (the assembler's name for the CPU)")
-    return value
-
-
 def record_extension(rec: InsnRecord) -> str | None:
     """The extension a decoded instruction needs (:func:`required_extension`, plus what only the
     encoding tells: NOP with the 0F escape is the multi-byte NOP)."""
@@ -142,25 +131,25 @@ def record_extension(rec: InsnRecord) -> str | None:
     return required_extension(rec.mnemonic, rec.groups)
 
 
-def why_missing(preset, ext: str) -> str:
-    """Why `preset` refuses `ext`. When no CPU of its family has it (the preset's ``family_lacks``,
-    from the family's record: this layer does not read sim.cpus), the refusal names the family
+def why_missing(cpu: GuestCpu, ext: str) -> str:
+    """Why `cpu` refuses `ext`. When no CPU of its family has it (``family_lacks``, from the
+    family's record: this layer does not read sim.cpus), the refusal names the family
     (``family_name``), else the preset."""
-    if ext in getattr(preset, "family_lacks", ()):
-        return f"{preset.family_name} {_WHY[ext]}"
-    return f"{preset.name} {_WHY[ext]}"
+    if ext in cpu.family_lacks:
+        return f"{cpu.family_name} {_WHY[ext]}"
+    return f"{cpu.name} {_WHY[ext]}"
 
 
-def check_record(rec: InsnRecord, preset, where) -> None:
-    """Raise IsaError if `rec` may not run on `preset` (a system instruction or a missing extension).
+def check_record(rec: InsnRecord, cpu: GuestCpu, where) -> None:
+    """Raise IsaError if `rec` may not run on `cpu` (a system instruction or a missing extension).
     `where`: the location for the message, or a callable making it (only called on an error)."""
-    if not is_system(rec) and record_extension(rec) in (None, *extensions_of(preset)):
+    if not is_system(rec) and record_extension(rec) in (None, *cpu.extensions):
         return
     where = where() if callable(where) else where
     text = f"{rec.mnemonic} {rec.op_str}".strip()
     if is_system(rec):
         raise IsaError(f"{where}: {text} is a privileged or system instruction; a user-mode kernel cannot "
-                       f"execute it on {preset.name} (it faults at CPL 3), so it has no timing")
+                       f"execute it on {cpu.name} (it faults at CPL 3), so it has no timing")
     ext = record_extension(rec)
-    if ext is not None and ext not in extensions_of(preset):
-        raise IsaError(f"{where}: {rec.mnemonic} is not available on {preset.name} ({why_missing(preset, ext)})")
+    if ext is not None and ext not in cpu.extensions:
+        raise IsaError(f"{where}: {rec.mnemonic} is not available on {cpu.name} ({why_missing(cpu, ext)})")

@@ -25,9 +25,10 @@ def synthetic_trace(n: int, seed: int = 1998) -> tuple[np.ndarray, np.ndarray, n
     return addr.astype(np.uint32), size, write & ~rand
 
 
-def cache_throughput(n: int = 10_000_000, preset: str = "pentium2-233", repeat: int = 3) -> float:
+def cache_throughput(preset, n: int = 10_000_000, repeat: int = 3) -> float:
     """Accesses per second of :func:`simulate` over an ``n``-access synthetic trace on the data
-    caches of ``preset`` (best of ``repeat`` runs, compilation excluded)."""
+    caches of ``preset`` (a parsed CPU preset, see :meth:`Hierarchy.from_preset`; best of
+    ``repeat`` runs, compilation excluded)."""
     h = Hierarchy.from_preset(preset)
     addr, size, write = synthetic_trace(n)
     simulate(*h.arrays(), addr[:1000], size[:1000], write[:1000])  # compile (or load the cache)
@@ -38,7 +39,3 @@ def cache_throughput(n: int = 10_000_000, preset: str = "pentium2-233", repeat: 
         simulate(*h.arrays(), addr, size, write)
         best = min(best, time.perf_counter() - t0)
     return n / best
-
-
-if __name__ == "__main__":
-    print(f"{cache_throughput() / 1e6:.1f} M accesses/s")

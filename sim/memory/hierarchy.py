@@ -39,11 +39,9 @@ from sim.memory.cache import (
     ALLOC_ALWAYS, ALLOC_PAGE_SECTOR, ALLOCATED, DIRTY_VICTIM, EVICT, FETCH, FORWARD, HIT, HOT, LOAD,
     PAGE_BITS, PAGE_SECTOR, STORE, WRITEBACK, CacheGeometry, CacheState, lookup, victim_address,
 )
-from sim.tomlfile import read_toml
 
 MAX_LEVELS = 3
 POLICIES_FILE = Path(__file__).with_name("policies.toml")
-PRESETS_DIR = Path(__file__).resolve().parent.parent / "cpus" / "presets"
 
 # Columns of the per-level config array.
 CFG_OFFSET_BITS, CFG_WRITE_ALLOCATE, CFG_WRITE_BACK, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS = range(7)
@@ -515,8 +513,8 @@ class Hierarchy:
 
     @classmethod
     def from_preset(cls, preset) -> Hierarchy:
-        """The data-cache hierarchy of a CPU preset: a parsed ``sim/cpus/presets/*.toml``, its name,
-        or a :class:`sim.cpus.presets.CpuPreset`. Levels: ``[l1d]``, ``[l2]`` unless
+        """The data-cache hierarchy of a CPU preset: a parsed ``sim/cpus/presets/*.toml`` or a
+        :class:`sim.cpus.presets.CpuPreset` (the caller reads the preset: memory never does). Levels: ``[l1d]``, ``[l2]`` unless
         ``present = false``, and an optional ``[l3]`` (the K6-III's board cache).
 
         Policies default to the family's (``cpu_model``) in ``policies.toml``; a level's section may
@@ -525,7 +523,8 @@ class Hierarchy:
         "page+sector only"`` sets the L1D's write allocation (the K6 presets).
         """
         if isinstance(preset, str):
-            preset = load_cpu_preset(preset)
+            raise TypeError(f"Hierarchy.from_preset({preset!r}): pass the parsed preset (sim.cpus.presets.load), "
+                            "not its name")
         preset = getattr(preset, "raw", preset)
         name = preset.get("name", "<preset>")
         family = preset.get("cpu_model")
@@ -580,16 +579,8 @@ def family_policies() -> dict:
         return tomllib.load(f)
 
 
-def load_cpu_preset(name: str) -> dict:
-    path = PRESETS_DIR / f"{name}.toml"
-    if not path.is_file():
-        known = sorted(p.stem for p in PRESETS_DIR.glob("*.toml"))
-        raise ValueError(f"unknown CPU preset {name!r} (available: {', '.join(known)})")
-    return read_toml(path, "CPU preset", ValueError)[1]
-
-
 __all__ = [
     "Hierarchy", "HierarchyStats", "LevelStats", "MemoryStats", "service", "simulate",
     "simulate_classified", "served_level", "memory_fills", "memory_writebacks",
-    "memory_partial_writes", "lines_touched", "NSTATS", "load_cpu_preset", "family_policies",
+    "memory_partial_writes", "lines_touched", "NSTATS", "family_policies",
 ]

@@ -227,7 +227,7 @@ def _benchable(row: TimingRow) -> str:
     return ""
 
 
-def _emulation(machine, src: Path, entry: str, isa_cpu: str):
+def _emulation(machine, src: Path, entry: str, isa_cpu):
     """Two calls of `entry` in one machine (the second is timed warm), as timing.emulate does,
     without building a machine per benchmark."""
     import numpy as np
@@ -252,7 +252,7 @@ def _runs_on(row: TimingRow, preset_name: str, model) -> bool:
 def run_family(family: str, progress=None, only: set[str] | None = None) -> tuple[list[RowResult], list[str]]:
     """Benchmark every row of `family` (or the rows whose key is in `only`) on each of its presets."""
     from sim.guest.emu import Machine
-    from sim.timing.kernel import time_emulation
+    from sim.timing.kernel import guest_cpu, time_emulation
 
     table = load_table(family)
     rows = sorted(table.rows.values(), key=lambda r: (r.mnemonic, r.signature))
@@ -264,18 +264,19 @@ def run_family(family: str, progress=None, only: set[str] | None = None) -> tupl
     source, entries = _source([res.row for res in todo])
     models = {p: make_model(p) for p in fam_presets}
     isa_cpu = FAMILY_ISA[family]
+    target = guest_cpu(isa_cpu)  # the preset read once: the guest stages get its GuestCpu
     with tempfile.TemporaryDirectory() as tmp:
         src = Path(tmp) / f"conformance_{family}.S"
         src.write_text(source)
         try:
-            machine = Machine.from_source(src, cpu=isa_cpu)
+            machine = Machine.from_source(src, cpu=target)
         except RetrosimError as e:
             raise RetrosimError(f"conformance benchmark for {family} does not assemble: {e}") from None
         for i, res in enumerate(todo):
             row = res.row
             try:
                 *pairs, n = entries[i]
-                emus = [[_emulation(machine, src, e, isa_cpu) for e in pair] for pair in pairs]
+                emus = [[_emulation(machine, src, e, target) for e in pair] for pair in pairs]
             except RetrosimError as e:
                 res.why_not = f"benchmark failed to run: {e}"
                 continue

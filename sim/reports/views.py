@@ -206,7 +206,7 @@ def explain_tables(result: TimingResult, width: int) -> list[Table]:
     head = "per instruction, last call"
     wide = build(["pc", "instruction", "runs", "dec", "ops", "units", "i2r", "stalls", "mispred", "row"], stalls,
                  head + " (stall columns: cycles per execution)")
-    if _natural_width(wide) <= width:
+    if natural_width(wide) <= width:
         return [wide]
     return [build(["pc", "instruction", "runs", "dec", "ops", "units", "i2r"], [], head + ": decode and execution"),
             build(["instruction", "stalls", "mispred"], shown,
@@ -233,7 +233,7 @@ def _model_explain_tables(model, rows: list[dict], width: int) -> list[Table]:
 
     head = "per instruction, last call (stall columns: cycles per execution)"
     wide = build(list(range(len(cols))), head)
-    if _natural_width(wide) <= width:
+    if natural_width(wide) <= width:
         return [wide]
     instr = [i for i, (name, _) in enumerate(cols) if name == "instruction"]
     text = [i for i, (name, _) in enumerate(cols) if name in ("alone because", "table row")]
@@ -248,7 +248,7 @@ def explain_table(result: TimingResult) -> Table:
     return explain_tables(result, 10_000)[0]
 
 
-def _natural_width(table: Table) -> int:
+def natural_width(table: Table) -> int:
     from rich.console import Console
 
     probe = Console(width=10_000, file=io.StringIO())

@@ -17,9 +17,10 @@ from typing import Callable
 import numpy as np
 
 from sim.cpus import make_model
+from sim.errors import LimitError, RetrosimError
+from sim.guest.cpu import GuestCpu
 from sim.guest.decode import Decoder
 from sim.guest.emu import Machine
-from sim.errors import LimitError, RetrosimError
 from sim.guest.trace import Trace, check_trace_bytes
 
 Setup = Callable[[Machine], list]  # builds the call's arguments (and buffers) in a fresh machine
@@ -75,7 +76,7 @@ class Emulation:
     machine: Machine = field(repr=False)
     trace: Trace = field(repr=False)
     bounds: list[int]
-    isa_cpu: str | None = None  # the CPU preset the kernel was assembled for (None: plain i686)
+    isa_cpu: GuestCpu | None = None  # the CPU the kernel was assembled for (None: plain i686)
     # one decoder per emulation: its records and its trace index are computed once however many
     # machines (and claim re-timings) time the trace
     _decoder: Decoder | None = field(default=None, init=False, repr=False, compare=False)
@@ -94,14 +95,26 @@ class Emulation:
                        self.isa_cpu)
 
 
+def guest_cpu(cpu: str | GuestCpu | None) -> GuestCpu | None:
+    """The guest stages' view of a CPU preset (a name or machine label): the preset is read here,
+    above the guest stages, which never read presets. A GuestCpu or None is returned as it is."""
+    if cpu is None or isinstance(cpu, GuestCpu):
+        return cpu
+    from sim.cpus import presets
+
+    return GuestCpu.from_preset(presets.load(cpu))
+
+
 def emulate(source: str | Path, entry: str, setup: Setup | None = None, repeat: int = 2,
             budget: int = 200_000_000, assembler: str | None = None,
-            rdtsc_values: list[int] | None = None, isa_cpu: str | None = None,
+            rdtsc_values: list[int] | None = None, isa_cpu: str | GuestCpu | None = None,
             progress: Callable[[int, int], None] | None = None) -> Emulation:
-    """`isa_cpu`: assemble for that preset's instruction set (shipped kernels stay plain i686, so
-    one emulation serves every preset). `progress(done, repeat)` is called after each call."""
+    """`isa_cpu` (a preset name or a GuestCpu): assemble for that CPU's instruction set (shipped
+    kernels stay plain i686, so one emulation serves every preset). `progress(done, repeat)` is
+    called after each call."""
     if repeat < 1:
         raise RetrosimError(f"--repeat must be at least 1, got {repeat}")
+    isa_cpu = guest_cpu(isa_cpu)
     answers = iter(rdtsc_values or [])
     clock = (lambda ev: next(answers, 0)) if rdtsc_values is not None else None
     machine = Machine.from_source(source, assembler=assembler, cpu=isa_cpu, rdtsc=clock)
@@ -150,7 +163,7 @@ def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None
     check_model_memory(emu.trace.instructions)
     timeline = hot_loop_window(emu.trace.pc, emu.last_call, timeline_iterations)
     decoder = emu.decoder()
-    check_isa(emu, decoder, model.preset)
+    check_isa(emu, decoder, GuestCpu.from_preset(model.preset))
     run = model.run(emu.trace, decoder, emu.bounds, timeline, emu.last_call, access_logs=access_logs)
     if run.rdtsc.size:
         replay = emu.replay([int(c) for c in run.rdtsc])
@@ -162,51 +175,57 @@ def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None
     return TimingResult(cpu, model.dram.name, emu.entry, emu.source, emu.repeat, calls, model, run, emu.trace)
 
 
-def check_isa(emu: Emulation, decoder: Decoder, preset) -> None:
-    """Refuse (one IsaError) an executed instruction the preset lacks, or a system instruction.
+def check_isa(emu: Emulation, decoder: Decoder, cpu: GuestCpu) -> None:
+    """Refuse (one IsaError) an executed instruction the CPU lacks, or a system instruction.
     Where the kernel assembles for that CPU, the error is the assembler's, with the source line."""
     records, _ = decoder.decode_trace(emu.trace.pc)
-    check_records(records, preset, emu.source, emu.machine, emu.assembler, emu.isa_cpu)
+    check_records(records, cpu, emu.source, emu.machine, emu.assembler, emu.isa_cpu)
 
 
-def check_records(records, preset, source: Path, machine: Machine, assembler: str | None, isa_cpu: str | None) -> None:
-    """:func:`check_isa` for decoded records (a streamed run checks each chunk's new ones)."""
+def check_records(records, cpu: GuestCpu, source: Path, machine: Machine, assembler: str | None,
+                  isa_cpu: GuestCpu | None) -> None:
+    """:func:`check_isa` for decoded records (a streamed run checks each chunk's new ones).
+    `isa_cpu`: the CPU the kernel was assembled for (None: plain i686)."""
     from sim.guest.isa import IsaError, check_record
 
     for rec in records:
         try:
-            check_record(rec, preset, lambda: f"{source}: pc {machine.where(rec.pc)}")
+            check_record(rec, cpu, lambda: f"{source}: pc {machine.where(rec.pc)}")
         except IsaError:
             # GNU as, told the CPU, refuses the instruction with its source line (clang does not)
             from sim.guest.asm import assemble
             from sim.errors import AssemblerMissing
 
-            for name in dict.fromkeys(n for n in (assembler, "gnu") if isa_cpu != preset.name or n == "gnu"):
+            built_for = isa_cpu.name if isa_cpu is not None else None
+            for name in dict.fromkeys(n for n in (assembler, "gnu") if built_for != cpu.name or n == "gnu"):
                 try:
-                    assemble(source, name, preset.name)
+                    assemble(source, name, cpu)
                 except AssemblerMissing:
                     pass
             raise
 
 
-def time_kernel(source: str | Path, entry: str, setup: Setup | None = None, cpu: str = "pentium2-233",
+def time_kernel(source: str | Path, entry: str, setup: Setup | None = None, cpu="pentium2-233",
                 memory: str | None = None, repeat: int = 2, budget: int = 200_000_000,
                 timeline_iterations: int = 0, assembler: str | None = None,
                 progress: Callable[[int, int], None] | None = None) -> TimingResult:
     """Emulate and time in one step (see :func:`emulate` and :func:`time_emulation`); the kernel is
-    assembled for the preset's instruction set. The model times the trace as the emulator makes it
-    (sim/stream.py), unless a timeline window is asked for (it is chosen from the whole trace), the
-    model cannot take a trace in chunks, or the kernel reads RDTSC (its answers need a first pass)."""
-    model = make_model(cpu, memory)  # before emulating: an unknown preset fails fast
+    assembled for the preset's instruction set. `cpu`: a preset name (or machine label), or a
+    model from make_model (not yet run; `memory` is then its own). The preset is resolved once,
+    here: the guest stages get its GuestCpu. The model times the trace as the emulator makes it
+    (sim/timing/stream.py), unless a timeline window is asked for (it is chosen from the whole
+    trace), the model cannot take a trace in chunks, or the kernel reads RDTSC (its answers need a
+    first pass)."""
+    model = make_model(cpu, memory) if isinstance(cpu, str) else cpu  # before emulating: an unknown preset fails fast
+    target = GuestCpu.from_preset(model.preset)
     if timeline_iterations == 0 and hasattr(model, "session"):
         from sim.timing.stream import emulate_and_time
 
-        name = model.preset.name
         machine, run = emulate_and_time(
-            source, entry, setup, model, repeat, budget, assembler, progress,
-            check=lambda m, records: check_records(records, model.preset, Path(source), m, assembler, name))
+            source, entry, setup, model, target, repeat, budget, assembler, progress,
+            check=lambda m, records: check_records(records, target, Path(source), m, assembler, target))
         if run.rdtsc.size == 0:
             calls = [run.segment(k) for k in range(repeat)]
-            return TimingResult(name, model.dram.name, entry, Path(source), repeat, calls, model, run, None)
-    emu = emulate(source, entry, setup, repeat, budget, assembler, isa_cpu=model.preset.name, progress=progress)
+            return TimingResult(target.name, model.dram.name, entry, Path(source), repeat, calls, model, run, None)
+    emu = emulate(source, entry, setup, repeat, budget, assembler, isa_cpu=target, progress=progress)
     return time_emulation(emu, model, timeline_iterations=timeline_iterations)

@@ -33,6 +33,7 @@ from unicorn import x86_const as X
 
 from sim.guest import asm
 from sim.guest import elf
+from sim.guest.cpu import GuestCpu
 from sim.cpus import make_model
 from sim.guest.decode import Decoder
 from sim.guest.emu import Machine
@@ -226,7 +227,7 @@ def parse_regs(items) -> dict[str, int]:
 
 
 def run_body(body: Body, iterations: int = DEFAULT_ITERATIONS, regs: dict[str, int] | None = None,
-             assembler: str | None = None, cpu: str | None = None) -> LoopRun:
+             assembler: str | None = None, cpu: GuestCpu | None = None) -> LoopRun:
     """Assemble the body in its wrapper (for `cpu`'s instruction set, if given) and trace the warm
     and the measured pass."""
     if iterations < 4:
@@ -377,15 +378,16 @@ def time_body(text: str, cpus: list[str], name: str = "<stdin>", syntax: str | N
             raise ArgumentError(f"unknown CPU preset '{c}' (choose one of: {', '.join(presets.available())})")
     # one emulation per instruction set: the body assembles for each CPU's own (MMX, 3DNow!, SSE)
     # and runs on the Unicorn CPU model that has it
+    targets = {c: GuestCpu.from_preset(presets.load(c)) for c in cpus}
     runs = {}
     for c in cpus:
-        raw = presets.load(c).raw
-        key = (raw.get("gnu_march"), raw.get("zig_mcpu"), raw.get("emulator_cpu"))
+        t = targets[c]
+        key = (t.gnu_march, t.zig_mcpu, t.emulator_cpu)
         if key not in runs:
-            runs[key] = run_body(body, iterations, regs, assembler, cpu=c)
+            runs[key] = run_body(body, iterations, regs, assembler, cpu=t)
     out = []
     for c in cpus:
-        raw = presets.load(c).raw
-        run = runs[(raw.get("gnu_march"), raw.get("zig_mcpu"), raw.get("emulator_cpu"))]
+        t = targets[c]
+        run = runs[(t.gnu_march, t.zig_mcpu, t.emulator_cpu)]
         out.append(time_run(run, c, timeline_iterations=timeline_iterations))
     return out

@@ -95,17 +95,18 @@ class _ModelStopped(Exception):
     """The model thread stopped early (its error is raised instead)."""
 
 
-def emulate_and_time(source: str | Path, entry: str, setup, model, repeat: int, budget: int,
+def emulate_and_time(source: str | Path, entry: str, setup, model, cpu, repeat: int, budget: int,
                      assembler: str | None = None, progress: Callable[[int, int], None] | None = None,
                      check: Callable | None = None):
-    """Emulate `repeat` calls of `entry` (traced) and time them on `model` as they run.
-    Returns (machine, CoreRun). `check(machine, records)` sees each chunk's new static instructions
-    (the ISA check); an error it raises ends the run."""
+    """Emulate `repeat` calls of `entry` (traced), assembled for `cpu` (the model's preset as a
+    sim.guest.cpu.GuestCpu), and time them on `model` as they run. Returns (machine, CoreRun).
+    `check(machine, records)` sees each chunk's new static instructions (the ISA check); an error
+    it raises ends the run."""
     from sim.errors import RetrosimError
 
     if repeat < 1:
         raise RetrosimError(f"--repeat must be at least 1, got {repeat}")
-    machine = Machine.from_source(source, assembler=assembler, cpu=model.preset.name)
+    machine = Machine.from_source(source, assembler=assembler, cpu=cpu)
     machine.trace_chunk = CHUNK
     args = setup(machine) if setup else []
     session = model.session(Decoder(machine.image.fetch), [1 << 62] * repeat, stat_first=0 if repeat == 1 else 1 << 62,

@@ -1,0 +1,159 @@
+"""The import graph of sim/ (every import, module-level or inside a function, read with ast): no
+cycles among sim modules, and no module importing from a layer above its own.
+
+Layers, low to high (a module may import its own layer and the ones below):
+base (sim.errors, sim.output, sim.reference, sim.tomlfile) < sim.guest < sim.memory < sim.cpus
+< sim.timing and sim.parallel < sim.reports < sim.scenes < sim.sweep < sim.cli.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+SIM = Path(__file__).resolve().parents[1] / "sim"
+
+# (prefix, layer): the longest matching prefix names a module's layer
+LAYERS = [
+    ("sim.errors", 0), ("sim.output", 0), ("sim.reference", 0), ("sim.tomlfile", 0),
+    ("sim.guest", 1), ("sim.memory", 2), ("sim.cpus", 3),
+    ("sim.timing", 4), ("sim.parallel", 4),
+    ("sim.reports", 5), ("sim.scenes", 6), ("sim.sweep", 7), ("sim.cli", 8),
+]
+LAYER_NAMES = ["base", "guest", "memory", "cpus", "timing/parallel", "reports", "scenes", "sweep", "cli"]
+
+# Known violations, each (importing module, imported module) -> the issue that will remove it. Both
+# checks ignore these edges; test_allowed_list_holds_only_live_violations keeps the list from going
+# stale. Empty since issue 21: add to it only with an open issue that removes the edge.
+ALLOWED: dict[tuple[str, str], str] = {}
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(SIM.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def modules() -> dict[str, Path]:
+    return {module_name(p): p for p in sorted(SIM.rglob("*.py"))}
+
+
+def imports(path: Path, name: str, known: set[str]) -> list[tuple[str, int]]:
+    """(imported sim module, line) for every import in the file, function-level ones included.
+    `from sim.x import y` counts as importing sim.x.y when that is a module, else sim.x."""
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    out = []
+    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out += [(a.name, node.lineno) for a in node.names if a.name.split(".")[0] == "sim"]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:  # relative import
+                anchor = package.split(".")
+                anchor = anchor[:len(anchor) - (node.level - 1)]
+                base = ".".join(anchor + ([base] if base else []))
+            if base.split(".")[0] != "sim":
+                continue
+            for alias in node.names:
+                sub = f"{base}.{alias.name}"
+                out.append((sub if sub in known else base, node.lineno))
+    # a module that imports by name (importlib.import_module) imports every sim module it names in
+    # a string (e.g. a table of kinds -> modules)
+    if any(isinstance(node, ast.Attribute) and node.attr == "import_module" for node in ast.walk(tree)):
+        out += [(node.value, node.lineno) for node in ast.walk(tree)
+                if isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value in known]
+    return out
+
+
+def layer_of(module: str) -> int:
+    best = max((p for p, _ in LAYERS if module == p or module.startswith(p + ".")), key=len, default=None)
+    if best is None:
+        raise AssertionError(f"{module}: in no layer of tests/test_layers.py (add it to LAYERS)")
+    return dict(LAYERS)[best]
+
+
+@pytest.fixture(scope="module")
+def graph() -> dict[str, list[tuple[str, int]]]:
+    mods = modules()
+    known = set(mods)
+    return {name: [(t, line) for t, line in imports(path, name, known) if t != name]
+            for name, path in mods.items()}
+
+
+def test_every_module_has_a_layer(graph):
+    for name in graph:
+        if name != "sim":  # the package's own __init__ (a version string) belongs to no stage
+            layer_of(name)
+
+
+def test_no_module_imports_from_a_layer_above_its_own(graph):
+    bad = []
+    for name, edges in graph.items():
+        if name == "sim":
+            continue
+        for target, line in edges:
+            if target == "sim" or (name, target) in ALLOWED:
+                continue
+            if layer_of(target) > layer_of(name):
+                bad.append(f"{modules()[name].relative_to(SIM.parent)}:{line}: {name} ({LAYER_NAMES[layer_of(name)]}) "
+                           f"imports {target} ({LAYER_NAMES[layer_of(target)]})")
+    assert not bad, "imports from a higher layer:\n" + "\n".join(bad)
+
+
+def test_allowed_list_holds_only_live_violations(graph):
+    """An ALLOWED entry that no longer happens is taken out (so the list only shrinks)."""
+    live = {(name, target) for name, edges in graph.items() for target, _ in edges}
+    gone = sorted(set(ALLOWED) - live)
+    assert not gone, f"remove from ALLOWED in tests/test_layers.py (no longer imported): {gone}"
+
+
+def cycles(graph) -> list[list[str]]:
+    """The strongly connected components with more than one module (Tarjan)."""
+    index, low, on, stack, out = {}, {}, set(), [], []
+    counter = [0]
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w, _ in graph.get(v, ()):
+            if w not in graph:
+                continue
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_import_cycles(graph):
+    # a package's __init__ re-exporting its modules is not a cycle through them: drop the edges
+    # from a submodule to its own package's __init__ (`from sim.cpus import presets` in sim.cpus.k6
+    # names the module sim.cpus.presets, which imports() already resolves)
+    edges = {name: [(t, line) for t, line in targets if not name.startswith(t + ".") and (name, t) not in ALLOWED]
+             for name, targets in graph.items()}
+    bad = []
+    for comp in cycles(edges):
+        members = set(comp)
+        where = [f"{modules()[n].relative_to(SIM.parent)}:{line}: {n} imports {t}"
+                 for n in comp for t, line in edges[n] if t in members]
+        bad.append(" <-> ".join(comp) + "\n  " + "\n  ".join(where))
+    assert not bad, "import cycles:\n" + "\n".join(bad)
