@@ -16,7 +16,11 @@ body touches is mapped zero-filled on first use (Unicorn's unmapped-memory hook)
 Measurement: the body runs ``iterations`` times twice from the same registers (the first pass
 warms caches and predictors). In the second pass the counters are cut where iteration
 ``iterations // 2`` and iteration ``iterations`` start; steady-state figures are the difference
-divided by the iterations between (start-up and drain cancel). Any family's model from
+divided by the iterations between (start-up cancels). The model is told that the body goes on
+after the trace (to the next iteration's first instruction), so the last back-edge is taken and
+nothing drains inside the window. An iteration starts where the PC reaches the first instruction
+from another instruction: a REP string instruction first in the body repeats at its own PC once
+per element, and its elements are one iteration. Any family's model from
 :func:`sim.cpus.make_model` serves, as for `retrosim time`.
 """
 
@@ -61,6 +65,7 @@ _LABEL_RUN = re.compile(r"^(?:\s*(?:[A-Za-z_.$][\w.$@]*|\d+)\s*:(?!:))*")
 _COND = re.compile(r"^(j(?!mp)[a-z]+|loop[a-z]*|jn?e?cxz)$")
 _JUMP = re.compile(r"^(j[a-z]+|loop[a-z]*|call[lw]?|ljmp|lcall)$")
 _REGISTERS = {p + r for r in ("ax", "bx", "cx", "dx", "si", "di", "bp", "sp") for p in ("e", "")}
+_REP_PREFIXES = {"rep", "repe", "repz", "repne", "repnz"}
 _LEAVES = {"ret", "retl", "retn", "retf", "iret", "iretd", "int", "int3", "into", "hlt", "sysenter", "syscall"}
 
 
@@ -175,6 +180,7 @@ class LoopRun:
     cuts: list[int]        # end of warm pass, start of iteration n1, start of iteration n2 (measured pass)
     measured: int          # iterations between the last two cuts
     iteration_length: int  # instructions in the first measured iteration (for the timeline)
+    next_pc: int = -1      # where the body goes after the trace's last instruction (its back-edge's target)
 
 
 class _DemandZero:
@@ -248,16 +254,19 @@ def run_body(body: Body, iterations: int = DEFAULT_ITERATIONS, regs: dict[str, i
     starts = [machine.symbol(f"retrosim_iter_{j}") for j in range(1 if body.loop else n2 + 1)]
     exit_pc = machine.symbol("retrosim_exit")
     lo = machine.symbol("retrosim_loop")
-    passes = [_pass(machine, body, regs, starts, exit_pc, lo, n2) for _ in range(2)]
-    warm, (meas, marks) = passes[0][0], passes[1]
+    rep_first = machine.disassemble(starts[0]).split()[0].lower() in _REP_PREFIXES
+    passes = [_pass(machine, body, regs, starts, exit_pc, lo, n2, rep_first) for _ in range(2)]
+    warm, (meas, marks, next_pc) = passes[0][0], passes[1]
     cuts = [warm.instructions, warm.instructions + marks[n1], warm.instructions + marks[n2]]
-    return LoopRun(body, machine, Trace.concatenate([warm, meas]), cuts, n2 - n1, marks[n1 + 1] - marks[n1])
+    return LoopRun(body, machine, Trace.concatenate([warm, meas]), cuts, n2 - n1, marks[n1 + 1] - marks[n1],
+                   next_pc)
 
 
 def _pass(machine: Machine, body: Body, regs: dict[str, int], starts: list[int], exit_pc: int, lo: int,
-          iterations: int) -> tuple[Trace, list[int]]:
+          iterations: int, rep_first: bool = False) -> tuple[Trace, list[int], int]:
     """Run from the body's start with `regs` until `iterations` iterations are complete; return the
-    trace up to the start of the next one and the index where each iteration starts."""
+    trace up to the start of the next one, the index where each iteration starts and the PC of the
+    next iteration's first instruction (what follows the trace)."""
     uc = machine.uc
     for name, value in regs.items():
         machine.set_reg(name, value)
@@ -280,7 +289,7 @@ def _pass(machine: Machine, body: Body, regs: dict[str, int], starts: list[int],
             tracer.drain()
             pc = machine.reg("eip")
             trace = Trace.concatenate(list(tracer._parts))
-            marks = _marks(trace.pc, starts, body.loop)
+            marks = _marks(trace.pc, starts, body.loop, rep_first)
             if len(marks) > iterations:
                 break
             outside = np.flatnonzero((trace.pc < lo) | (trace.pc >= exit_pc))
@@ -303,18 +312,25 @@ def _pass(machine: Machine, body: Body, regs: dict[str, int], starts: list[int],
     finally:
         tracer.detach()
     cut = marks[iterations]
+    next_pc = int(trace.pc[cut])
     trace = _truncate(trace, cut)
     outside = np.flatnonzero((trace.pc < lo) | (trace.pc >= exit_pc))
     if outside.size:
         k = int(outside[0])
         raise RetrosimError(f"{body.name}: the body branches out of itself: "
                             f"'{machine.disassemble(int(trace.pc[k - 1]))}' went to {int(trace.pc[k]):#010x}")
-    return trace, marks[:iterations + 1]
+    return trace, marks[:iterations + 1], next_pc
 
 
-def _marks(pc: np.ndarray, starts: list[int], loop: bool) -> list[int]:
+def _marks(pc: np.ndarray, starts: list[int], loop: bool, rep_first: bool = False) -> list[int]:
+    """Where each iteration (loop) or copy (block) starts in the pass's PC stream."""
     if loop:
-        return np.flatnonzero(pc == starts[0]).tolist()
+        at = pc == starts[0]
+        if rep_first:
+            # a REP string instruction appears once per element at the same PC: an iteration starts
+            # at its first element only (a one-instruction `l: loop l` still starts one per pass)
+            at[1:] &= pc[:-1] != starts[0]
+        return np.flatnonzero(at).tolist()
     first = []
     for s in starts:
         hit = np.flatnonzero(pc == s)
@@ -358,12 +374,23 @@ def time_run(run: LoopRun, cpu: str, memory: str | None = None, timeline_iterati
     """Time a traced body on one CPU preset (any family make_model knows)."""
     model = make_model(cpu, memory)
     span = min(256, run.iteration_length * max(0, timeline_iterations))
-    core_run = model.run(run.trace, Decoder(run.machine.image.fetch), run.cuts, (run.cuts[1], span), run.cuts[1])
+    core_run = _run_model(model, run, (run.cuts[1], span))
     calls = [core_run.segment(k) for k in range(len(run.cuts))]
     per = {k: round(v / run.measured, 4) for k, v in calls[-1].items()}
     result = TimingResult(model.preset.name, model.dram.name, "loop", Path(run.body.name), 1, calls, model,
                           core_run, run.trace)
     return LoopTiming(model.preset.name, model.dram.name, run.measured, per, result)
+
+
+def _run_model(model, run: LoopRun, timeline: tuple[int, int]):
+    """`model.run` on the loop's trace, except that the body does not end after the trace: it goes on
+    to `run.next_pc` (the back-edge is taken). A run that ended there would take the last back-edge
+    as falling through, a mispredict the loop never has, inside the measured window."""
+    decoder = Decoder(run.machine.image.fetch)
+    session_type = type(model.session(decoder, list(run.cuts), run.cuts[1]))
+    session = session_type(model, decoder, list(run.cuts), timeline, run.cuts[1])
+    session.feed(run.trace, run.next_pc)
+    return session.finish()
 
 
 def time_body(text: str, cpus: list[str], name: str = "<stdin>", syntax: str | None = None,
