@@ -249,8 +249,9 @@ def fpcw_sources(rec: InsnRecord) -> list[tuple[int, int]]:
     reads the control word (its rounding and precision) waits for the newest write of it."""
     written = {r.full for r in rec.regs_written}
     read = {r.full for r in rec.regs_read}
-    if "fpcw" in written:
-        return [(REG_FPSW, -1)] + [(REG_ST0, k) for k in range(8)]
+    if "fpcw" in written:  # what it does not read already (FNSAVE reads them all)
+        return ([(REG_FPSW, -1)] if "fpsw" not in read else []) + \
+            [(REG_ST0, k) for k in range(8) if f"st{k}" not in read]
     if "fpcw" in read:
         return []  # FNSTCW/FNSTENV/FNSAVE already read it
     if rec.mnemonic in _NO_CONTROL_WORD:
