@@ -236,16 +236,42 @@ def p6_uops(rec: InsnRecord, match: Match, load_latency: int, limits: P6Limits |
     return out
 
 
+# x87 instructions that neither round nor compute: the control word does not concern them
+_NO_CONTROL_WORD = frozenset("fxch ffree ffreep fincstp fdecstp fnop fnclex fnstsw wait".split())
+
+
+def fpcw_sources(rec: InsnRecord) -> list[tuple[int, int]]:
+    """Extra (register id, x87 relative index) sources where the x87 control word is not renamed
+    (the P6: Intel's optimization manual, "On the Pentium III processor, the FLDCW instruction is
+    an expensive operation"; docs/sources/p6.md "x87 control word"). An instruction that writes
+    the control word (FLDCW, FLDENV, FRSTOR, FNINIT) waits for every older x87 instruction: for
+    the status word they all write and for the eight stack slots; every x87 instruction that
+    reads the control word (its rounding and precision) waits for the newest write of it."""
+    written = {r.full for r in rec.regs_written}
+    read = {r.full for r in rec.regs_read}
+    if "fpcw" in written:  # what it does not read already (FNSAVE reads them all)
+        return ([(REG_FPSW, -1)] if "fpsw" not in read else []) + \
+            [(REG_ST0, k) for k in range(8) if f"st{k}" not in read]
+    if "fpcw" in read:
+        return []  # FNSTCW/FNSTENV/FNSAVE already read it
+    if rec.mnemonic in _NO_CONTROL_WORD:
+        return []
+    if "fpsw" in written or any(n.startswith("st") and n[2:].isdigit() for n in written | read):
+        return [(REG_FPCW, -1)]
+    return []
+
+
 def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int = 3,
           simple_max_len: int = 7, uops_for=None, decoder_for=None, limits: P6Limits | None = None,
-          precisions: list[int | None] | None = None, adjust=None) -> StaticProgram:
+          precisions: list[int | None] | None = None, adjust=None, fpcw_serializes: bool = False) -> StaticProgram:
     """The static program of `records`; `precisions` gives each static's x87 precision index where
     its row depends on it (sim/cpus/precision.py), else the row's 64-bit figures are used.
     A family other than the P6 passes its own rules:
     `uops_for(rec, match, load_latency)` -> [(kind, ports, latency, unit, occupancy)] and
     `decoder_for(rec, match, uops)` -> DEC_* (the K6 model does; see sim/cpus/k6.py). The P6
     rules (:func:`p6_uops`) take the machine's `limits`. `adjust(rec, match)` -> match lets the
-    family replace a row's timing for this instruction (a locked access: sim/cpus/locking.py)."""
+    family replace a row's timing for this instruction (a locked access: sim/cpus/locking.py).
+    `fpcw_serializes`: the x87 control word is not renamed (the P6, :func:`fpcw_sources`)."""
     if uops_for is None:
         units: dict = {}
 
@@ -310,6 +336,8 @@ def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int 
                 srcs.append((rid, mask, first_compute, rel))
         if rec.flags_read:
             srcs.append((REG_FLAGS, flag_mask(rec.flags_read), first_compute, -1))
+        if fpcw_serializes:
+            srcs.extend((rid, 15, first_compute, rel) for rid, rel in fpcw_sources(rec))
         dsts = []
         for ref in rec.regs_written:
             rid, rel = reg_id(ref.name, ref.full)
