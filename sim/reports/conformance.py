@@ -435,7 +435,10 @@ def render(family_results: dict[str, tuple[list[RowResult], list[str]]]) -> str:
            "difference cancels the loop and the call), run through the",
            "full model on each preset of the family. A row is reproduced when every figure the row states is met within",
            f"{TOLERANCE} cycles on every preset; memory forms are checked for throughput only (copies over 8 lines",
-           "of an L1-resident buffer). Rows marked `estimated` are counted apart.", ""]
+           "of an L1-resident buffer). Rows marked `estimated` are counted apart.",
+           f"Families {', '.join(sorted(INSTLAT_HARNESS))}: InstLatX64's harness instead ({INSTLAT_COPIES} copies per "
+           f"iteration of a 32-byte-aligned loop, {INSTLAT_ITERATIONS} iterations; memory forms as [reg]), whose",
+           "code layout the K6 front end sees (docs/sources/k6.md, 'Decode below the nominal rate').", ""]
     out += ["| family | rows | benchmarked | reproduced (sourced) | estimated rows benchmarked | estimated reproduced | not generated |",
             "|---|---|---|---|---|---|---|"]
     for fam, (results, _) in family_results.items():
