@@ -7,7 +7,9 @@ In one clock either both short decoders work (two instructions of at most 7 byte
 an x87 instruction, and on the K6 model 6/7 an MMX instruction, only in the first), or the long
 decoder (one instruction, up to 4 ops), or the vector decoder with its ROM sequencer (one
 instruction, alone, for S_CYC clocks: at least two, and as many as the sequence runs). An
-instruction with prefixes decodes alone at the measured prefix rate. A predicted-taken branch ends
+instruction with prefixes decodes alone at the measured prefix rate. An instruction whose
+length-determining bytes lie in two 32-byte I-cache lines adds a clock to a decode group of
+one clock (an inferred rule: predecode is per line; k6_machine.toml [decode.line_crossing]). A predicted-taken branch ends
 the group; the branch target cache (BTC) supplies the target's bytes at once, and a BTC miss costs
 a fetch clock. Branch prediction at decode: a 2-bit counter table of BHT entries indexed by the
 branch address XOR a global history of the last HIST_BITS conditional outcomes; direct targets are
@@ -93,7 +95,7 @@ S_FPU = len(P6_S_NAMES)
 # columns of simulate's per-static and per-op fact rows (copies of the lowering's arrays, row-major;
 # F_GPRS.., UF_SRCS..: row ranges of its operand table)
 (F_NUOPS, F_UOP0, F_CYC, F_FIRST, F_DEC, F_PFX, F_FPDELTA, F_GPRS, F_GPRS_END, F_BRANCH, F_LEN, F_TARGET,
- F_RDTSC) = range(13)
+ F_RDTSC, F_CROSS) = range(14)
 NF = 16
 UF_KIND, UF_PORTS, UF_LAT, UF_UNIT, UF_OCC, UF_SRCS, UF_DSTS, UF_DSTS_END = range(8)
 NUF = 8
@@ -243,7 +245,7 @@ UNIT_FREE = 4  # position of unit_free in new_state's tuple
 @njit(cache=True, nogil=True)
 def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
-             s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ, s_cyc, s_first, s_pfx,
+             s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ, s_cyc, s_first, s_pfx, s_cross,
              P, dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
              counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out, dlog,
              sv, reg_ready, reg_pmask, book, unit_free, qring, sq_ring, bus, fw_addr,
@@ -262,6 +264,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         sf[s, F_NUOPS], sf[s, F_UOP0], sf[s, F_CYC], sf[s, F_FIRST] = s_nuops[s], s_uop0[s], s_cyc[s], s_first[s]
         sf[s, F_DEC], sf[s, F_PFX], sf[s, F_FPDELTA] = s_dec[s], s_pfx[s], s_fpdelta[s]
         sf[s, F_BRANCH], sf[s, F_LEN], sf[s, F_TARGET], sf[s, F_RDTSC] = s_branch[s], s_len[s], s_target[s], rdtsc_sid[s]
+        sf[s, F_CROSS] = s_cross[s]
     uf = np.zeros((u_kind.shape[0], NUF), np.int64)
     for u in range(u_kind.shape[0]):
         uf[u, UF_KIND], uf[u, UF_PORTS], uf[u, UF_LAT], uf[u, UF_UNIT], uf[u, UF_OCC] = (
@@ -360,6 +363,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
 
         # ---- decode: join the open group in the second short decoder, or start an opquad -------
         new_quad = not (cyc == 0 and grp_open and sf[sid, F_FIRST] == 0)
+        cross = sf[sid, F_CROSS]  # decode clocks added by length bytes across an I-cache line
         cause_alloc = 0
         if new_quad:
             d = dec_free
@@ -370,10 +374,10 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 d = fe_ready
                 cause_alloc = 1 if fe_cause == 2 else 8
             free_at = qring[q_slot] if nq >= quads else 0
-            entry = max(d + 1, free_at)
-            if free_at > d + 1:
-                counters[cs, C_STALL_ROB] += free_at - (d + 1)
-                per_static[psid, S_STALL_WINDOW] += free_at - (d + 1)
+            entry = max(d + 1 + cross, free_at)
+            if free_at > d + 1 + cross:
+                counters[cs, C_STALL_ROB] += free_at - (d + 1 + cross)
+                per_static[psid, S_STALL_WINDOW] += free_at - (d + 1 + cross)
                 cause_alloc = 2
             if nq > 0:
                 # the scheduler could take an opquad but the decoders have none (redirects apart):
@@ -385,14 +389,15 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     if held > 0:
                         per_static[hold_psid, S_STALL_DECODE] += held
                     per_static[psid, S_STALL_DECODE] += starved - held
-            hold_psid = psid if cyc > 1 else -1
-            hold_cycles = cyc - 1
+            busy = max(cyc, 1) + cross  # decode clocks of this group so far
+            hold_psid = psid if busy > 1 else -1
+            hold_cycles = busy - 1
             prev_entry = entry
             q_entry = entry
             cur_slot = q_slot
             q_slot = q_slot + 1 if q_slot + 1 < quads else 0
             nq += 1
-            dec_free = max(d + max(cyc, 1), entry)  # the decoder holds its group until it enters
+            dec_free = max(d + busy, entry)  # the decoder holds its group until it enters
             grp_cycle = d
             grp_open = cyc == 0
             counters[cs, C_DECODE_GROUPS] += 1
@@ -402,6 +407,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             d = grp_cycle
             entry = q_entry
             grp_open = False
+            dec_free += cross  # the open group takes the extra clock; its ops still enter with it
             counters[cs, C_NOP_SLOTS] -= nu
             slot = 1
         if sf[sid, F_DEC] == DEC_MSROM:

@@ -43,8 +43,10 @@ FAMILY_FIELDS = {
     # why the model does not reproduce the row's figures, with its source (sim/conformance.py reports it)
     "p6": {"ports", "precision_latency", "precision_throughput", "unreproduced"},
     # RISC86 ops per unit, models, per-model values (k6.py); by x87 precision (at_precision); the
-    # measured chain where it is not the execution latency (read only by sim/conformance.py)
-    "k6": {"units", "models", "model_overrides", "precision_latency", "precision_throughput", "measured_latency"},
+    # measured chain where it is not the execution latency, the throughput measured on the system a
+    # model's preset reproduces where the board sets it (both read only by sim/reports/conformance.py)
+    "k6": {"units", "models", "model_overrides", "precision_latency", "precision_throughput", "measured_latency",
+           "measured_system"},
     # pairing class, clocks, x87 overlap and units, FDIV clocks by precision, REP string start-up and
     # ECX = 0 clocks (p5.py)
     "p5": {"pairing", "cycles", "acc_only", "i_ov", "fp_ov", "fmul", "waits_fpu", "mmx_unit", "precision_cycles",
