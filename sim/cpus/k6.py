@@ -57,7 +57,7 @@ from sim.guest.trace import Trace
 from sim.cpus import k6_core as core
 from sim.cpus.locking import lock_cost, locked_match
 from sim.cpus.lowering import (
-    BRANCH, COMPUTE, DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE, LOAD, STA, StaticProgram, lower,
+    BRANCH, COMPUTE, DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE, LOAD, STA, StaticProgram, lower, rep_timing,
 )
 from sim.cpus.p6 import CoreRun, DramCost
 from sim.cpus import vocabulary
@@ -373,7 +373,8 @@ class K6Model:
 
     def lower(self, records: list[InsnRecord], precisions: list[int | None] | None = None) -> StaticProgram:
         return lower(records, self.table, self.l1_latency, uops_for=self.rules.uops, decoder_for=self.rules.decoder,
-                     precisions=precisions, adjust=self.locked)
+                     precisions=precisions, adjust=self.locked,
+                     rep_for=lambda rec, match: rep_timing(rec, match, self.rules.field))
 
     def locked(self, rec, match):
         """A locked instruction's row with the lock's cost at this preset's bus ratio (sim/cpus/locking.py)."""

@@ -49,7 +49,8 @@ from numba import njit
 from sim.memory.hierarchy import S_FILLS, S_WRITEBACKS, memory_fills, memory_writebacks, served_level, service
 from sim.memory.replay import LOG_OFF, LOGGED_HIT, logged_service, replayed_hit
 from sim.cpus.lowering import (
-    BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, LOAD, NREGS, REG_ST0, STA,
+    BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, LOAD, NREGS, OCC_SCALE, R_ELEMENT, R_KIND,
+    R_START, REG_ST0, REP_NONE, STA,
 )
 from sim.cpus.p6_core import (
     C_BRANCHES, C_DECODE_GROUPS, C_DECODER0, C_DRAM_BUS_CYCLES, C_DRAM_FILLS, C_DRAM_WRITEBACKS,
@@ -202,8 +203,8 @@ def _k6_miss(r, lvl, start, P, bus, wb1, wb2, counters, cs):
 # chunks exactly as in one call (sim/cpus/session.py; new_state gives the machine at reset).
 (V_FP_TOP, V_NQ, V_Q_SLOT, V_Q_ENTRY, V_PREV_ENTRY, V_NSTORES, V_SQ_POS, V_LAST_COMMIT, V_FW_N,
  V_L1_FILL_SEEN, V_GHIST, V_RSB_TOP, V_DEC_FREE, V_FE_READY, V_FE_CAUSE, V_GRP_CYCLE, V_GRP_OPEN, V_HOLD_PSID,
- V_HOLD_CYCLES, V_LAST_RETIRE, V_CUR_SLOT, V_SEG, V_SEG_START) = range(23)
-NSTATE = 23
+ V_HOLD_CYCLES, V_LAST_RETIRE, V_CUR_SLOT, V_SEG, V_SEG_START, V_PREV_PC, V_REP_SID, V_REP_NEXT) = range(26)
+NSTATE = 26
 HOLD_SINK = -2  # hold_psid naming the sink row (whose index grows with the statics)
 
 
@@ -214,6 +215,8 @@ def new_state(P: np.ndarray, units: int) -> tuple:
     sv[V_PREV_ENTRY] = -1
     sv[V_HOLD_PSID] = -1  # per-static row of the last group's multi-clock decode (vector, prefixes)
     sv[V_RSB_TOP] = 1
+    sv[V_PREV_PC] = -1   # the PC of the instruction before the chunk (a REP string's later element)
+    sv[V_REP_SID] = -1   # the REP string whose run is open (-1: none)
     rsb = np.zeros(int(P[P_RSB]), np.int64)
     rsb[0] = P[P_EXIT_ADDR]  # the harness's call into the kernel: its return is predictable
     btc_ways = int(P[P_BTC])
@@ -245,7 +248,7 @@ UNIT_FREE = 4  # position of unit_free in new_state's tuple
 @njit(cache=True, nogil=True)
 def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
-             s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ, s_cyc, s_first, s_pfx, s_cross,
+             s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ, s_rep, s_cyc, s_first, s_pfx, s_cross,
              P, dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
              counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out, dlog,
              sv, reg_ready, reg_pmask, book, unit_free, qring, sq_ring, bus, fw_addr,
@@ -329,6 +332,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     cur_slot = sv[V_CUR_SLOT]
     seg = sv[V_SEG]
     seg_start = sv[V_SEG_START]
+    prev_pc = sv[V_PREV_PC]
+    rep_sid = sv[V_REP_SID]
+    rep_next = sv[V_REP_NEXT]  # hundredths of a cycle: when the REP loop's latest element was issued
     last_seg = counters.shape[0] - 1
     cs = min(seg, last_seg)  # the counters row: the segment's, the last row once every segment has ended
     nrdtsc = 0
@@ -343,6 +349,85 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         u0 = sf[sid, F_UOP0]
         cyc = sf[sid, F_CYC]
         psid = sid if i >= stat_first else sink
+        rep_later = rep_sid == sid and prev_pc == pc
+        prev_pc = pc
+        if rep_sid >= 0 and not rep_later:
+            rep_end = -(-rep_next // OCC_SCALE)  # nothing decodes before the REP loop's last element
+            if rep_end > dec_free:
+                dec_free = rep_end
+            rep_sid = -1
+        if rep_later:
+            # ---- a later element of a REP string: the ROM sequencer's loop, no decode or ops of its
+            # own, `rep_element` clocks after the last; its accesses through the memory model
+            acc = acc_next
+            acc_end = acc
+            while acc_end < n_acc and mem_insn[acc_end] == li:
+                acc_end += 1
+            acc_next = acc_end
+            wait = 0
+            if acc_end == acc:
+                rep_sid = -1  # the closing execution (ECX = 0): the run ends
+                t = -(-rep_next // OCC_SCALE)
+            else:
+                rep_next += s_rep[sid, R_ELEMENT]
+                t = -(-rep_next // OCC_SCALE)
+                for j in range(acc, acc_end):
+                    a, sz = np.int64(mem_addr[j]), np.int64(mem_size[j])
+                    w_ = mem_write[j] != 0
+                    r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, w_) if log_off else
+                         LOGGED_HIT if replayed_hit(dlog) else
+                         logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, w_))
+                    lvl = served_level(r)
+                    counters[cs, C_L1D_STORES if w_ else C_L1D_LOADS] += 1
+                    filled = dstats[0, S_FILLS] != l1_fill_seen
+                    if lvl > 0 or filled:
+                        counters[cs, C_L1D_STORE_MISSES if w_ else C_L1D_LOAD_MISSES] += 1
+                        per_static[psid, S_L1D_MISSES] += 1
+                        if lvl == d_levels:
+                            per_static[psid, S_L2_MISSES] += 1
+                        wb1 = _new_writebacks(dstats, wb_seen, 0)
+                        wb2 = _new_writebacks(dstats, wb_seen, 1)
+                        if not w_ or filled:
+                            l1_fill_seen = dstats[0, S_FILLS]
+                            w = _k6_miss(r, max(lvl, 1), t, P, bus, wb1, wb2, counters, cs)
+                        else:  # a write not allocated: one write on the front-side bus
+                            b = max(t, bus[0])
+                            extra = memory_fills(r) * P[P_DRAM_LINE] + memory_writebacks(r) * P[P_DRAM_WB]
+                            bus[0] = b + P[P_BUS_WRITE] + extra + wb1 * P[P_BOARD_BUSY]
+                            w = b + P[P_BUS_WRITE] - t
+                            counters[cs, C_BUS_WRITES] += 1
+                        if not w_:
+                            counters[cs, C_STALL_MEMORY] += w
+                            per_static[psid, S_STALL_MEMORY] += w
+                        if w > wait:
+                            wait = w  # the loop waits for its memory
+                rep_next += wait * OCC_SCALE
+            done = t + wait + 1
+            for j in range(s_ndst[sid]):
+                rid = s_dst[sid, j, 0]
+                if rid < NREGS and rid != REG_ST0:
+                    reg_ready[rid] = done
+            if done > last_retire:
+                last_retire = done
+            if t > dec_free:
+                dec_free = t
+            grp_open = False
+            if t > last_commit:
+                last_commit = t
+            counters[cs, C_INSTRUCTIONS] += 1
+            per_static[psid, S_EXECUTIONS] += 1
+            per_static[psid, S_ISSUE_TO_RETIRE] += done - t
+            per_static[psid, S_DECODE_TO_RETIRE] += done - t
+            k = i - tl_first
+            if 0 <= k < timeline.shape[0]:
+                for col, v in enumerate((i, np.int64(sid), t, t, t, done - 1, done, np.int64(0))):
+                    timeline[k, col] = v
+            if seg < seg_end.shape[0] and i + 1 == seg_end[seg]:
+                counters[cs, C_CYCLES] = last_retire - seg_start
+                seg_start = last_retire
+                seg += 1
+                cs = min(seg, last_seg)
+            continue
 
         # ---- fetch: the L1I ----------------------------------------------------------------------
         # Only code fills the L1I, so a line that hit stays resident until the next miss: `known`
@@ -579,6 +664,11 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             nstores += 1
             last_commit = commit
 
+        if s_rep[sid, R_KIND] != REP_NONE:
+            # the first element of a REP string: the ROM sequencer's loop starts after it
+            rep_sid = sid
+            rep_next = (inst_complete + s_rep[sid, R_START]) * OCC_SCALE
+
         # ---- branches: predicted at decode, resolved by the branch op ---------------------------
         br = sf[sid, F_BRANCH]
         if br != BR_NONE:
@@ -681,4 +771,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     sv[V_CUR_SLOT] = cur_slot
     sv[V_SEG] = seg
     sv[V_SEG_START] = seg_start
+    sv[V_PREV_PC] = prev_pc
+    sv[V_REP_SID] = rep_sid
+    sv[V_REP_NEXT] = rep_next
     return last_retire

@@ -41,7 +41,10 @@ ROW_FIELDS = {"mnemonic", "signature", "uops", "decoder", "latency", "throughput
 FAMILY_FIELDS = {
     # one port per uop (sim/cpus/lowering.py); latency and throughput by x87 precision (at_precision);
     # why the model does not reproduce the row's figures, with its source (sim/conformance.py reports it)
-    "p6": {"ports", "precision_latency", "precision_throughput", "unreproduced"},
+    "p6": {"ports", "precision_latency", "precision_throughput", "unreproduced",
+           # REP strings (sim/cpus/lowering.py rep_timing): microcode-loop clocks per element, the
+           # loop's start-up, the fast-string start-up (REP MOVS/STOS)
+           "rep_element", "rep_startup", "fast_string_startup"},
     # RISC86 ops per unit, models, per-model values (k6.py); by x87 precision (at_precision); the
     # measured chain where it is not the execution latency, the throughput measured on the system a
     # model's preset reproduces where the board sets it (both read only by sim/reports/conformance.py)
