@@ -71,7 +71,7 @@ def test_rows_below_the_k6_decode_rate_are_listed_with_the_reason_and_counted():
     results, presets = run_family("k6", only={"add r32,i8", "add r32,r32"})
     by_key = {r.row.key: r for r in results}
     assert by_key["add r32,r32"].ok and not by_key["add r32,i8"].ok
-    assert "encoded length" in by_key["add r32,i8"].reason
+    assert "length-determining bytes inside one line" in by_key["add r32,i8"].reason
     text = render({"k6": (results, presets)})
     line = next(ln for ln in text.splitlines() if ln.startswith("| K6 front end"))
     assert line.endswith("| 1 | 0 |")
@@ -109,3 +109,25 @@ def test_memory_forms_are_benchmarked_for_throughput():
     assert all(by_key[k].checked for k in keys) and not by_key["fadd m32fp"].checked
     assert {k for k in keys if by_key[k].ok} == keys
     assert by_key["add m32,r32"].measured["pentium2-233"][1] == pytest.approx(1.75, abs=0.05)
+
+
+def test_k6_rows_are_timed_in_instlat_loop_and_the_line_crossing_rule_reproduces_them():
+    # InstLatX64 K6/K6-2/K6-III: 12 copies per iteration of a 32-byte-aligned loop. ADD r16,r16
+    # (3 bytes, one 0x66 decode per clock) L 1.1 T 1.08 = 13/12: the copy at offset 30 has its
+    # ModRM in the next line (k6_machine.toml [decode.line_crossing], inferred); SHL r16,imm8
+    # (4 bytes, no copy across) and INC r16 (2 bytes) 1.00; the K6 model 6 decodes MMX in one
+    # decoder only, PADDB mm,mm (3 bytes) 1.08 there, 0.59 on the K6-2 and K6-III
+    keys = {"add r16,r16", "shl r16,i8", "inc r16", "paddb mm,mm"}
+    results, _ = run_family("k6", only=keys)
+    by_key = {r.row.key: r for r in results}
+    assert all(by_key[k].ok for k in keys), [(k, by_key[k].reason) for k in keys]
+    assert abs(by_key["add r16,r16"].measured["k6-2-300"][1] - 13 / 12) < 0.01
+    assert abs(by_key["shl r16,i8"].measured["k6-2-300"][1] - 1.0) < 0.01
+    assert abs(by_key["paddb mm,mm"].measured["k6-233"][1] - 13 / 12) < 0.01
+    from sim.reports.conformance import _source
+    text, _ = _source([by_key["add r16,r16"].row], instlat=True)
+    assert text.count(".p2align 5, 0x90") == 4  # every loop start aligned
+    # the subtracted loop skips its first dozen (never executed), so the timed dozen keeps InstLat's addresses
+    lat_a = text.split(".globl lat0a")[1].split(".globl")[0]
+    skipped, looped = lat_a.split(".p2align 5, 0x90")[1].split("1:")
+    assert skipped.count("add ax, ax") == 12 and looped.count("add ax, ax") == 12

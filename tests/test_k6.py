@@ -228,3 +228,30 @@ pick:
 """)
     with pytest.raises(RetrosimError, match=r"cmov.S:9: cmovz is not available on k6-233 \(the K6 family has no CMOV\)"):
         time_kernel(src, "pick", lambda m: [0, 5], cpu="k6-233", repeat=1)
+
+
+def _crossing_loop(tmp_path, shift):
+    """12 copies of ADD r16,r16 (66 01 xx, 3 bytes: all three length-determining) per iteration, the
+    loop starting `shift` bytes after a 32-byte boundary, closed by DEC/JNZ (InstLatX64's harness)."""
+    src = tmp_path / f"cross{shift}.S"
+    pad = f"    .fill {shift}, 1, 0x90\n" if shift else ""
+    src.write_text(".intel_syntax noprefix\n.text\n.globl run\n.p2align 5\nrun:\n    push ebp\n"
+                   "    mov ebp, [esp+8]\n    jmp 1f\n.p2align 5, 0x90\n" + pad + "1:\n" +
+                   "".join(f"    add {r}, bx\n" for r in ["ax", "cx", "dx", "si", "di", "ax"] * 2) +
+                   "    dec ebp\n    jnz 1b\n    pop ebp\n    ret\n")
+    return src
+
+
+@pytest.mark.parametrize("cpu", ["k6-233", "k6-2-300", "k6-3-450"])
+def test_length_bytes_across_an_icache_line_cost_a_decode_clock(tmp_path, cpu):
+    # k6_machine.toml [decode.line_crossing] (inferred: predecode is per 32-byte line, DS-K6 p.12;
+    # InstLatX64 K6/K6-2/K6-III ADD r16,r16 T 1.08 = 13/12 in a 12-copy 32-byte-aligned loop, ADD
+    # r16,imm8 (4 bytes, no copy across a line) 1.00). Aligned: the copy at offset 30 has its ModRM
+    # in the next line; shifted by 2 no copy's length bytes cross (offsets 2, 5, ..., 35).
+    def cycles(shift):
+        src = _crossing_loop(tmp_path, shift)
+        return time_kernel(src, "run", lambda m: [N], cpu=cpu, repeat=2).last["cycles"] / N
+
+    aligned, shifted = cycles(0), cycles(2)
+    assert 12.9 <= shifted <= 13.2          # 12 one-per-clock 0x66 decodes + the DEC/JNZ pair
+    assert 0.95 <= aligned - shifted <= 1.05

@@ -144,3 +144,91 @@ def test_p5_explain_fits_and_names_pipes(shown, width):
     assert "class" in text and "alone because" in text and "table row" in text
     header = next(line for line in text.splitlines() if "class" in line and "instruction" in line)
     assert " U " in header + " " and " V " in header + " "
+
+
+# -- honest output: estimated rows and behaviour the model does not implement (issue 20 item 7) --
+from sim.cpus.table import TimingRow, load_table  # noqa: E402
+from sim.reports import views  # noqa: E402
+from sim.timing import loop  # noqa: E402
+
+
+def _estimated(family, key):
+    mnemonic, _, signature = key.partition(" ")
+    return load_table(family).rows[(mnemonic, signature)].estimated
+
+
+def test_only_sourced_rows_report_zero_estimated():
+    assert not any(_estimated("p6", k) for k in ("add r32,r32", "dec r32", "jcc rel32"))  # the premise
+    t, = loop.time_body("top:\n  add eax, ebx\n  dec ecx\n  jnz top\n", ["pentium2-233"], iterations=20)
+    c = views.caveats(t.result)
+    assert c["instructions"] == 30 and c["estimated_instructions"] == 0 and c["estimated_rows"] == []
+    assert views.caveat_lines(t.result) == ["estimated rows: 0 of 30 executed instructions (0 %)"]
+
+
+def test_an_estimated_row_is_counted_per_execution():
+    assert _estimated("p6", "cwde") and not _estimated("p6", "add r32,r32")  # the premise
+    t, = loop.time_body("top:\n  cwde\n  add eax, ebx\n  dec ecx\n  jnz top\n", ["pentium2-233"], iterations=20)
+    c = views.caveats(t.result)
+    assert c["instructions"] == 40 and c["estimated_instructions"] == 10  # one CWDE in each of 10 iterations
+    assert c["estimated_rows"] == [{"row": "cwde", "executions": 10}] and c["estimated_share"] == 0.25
+    assert "10 of 40 executed instructions (25 %) use 1 table row marked estimated" in views.caveat_lines(t.result)[0]
+
+
+def test_a_row_the_model_does_not_reproduce_is_named_with_its_reason():
+    row = load_table("p6").rows[("bsf", "r16,r16")]
+    assert row.extra.get("unreproduced")  # the premise: the table says why the model differs
+    t, = loop.time_body("top:\n  bsf ax, bx\n  dec ecx\n  jnz top\n", ["pentium2-233"], iterations=20)
+    limits = views.caveats(t.result)["not_modelled"]
+    assert limits == [{"row": "bsf r16,r16", "instructions": ["bsf ax, bx"], "executions": 10,
+                       "why": [row.extra["unreproduced"]]}]
+    assert views.caveat_lines(t.result)[1].startswith("relies on behaviour not modelled: bsf r16,r16 (10 executions)")
+
+
+def test_row_limits_reads_note_sentences_that_name_what_is_not_modelled():
+    row = TimingRow("x", "", 1, (), "simple", 1, 1, "src",
+                    note="Unpipelined divider. Not modelled: a power-of-2 divisor L 9 (p6_machine.toml). "
+                         "Start-up cost not modelled separately.")
+    assert views.row_limits(row) == ["Not modelled: a power-of-2 divisor L 9 (p6_machine.toml).",
+                                     "Start-up cost not modelled separately."]
+    assert views.row_limits(TimingRow("x", "", 1, (), "simple", 1, 1, "src", note="Measured in a loop.")) == []
+
+
+def test_time_reports_estimated_executions(shown, write_kernel):
+    # NEG r32 is an estimated row on the P5 and a sourced one on the P6 (the premise)
+    assert _estimated("p5", "neg r32") and not _estimated("p6", "neg r32")
+    src = write_kernel("    mov ecx, [esp+4]\n1:  neg eax\n    neg edx\n    dec ecx\n    jnz 1b\n    ret\n",
+                       "neg.S", "negs")
+    args = ("time", str(src), "-e", "negs", "--args", "100")
+    p5 = json.loads(CliRunner().invoke(cli.main, [*args, "--cpu", "pentium-90", "--json"]).output)
+    p6 = json.loads(CliRunner().invoke(cli.main, [*args, "--cpu", "pentium2-233", "--json"]).output)
+    assert p5["model_limits"]["instructions"] == p5["instructions"]
+    assert p5["model_limits"]["estimated_instructions"] >= 200  # 2 NEGs x 100 iterations
+    assert p6["model_limits"]["estimated_instructions"] == 0
+    text = shown(80, *args, "--cpu", "pentium2-233")
+    assert f"estimated rows: 0 of {p6['instructions']:,} executed instructions (0 %)" in text
+
+
+LCP_KERNEL = """.intel_syntax noprefix
+.text
+# @entry lcp(n) -> a MOV r16,imm16 per iteration
+.globl lcp
+lcp:
+    mov ecx, [esp+4]
+1:  mov ax, 0x1234
+    dec ecx
+    jnz 1b
+    ret
+"""
+
+
+def test_explain_lists_the_not_modelled_rows_with_why(shown, tmp_path):
+    src = tmp_path / "lcp.S"
+    src.write_text(LCP_KERNEL)
+    row = load_table("p6").rows[("mov", "r16,i16")]
+    text = shown(80, "explain", str(src), "--args", "50", "--cpu", "pentium2-233")
+    assert_fits(text, 80)
+    words = " ".join(text.split())
+    assert "relies on behaviour not modelled: mov r16,i16 (50 executions)" in words
+    assert "not modelled, mov r16,i16 (mov ax, 0x1234): " + row.extra["unreproduced"] in words
+    out = json.loads(CliRunner().invoke(cli.main, ["explain", str(src), "--args", "50", "--json"]).output)
+    assert out["summary"]["model_limits"]["not_modelled"][0]["why"] == [row.extra["unreproduced"]]

@@ -151,15 +151,17 @@ def cpu_choice(ctx, param, value):
     return value
 
 
+memory_option = click.option("--memory", "-m", help="memory preset (default: the CPU preset's)")
+set_option = click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
+                          help="override a preset field (l2.size_kb=256, l2.size_kb=none, l2.latency_cycles=10, "
+                               "write_allocate.mode=full, estimates.uop_queue=8, memory=sdram-pc100); repeatable")
 timing_options = [
     click.option("--cpu", "-c", default="pentium2-233", show_default=True, callback=cpu_choice,
                  help="CPU preset (see `retrosim cpus`)"),
-    click.option("--memory", "-m", help="memory preset (default: the CPU preset's)"),
+    memory_option,
     click.option("--repeat", "-n", default=2, show_default=True, callback=bounded(1, MAX_REPEAT),
                  help="calls in one machine state; the last is reported (caches and predictors warm)"),
-    click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
-                 help="override a preset field (l2.size_kb=256, l2.size_kb=none, l2.latency_cycles=10, "
-                      "write_allocate.mode=full, estimates.uop_queue=8, memory=sdram-pc100); repeatable"),
+    set_option,
 ]
 
 
@@ -200,17 +202,33 @@ def with_timing_options(fn):
     return fn
 
 
-def cpu_list(values) -> list[str]:
-    """--cpu may repeat, take comma-separated presets, or `all` (every preset)."""
-    from sim.cpus import presets
+def _split_cpus(value: str) -> list[str]:
+    """Comma-separated CPUs; a comma inside a label's braces (pentium2-233{l2.size_kb=256,...}) is its own."""
+    out, depth, start = [], 0, 0
+    for i, ch in enumerate(value + ","):
+        depth += {"{": 1, "}": -1}.get(ch, 0)
+        if ch == "," and depth <= 0:
+            out.append(value[start:i].strip())
+            start = i + 1
+    return [n for n in out if n]
 
-    names = [n.strip() for v in values for n in v.split(",") if n.strip()] or ["pentium2-233"]
+
+def cpu_list(values) -> list[str]:
+    """--cpu may repeat, take comma-separated presets or machine labels (k6-233{write_allocate.mode=full}),
+    or `all` (every preset)."""
+    from sim.cpus import presets
+    from sim.cpus.machine import MachineKey
+
+    names = [n for v in values for n in _split_cpus(v)] or ["pentium2-233"]
     if "all" in names:
         return presets.available()
     for n in names:
-        if n not in presets.available():
-            raise ArgumentError(f"unknown CPU preset '{n}' (choose one of: {', '.join(presets.available())}, or all)")
+        preset = MachineKey.parse(n).preset
+        if preset not in presets.available():
+            raise ArgumentError(f"unknown CPU preset '{preset}' (choose one of: "
+                                f"{', '.join(presets.available())}, or all)")
     return list(dict.fromkeys(names))
+
 
 REPORTS_DIR = Path(__file__).resolve().parents[2] / "reports"
 SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"

@@ -16,7 +16,7 @@ from sim.guest import kernels as catalogue_mod
 from sim.errors import ArgumentError
 from sim.cli.app import (
     bounded, buffer_summary, choose_entry, console, cpu_choice, cpu_list, err_console, load_machine, main,
-    parse_args, resolve_machine, with_kernel_options, with_timing_options,
+    memory_option, parse_args, resolve_machine, set_option, with_kernel_options, with_timing_options,
 )
 
 
@@ -137,11 +137,18 @@ def time_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, s
     from sim.reports import views
 
     result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets=sets)
+    limits = views.caveats(result)
     if as_json:
-        click.echo(json.dumps(views.summary(result), indent=2))
+        click.echo(json.dumps({**views.summary(result), "model_limits": limits}, indent=2))
         return
     console.print(views.summary_table(result))
+    _print_lines(views.caveat_lines(result, limits))
     console.print(views.stall_table(result))
+
+
+def _print_lines(lines) -> None:
+    for line in lines:  # literal text (rows hold [esi]), wrapped at the terminal's width
+        console.print(line, markup=False, highlight=False)
 
 
 EXPLAIN_HELP = """Per-instruction table of the last call (decoder, uops, ports, latency,
@@ -178,16 +185,20 @@ def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat
     from sim.reports import views
 
     result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations, sets=sets)
+    limits = views.caveats(result)
     if as_json:
-        click.echo(json.dumps({"summary": views.summary(result), "instructions": views.explain_rows(result),
+        click.echo(json.dumps({"summary": {**views.summary(result), "model_limits": limits},
+                               "instructions": views.explain_rows(result),
                                "timeline": views.timeline_rows(result)}, indent=2))
         return
     console.print(views.summary_table(result))
+    _print_lines(views.caveat_lines(result, limits))
     console.print(views.stall_table(result))
     for table in views.explain_tables(result, console.width):
         console.print(table)
     for line in views.explain_legend(result):
         console.print(line, markup=False, highlight=False)
+    _print_lines(views.caveat_details(result, limits))
     text = views.timeline_text(result, columns=console.width)
     if text:
         console.print(f"[bold]timeline[/]: {iterations} iterations of the hot loop, from the middle of the last call")
@@ -216,17 +227,27 @@ def _loop_explain_table(t) -> Table:
 @main.command("loop")
 @click.argument("source")
 @click.option("--cpu", "-c", "cpus", multiple=True,
-              help="CPU preset; repeat or separate with commas for several, `all` for every preset [default: pentium2-233]")
+              help="CPU preset or machine label (k6-233{write_allocate.mode=full}); repeat or separate with "
+                   "commas for several, `all` for every preset [default: pentium2-233]")
+@memory_option
+@set_option
 @click.option("--syntax", type=click.Choice(["intel", "att"]), help="source syntax (default: detected; Intel if unsure)")
 @click.option("--iterations", "-n", default=100, show_default=True,
               help="iterations per pass; counters are taken between iteration N/2 and N of the second pass")
 @click.option("--reg", "regs", multiple=True, metavar="R=V", help="register start value, e.g. --reg ecx=1000")
+@click.option("--align", "align", default=64, show_default=True, metavar="N",
+              help="place the body's first instruction at a multiple of N bytes (1, 2, 4, ..., 64) and of no "
+                   "larger power of two, as a function's loop may be: 16 gives 16 bytes past a 64-byte boundary")
+@click.option("--offset", "offset", default=0, show_default=True, metavar="K",
+              help="then K bytes further (0 <= K < N): --align 16 --offset 3 starts the body 19 bytes past a "
+                   "64-byte boundary")
 @click.option("--timeline", "timeline", default=3, show_default=True, help="iterations shown in the timeline")
 @click.option("--brief", is_flag=True, help="only the table of cycles per iteration")
 @click.option("--assembler", type=click.Choice(["gnu", "zig"]), help="assembler back end (default: GNU as)")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
-def loop_cmd(source, cpus, syntax, iterations, regs, timeline, brief, assembler, as_json):
+def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline, brief, assembler, as_json):
     """Time a bare loop body or basic block (FILE, or - for standard input): steady-state cycles per iteration."""
+    from sim.cpus import load_dram
     from sim.timing import loop
     from sim.reports import views
 
@@ -237,15 +258,27 @@ def loop_cmd(source, cpus, syntax, iterations, regs, timeline, brief, assembler,
         if not path.is_file():
             raise ArgumentError(f"{source}: no such file")
         text, name = path.read_text(errors="replace"), source
-    timings = loop.time_body(text, cpu_list(cpus), name, syntax, iterations, loop.parse_regs(regs), assembler,
-                             timeline)
+    loop.placement(align, offset)
+    if memory:
+        load_dram(memory)
+    labels = []
+    for cpu in cpu_list(cpus):  # --set applies to every CPU, as `time --set` does to its one
+        label, set_memory, _ = resolve_machine(cpu, sets)
+        labels.append(label)
+        memory = memory or set_memory
+    timings, not_timed = loop.time_body_where_possible(text, list(dict.fromkeys(labels)), name, syntax, iterations,
+                                                       loop.parse_regs(regs), assembler, timeline, memory, align,
+                                                       offset)
     if as_json:
         click.echo(json.dumps({"source": name, "registers": {k: f"{v:#010x}" for k, v in loop.parse_regs(regs).items()},
+                               "placement": _placement(timings, align, offset),
+                               "not_timed": not_timed,
                                "results": [{"cpu": t.cpu, "memory": t.memory,
                                             "cycles_per_iteration": t.cycles_per_iteration,
                                             "uops_per_iteration": t.uops_per_iteration,
                                             "instructions_per_iteration": t.per_iteration["instructions"],
                                             "measured_iterations": t.iterations, "per_iteration": t.per_iteration,
+                                            "model_limits": views.caveats(t.result),
                                             "instructions": views.explain_rows(t.result),
                                             "timeline": views.timeline_rows(t.result)} for t in timings]}, indent=2))
         return
@@ -258,18 +291,36 @@ def loop_cmd(source, cpus, syntax, iterations, regs, timeline, brief, assembler,
                 console.print(_loop_explain_table(t))
             text_tl = views.timeline_text(t.result)
             if text_tl:
-                console.print(f"[bold]timeline[/] on {t.cpu}: {timeline} iterations from the middle of the measured pass")
+                console.print(f"[bold]timeline[/] on {escape(t.cpu)}: {timeline} iterations from the middle of the measured pass")
                 console.print(text_tl, markup=False, highlight=False, soft_wrap=True)
     table = Table(title=f"{escape(name)}: steady state per iteration (iterations {iterations // 2}..{iterations})")
-    for col in ("cpu", "cycles", "instr", "uops", "IPC", "main stalls (cycles)"):
-        table.add_column(col, justify="left" if col in ("cpu", "main stalls (cycles)") else "right")
+    for col in ("cpu", "cycles", "instr", "uops", "IPC", "est.", "main stalls (cycles)"):
+        table.add_column(col, justify="left" if col in ("cpu", "main stalls (cycles)") else "right",
+                         overflow="fold")  # a machine label in full: k6-233{write_allocate.mode=full}
+    limits = {t.cpu: views.caveats(t.result) for t in timings}
     for t in timings:
         p = t.per_iteration
         stalls = sorted(((p[k], k[6:].replace("_", " ")) for k in views.STALLS if p.get(k)), reverse=True)[:3]
-        table.add_row(t.cpu, f"{t.cycles_per_iteration:.2f}", f"{p['instructions']:g}", f"{t.uops_per_iteration:g}",
+        table.add_row(escape(t.cpu), f"{t.cycles_per_iteration:.2f}", f"{p['instructions']:g}", f"{t.uops_per_iteration:g}",
                       f"{p['instructions'] / t.cycles_per_iteration:.2f}" if t.cycles_per_iteration else "-",
+                      f"{100 * limits[t.cpu]['estimated_share']:.0f}%",
                       ", ".join(f"{what} {v:g}" for v, what in stalls) or "none")
     console.print(table)
+    place = _placement(timings, align, offset)
+    lines = [f"body at {place['address']} ({place['alignment']}-byte aligned, {place['past_boundary']} past a "
+             f"{loop.ALIGN_SPAN}-byte boundary: --align {align} --offset {offset}); est.: executed instructions "
+             "timed with estimated table rows"]
+    lines += [f"not timed (no {what}): {', '.join(cpus_)}" for what, cpus_ in not_timed.items()]
+    lines += [f"{cpu}: {views.not_modelled_line(c)}" for cpu, c in limits.items() if c["not_modelled"]]
+    _print_lines(lines)
+
+
+def _placement(timings, align: int, offset: int) -> dict:
+    from sim.timing import loop
+
+    address = timings[0].address
+    return {"address": f"{address:#010x}", "align": align, "offset": offset,
+            "alignment": timings[0].alignment, "past_boundary": address % loop.ALIGN_SPAN}
 
 
 @main.command("bench")

@@ -25,7 +25,9 @@ How a table row becomes ops (:class:`K6Rules`):
 - decode clocks: a short instruction without prefixes pairs (0); long 1; vector: the vector
   decoder and ROM sequencer are busy for max(2, ceil(ops / 4), the row's throughput when no
   non-pipelined unit explains it) clocks; prefixes: the measured rate (one prefix 1 clock alone, 2
-  with a 16-bit immediate; two prefixes 3; n >= 3: 2n - 2).
+  with a 16-bit immediate; two prefixes 3; n >= 3: 2n - 2); an instruction whose length-determining
+  bytes cross a 32-byte I-cache line adds one clock to a decode of at most one clock (an inferred
+  rule, k6_machine.toml [decode.line_crossing]: predecode is per line, DS-K6 p.12).
 
 Vector sequences. The table gives BSR/BSF one op with latency 10 and throughput 10 (measured on
 three K6 generations; the op count is 86Box's guess). One pipelined op cannot have throughput 10,
@@ -53,7 +55,7 @@ from sim.cpus.contract import CoreRun, FamilyModel
 from sim.cpus.families import machine_table
 from sim.cpus.locking import lock_cost, locked_match
 from sim.cpus.lowering import (
-    BRANCH, COMPUTE, DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE, LOAD, STA, StaticProgram, lower,
+    BRANCH, COMPUTE, DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE, LOAD, STA, StaticProgram, lower, rep_timing,
 )
 from sim.cpus.presets import CpuPreset, model_by_cpuid
 from sim.cpus.session import CoreSession, grown_state
@@ -98,6 +100,8 @@ class K6Rules:
         self.vector_rate = d["vector"]["ops_per_cycle"]
         self.vector_min = d["vector"]["min_cycles_per_instruction"]
         self.mmx_first_only = bool(d["short"]["mmx_first_decoder_only"][key])
+        self.line_bytes = d["line_crossing"]["line_bytes"]
+        self.crossing_cycles = d["line_crossing"]["extra_decode_cycles"]
         self.resources: dict = {}  # (mnemonic, issue slots) -> resource id (see _hold_unexplained)
 
     def field(self, row, name):
@@ -231,11 +235,21 @@ class K6Rules:
             return 2 if rec.opsize_prefix and rec.imm_size == 2 else 1
         return 3 if n == 2 else 2 * n - 2
 
+    def crosses_line(self, rec: InsnRecord) -> bool:
+        """Whether the instruction's length-determining bytes (prefixes, 0x0F, opcode, ModRM, SIB:
+        everything before the displacement and immediate; a 3DNow! suffix byte comes after them)
+        lie in two I-cache lines (k6_machine.toml [decode.line_crossing], an inferred rule)."""
+        tail = rec.disp_size + rec.imm_size + (1 if rec.opcode[:2] == b"\x0f\x0f" else 0)
+        last = rec.pc + max(1, rec.length - tail) - 1
+        return rec.pc // self.line_bytes != last // self.line_bytes
+
     def decode_arrays(self, program: StaticProgram):
-        """(s_cyc, s_first, s_pfx): decode clocks when alone (0 = pairs in the short decoders),
-        first-short-decoder-only flag, decode clocks added by prefixes."""
+        """(s_cyc, s_first, s_pfx, s_cross): decode clocks when alone (0 = pairs in the short
+        decoders), first-short-decoder-only flag, decode clocks added by prefixes, decode clocks
+        added by length-determining bytes across an I-cache line (only to a decode of at most
+        one clock: a longer decode hides it, k6_machine.toml [decode.line_crossing])."""
         n = len(program.records)
-        cyc, first, pfx = (np.zeros(n, np.int64) for _ in range(3))
+        cyc, first, pfx, cross = (np.zeros(n, np.int64) for _ in range(4))
         for s, (rec, match) in enumerate(zip(program.records, program.matches)):
             dec = program.s_dec[s]
             u0, nu = program.s_uop0[s], program.s_nuops[s]
@@ -246,7 +260,9 @@ class K6Rules:
             cyc[s] = max(own, p) if (p or dec != DEC_SIMPLE) else 0
             pfx[s] = max(0, p - own)
             first[s] = int(rec.is_x87 or (self.mmx_first_only and rec.is_mmx))
-        return cyc, first, pfx
+            if cyc[s] <= 1 and self.crosses_line(rec):
+                cross[s] = self.crossing_cycles
+        return cyc, first, pfx, cross
 
 
 # The words views use for the contract's counters on a K6 (sim/cpus/vocabulary.py).
@@ -344,7 +360,8 @@ class K6Model(FamilyModel):
 
     def lower(self, records: list[InsnRecord], precisions: list[int | None] | None = None) -> StaticProgram:
         return lower(records, self.table, self.l1_latency, uops_for=self.rules.uops, decoder_for=self.rules.decoder,
-                     precisions=precisions, adjust=self.locked)
+                     precisions=precisions, adjust=self.locked,
+                     rep_for=lambda rec, match: rep_timing(rec, match, self.rules.field))
 
     def locked(self, rec, match):
         """A locked instruction's row with the lock's cost at this preset's bus ratio (sim/cpus/locking.py)."""

@@ -7,7 +7,9 @@ In one clock either both short decoders work (two instructions of at most 7 byte
 an x87 instruction, and on the K6 model 6/7 an MMX instruction, only in the first), or the long
 decoder (one instruction, up to 4 ops), or the vector decoder with its ROM sequencer (one
 instruction, alone, for S_CYC clocks: at least two, and as many as the sequence runs). An
-instruction with prefixes decodes alone at the measured prefix rate. A predicted-taken branch ends
+instruction with prefixes decodes alone at the measured prefix rate. An instruction whose
+length-determining bytes lie in two 32-byte I-cache lines adds a clock to a decode group of
+one clock (an inferred rule: predecode is per line; k6_machine.toml [decode.line_crossing]). A predicted-taken branch ends
 the group; the branch target cache (BTC) supplies the target's bytes at once, and a BTC miss costs
 a fetch clock. Branch prediction at decode: a 2-bit counter table of BHT entries indexed by the
 branch address XOR a global history of the last HIST_BITS conditional outcomes; direct targets are
@@ -47,7 +49,8 @@ from numba import njit
 from sim.memory.hierarchy import S_FILLS, S_WRITEBACKS, memory_fills, memory_writebacks, served_level, service
 from sim.memory.replay import LOG_OFF, LOGGED_HIT, logged_service, replayed_hit
 from sim.cpus.lowering import (
-    BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, LOAD, NREGS, REG_ST0, STA,
+    BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, LOAD, NREGS, OCC_SCALE, R_ELEMENT, R_KIND,
+    R_START, REG_ST0, REP_NONE, STA,
 )
 from sim.cpus.contract import (
     C_BRANCHES, C_DECODE_GROUPS, C_DECODER0, C_DRAM_BUS_CYCLES, C_DRAM_FILLS, C_DRAM_WRITEBACKS,
@@ -94,7 +97,7 @@ S_FPU = len(SHARED_S_NAMES)
 # columns of simulate's per-static and per-op fact rows (copies of the lowering's arrays, row-major;
 # F_GPRS.., UF_SRCS..: row ranges of its operand table)
 (F_NUOPS, F_UOP0, F_CYC, F_FIRST, F_DEC, F_PFX, F_FPDELTA, F_GPRS, F_GPRS_END, F_BRANCH, F_LEN, F_TARGET,
- F_RDTSC) = range(13)
+ F_RDTSC, F_CROSS) = range(14)
 NF = 16
 UF_KIND, UF_PORTS, UF_LAT, UF_UNIT, UF_OCC, UF_SRCS, UF_DSTS, UF_DSTS_END = range(8)
 NUF = 8
@@ -201,8 +204,8 @@ def _k6_miss(r, lvl, start, P, bus, wb1, wb2, counters, cs):
 # chunks exactly as in one call (sim/cpus/session.py; new_state gives the machine at reset).
 (V_FP_TOP, V_NQ, V_Q_SLOT, V_Q_ENTRY, V_PREV_ENTRY, V_NSTORES, V_SQ_POS, V_LAST_COMMIT, V_FW_N,
  V_L1_FILL_SEEN, V_GHIST, V_RSB_TOP, V_DEC_FREE, V_FE_READY, V_FE_CAUSE, V_GRP_CYCLE, V_GRP_OPEN, V_HOLD_PSID,
- V_HOLD_CYCLES, V_LAST_RETIRE, V_CUR_SLOT, V_SEG, V_SEG_START) = range(23)
-NSTATE = 23
+ V_HOLD_CYCLES, V_LAST_RETIRE, V_CUR_SLOT, V_SEG, V_SEG_START, V_PREV_PC, V_REP_SID, V_REP_NEXT) = range(26)
+NSTATE = 26
 HOLD_SINK = -2  # hold_psid naming the sink row (whose index grows with the statics)
 
 
@@ -213,6 +216,8 @@ def new_state(P: np.ndarray, units: int) -> tuple:
     sv[V_PREV_ENTRY] = -1
     sv[V_HOLD_PSID] = -1  # per-static row of the last group's multi-clock decode (vector, prefixes)
     sv[V_RSB_TOP] = 1
+    sv[V_PREV_PC] = -1   # the PC of the instruction before the chunk (a REP string's later element)
+    sv[V_REP_SID] = -1   # the REP string whose run is open (-1: none)
     rsb = np.zeros(int(P[P_RSB]), np.int64)
     rsb[0] = P[P_EXIT_ADDR]  # the harness's call into the kernel: its return is predictable
     btc_ways = int(P[P_BTC])
@@ -244,7 +249,7 @@ UNIT_FREE = 4  # position of unit_free in new_state's tuple
 @njit(cache=True, nogil=True)
 def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
-             s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ, s_cyc, s_first, s_pfx,
+             s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ, s_rep, s_cyc, s_first, s_pfx, s_cross,
              P, dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
              counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out, dlog,
              sv, reg_ready, reg_pmask, book, unit_free, qring, sq_ring, bus, fw_addr,
@@ -263,6 +268,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         sf[s, F_NUOPS], sf[s, F_UOP0], sf[s, F_CYC], sf[s, F_FIRST] = s_nuops[s], s_uop0[s], s_cyc[s], s_first[s]
         sf[s, F_DEC], sf[s, F_PFX], sf[s, F_FPDELTA] = s_dec[s], s_pfx[s], s_fpdelta[s]
         sf[s, F_BRANCH], sf[s, F_LEN], sf[s, F_TARGET], sf[s, F_RDTSC] = s_branch[s], s_len[s], s_target[s], rdtsc_sid[s]
+        sf[s, F_CROSS] = s_cross[s]
     uf = np.zeros((u_kind.shape[0], NUF), np.int64)
     for u in range(u_kind.shape[0]):
         uf[u, UF_KIND], uf[u, UF_PORTS], uf[u, UF_LAT], uf[u, UF_UNIT], uf[u, UF_OCC] = (
@@ -327,6 +333,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     cur_slot = sv[V_CUR_SLOT]
     seg = sv[V_SEG]
     seg_start = sv[V_SEG_START]
+    prev_pc = sv[V_PREV_PC]
+    rep_sid = sv[V_REP_SID]
+    rep_next = sv[V_REP_NEXT]  # hundredths of a cycle: when the REP loop's latest element was issued
     last_seg = counters.shape[0] - 1
     cs = min(seg, last_seg)  # the counters row: the segment's, the last row once every segment has ended
     nrdtsc = 0
@@ -341,6 +350,85 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         u0 = sf[sid, F_UOP0]
         cyc = sf[sid, F_CYC]
         psid = sid if i >= stat_first else sink
+        rep_later = rep_sid == sid and prev_pc == pc
+        prev_pc = pc
+        if rep_sid >= 0 and not rep_later:
+            rep_end = -(-rep_next // OCC_SCALE)  # nothing decodes before the REP loop's last element
+            if rep_end > dec_free:
+                dec_free = rep_end
+            rep_sid = -1
+        if rep_later:
+            # ---- a later element of a REP string: the ROM sequencer's loop, no decode or ops of its
+            # own, `rep_element` clocks after the last; its accesses through the memory model
+            acc = acc_next
+            acc_end = acc
+            while acc_end < n_acc and mem_insn[acc_end] == li:
+                acc_end += 1
+            acc_next = acc_end
+            wait = 0
+            if acc_end == acc:
+                rep_sid = -1  # the closing execution (ECX = 0): the run ends
+                t = -(-rep_next // OCC_SCALE)
+            else:
+                rep_next += s_rep[sid, R_ELEMENT]
+                t = -(-rep_next // OCC_SCALE)
+                for j in range(acc, acc_end):
+                    a, sz = np.int64(mem_addr[j]), np.int64(mem_size[j])
+                    w_ = mem_write[j] != 0
+                    r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, w_) if log_off else
+                         LOGGED_HIT if replayed_hit(dlog) else
+                         logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, w_))
+                    lvl = served_level(r)
+                    counters[cs, C_L1D_STORES if w_ else C_L1D_LOADS] += 1
+                    filled = dstats[0, S_FILLS] != l1_fill_seen
+                    if lvl > 0 or filled:
+                        counters[cs, C_L1D_STORE_MISSES if w_ else C_L1D_LOAD_MISSES] += 1
+                        per_static[psid, S_L1D_MISSES] += 1
+                        if lvl == d_levels:
+                            per_static[psid, S_L2_MISSES] += 1
+                        wb1 = _new_writebacks(dstats, wb_seen, 0)
+                        wb2 = _new_writebacks(dstats, wb_seen, 1)
+                        if not w_ or filled:
+                            l1_fill_seen = dstats[0, S_FILLS]
+                            w = _k6_miss(r, max(lvl, 1), t, P, bus, wb1, wb2, counters, cs)
+                        else:  # a write not allocated: one write on the front-side bus
+                            b = max(t, bus[0])
+                            extra = memory_fills(r) * P[P_DRAM_LINE] + memory_writebacks(r) * P[P_DRAM_WB]
+                            bus[0] = b + P[P_BUS_WRITE] + extra + wb1 * P[P_BOARD_BUSY]
+                            w = b + P[P_BUS_WRITE] - t
+                            counters[cs, C_BUS_WRITES] += 1
+                        if not w_:
+                            counters[cs, C_STALL_MEMORY] += w
+                            per_static[psid, S_STALL_MEMORY] += w
+                        if w > wait:
+                            wait = w  # the loop waits for its memory
+                rep_next += wait * OCC_SCALE
+            done = t + wait + 1
+            for j in range(s_ndst[sid]):
+                rid = s_dst[sid, j, 0]
+                if rid < NREGS and rid != REG_ST0:
+                    reg_ready[rid] = done
+            if done > last_retire:
+                last_retire = done
+            if t > dec_free:
+                dec_free = t
+            grp_open = False
+            if t > last_commit:
+                last_commit = t
+            counters[cs, C_INSTRUCTIONS] += 1
+            per_static[psid, S_EXECUTIONS] += 1
+            per_static[psid, S_ISSUE_TO_RETIRE] += done - t
+            per_static[psid, S_DECODE_TO_RETIRE] += done - t
+            k = i - tl_first
+            if 0 <= k < timeline.shape[0]:
+                for col, v in enumerate((i, np.int64(sid), t, t, t, done - 1, done, np.int64(0))):
+                    timeline[k, col] = v
+            if seg < seg_end.shape[0] and i + 1 == seg_end[seg]:
+                counters[cs, C_CYCLES] = last_retire - seg_start
+                seg_start = last_retire
+                seg += 1
+                cs = min(seg, last_seg)
+            continue
 
         # ---- fetch: the L1I ----------------------------------------------------------------------
         # Only code fills the L1I, so a line that hit stays resident until the next miss: `known`
@@ -361,6 +449,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
 
         # ---- decode: join the open group in the second short decoder, or start an opquad -------
         new_quad = not (cyc == 0 and grp_open and sf[sid, F_FIRST] == 0)
+        cross = sf[sid, F_CROSS]  # decode clocks added by length bytes across an I-cache line
         cause_alloc = 0
         if new_quad:
             d = dec_free
@@ -371,10 +460,10 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 d = fe_ready
                 cause_alloc = 1 if fe_cause == 2 else 8
             free_at = qring[q_slot] if nq >= quads else 0
-            entry = max(d + 1, free_at)
-            if free_at > d + 1:
-                counters[cs, C_STALL_ROB] += free_at - (d + 1)
-                per_static[psid, S_STALL_WINDOW] += free_at - (d + 1)
+            entry = max(d + 1 + cross, free_at)
+            if free_at > d + 1 + cross:
+                counters[cs, C_STALL_ROB] += free_at - (d + 1 + cross)
+                per_static[psid, S_STALL_WINDOW] += free_at - (d + 1 + cross)
                 cause_alloc = 2
             if nq > 0:
                 # the scheduler could take an opquad but the decoders have none (redirects apart):
@@ -386,14 +475,15 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     if held > 0:
                         per_static[hold_psid, S_STALL_DECODE] += held
                     per_static[psid, S_STALL_DECODE] += starved - held
-            hold_psid = psid if cyc > 1 else -1
-            hold_cycles = cyc - 1
+            busy = max(cyc, 1) + cross  # decode clocks of this group so far
+            hold_psid = psid if busy > 1 else -1
+            hold_cycles = busy - 1
             prev_entry = entry
             q_entry = entry
             cur_slot = q_slot
             q_slot = q_slot + 1 if q_slot + 1 < quads else 0
             nq += 1
-            dec_free = max(d + max(cyc, 1), entry)  # the decoder holds its group until it enters
+            dec_free = max(d + busy, entry)  # the decoder holds its group until it enters
             grp_cycle = d
             grp_open = cyc == 0
             counters[cs, C_DECODE_GROUPS] += 1
@@ -403,6 +493,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             d = grp_cycle
             entry = q_entry
             grp_open = False
+            dec_free += cross  # the open group takes the extra clock; its ops still enter with it
             counters[cs, C_NOP_SLOTS] -= nu
             slot = 1
         if sf[sid, F_DEC] == DEC_MSROM:
@@ -574,6 +665,11 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             nstores += 1
             last_commit = commit
 
+        if s_rep[sid, R_KIND] != REP_NONE:
+            # the first element of a REP string: the ROM sequencer's loop starts after it
+            rep_sid = sid
+            rep_next = (inst_complete + s_rep[sid, R_START]) * OCC_SCALE
+
         # ---- branches: predicted at decode, resolved by the branch op ---------------------------
         br = sf[sid, F_BRANCH]
         if br != BR_NONE:
@@ -676,4 +772,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     sv[V_CUR_SLOT] = cur_slot
     sv[V_SEG] = seg
     sv[V_SEG_START] = seg_start
+    sv[V_PREV_PC] = prev_pc
+    sv[V_REP_SID] = rep_sid
+    sv[V_REP_NEXT] = rep_next
     return last_retire

@@ -67,6 +67,11 @@ FLAG_BITS = {"CF": 1, "PF": 2, "AF": 4, "ZF": 8, "SF": 16, "OF": 32, "DF": 64, "
 
 # P6 occupancies are counted in hundredths of a cycle (fractional measured throughputs)
 OCC_SCALE = 100
+# REP string instructions (s_rep columns, per static; see rep_timing): kind, clocks per element in
+# the microcode loop and with fast strings (hundredths), fast-string start-up and loop start-up (clocks)
+REP_NONE, REP_LOOP, REP_FAST = range(3)
+R_KIND, R_ELEMENT, R_FAST, R_FAST_START, R_START = range(5)
+NREP = 5
 _KIND_ORDER = {COMPUTE: 1, BRANCH: 1, LOAD: 0, STA: 2, STD: 3}  # load, then compute/branch, then store address, store data
 
 
@@ -143,11 +148,12 @@ class StaticProgram:
     u_lat: np.ndarray
     u_unit: np.ndarray
     u_occ: np.ndarray
+    s_rep: np.ndarray      # [n, NREP]: REP string timing (rep_timing)
 
     def arrays(self):
         return (self.s_len, self.s_pc, self.s_dec, self.s_lcp, self.s_branch, self.s_target, self.s_fpdelta,
                 self.s_zero, self.s_nuops, self.s_uop0, self.s_nsrc, self.s_src, self.s_ndst, self.s_dst,
-                self.u_kind, self.u_ports, self.u_lat, self.u_unit, self.u_occ)
+                self.u_kind, self.u_ports, self.u_lat, self.u_unit, self.u_occ, self.s_rep)
 
 
 def _branch_kind(rec: InsnRecord) -> int:
@@ -180,6 +186,30 @@ def natural_throughput(rec: InsnRecord, row, kinds: list[int], ports: list[str],
     if (rec.opsize_prefix and rec.imm_size == 2) or (rec.addrsize_prefix and rec.disp_size == 2):
         bound = max(bound, limits.lcp_cycles)
     return bound
+
+
+def rep_timing(rec: InsnRecord, match: Match, field=None) -> tuple[int, int, int, int, int]:
+    """The s_rep row of a REP string instruction (zeros for anything else), from its table row.
+    The trace holds one execution per element; the cores time the first through its uops and the
+    later ones as the microcode loop's elements (no decode, no uops of their own; each element's
+    accesses still go through the memory model), at `rep_element` clocks each (default: the row's
+    throughput), after `rep_startup` clocks. A row with `fast_string_startup` moves whole lines
+    when the P6's fast-string conditions hold (p6_core): its throughput is then the per-element
+    figure and the start-up is `fast_string_startup`. `field(row, name)` reads a field with the
+    family's overrides (K6 model_overrides)."""
+    if not rec.rep:
+        return (REP_NONE, 0, 0, 0, 0)
+    row = match.row
+    if field is None:
+        def field(r, name):
+            return getattr(r, name) if hasattr(r, name) else r.extra.get(name)
+    throughput = float(field(row, "throughput") or 0)
+    element = field(row, "rep_element")
+    element = throughput if element is None else float(element)
+    fast_start = field(row, "fast_string_startup")
+    kind = REP_FAST if fast_start is not None else REP_LOOP
+    return (kind, int(round(element * OCC_SCALE)), int(round(throughput * OCC_SCALE)),
+            int(round(float(fast_start or 0))), int(round(float(field(row, "rep_startup") or 0))))
 
 
 def p6_uops(rec: InsnRecord, match: Match, load_latency: int, limits: P6Limits | None = None,
@@ -236,16 +266,44 @@ def p6_uops(rec: InsnRecord, match: Match, load_latency: int, limits: P6Limits |
     return out
 
 
+# x87 instructions that neither round nor compute: the control word does not concern them
+_NO_CONTROL_WORD = frozenset("fxch ffree ffreep fincstp fdecstp fnop fnclex fnstsw wait".split())
+
+
+def fpcw_sources(rec: InsnRecord) -> list[tuple[int, int]]:
+    """Extra (register id, x87 relative index) sources where the x87 control word is not renamed
+    (the P6: Intel's optimization manual, "On the Pentium III processor, the FLDCW instruction is
+    an expensive operation"; docs/sources/p6.md "x87 control word"). An instruction that writes
+    the control word (FLDCW, FLDENV, FRSTOR, FNINIT) waits for every older x87 instruction: for
+    the status word they all write and for the eight stack slots; every x87 instruction that
+    reads the control word (its rounding and precision) waits for the newest write of it."""
+    written = {r.full for r in rec.regs_written}
+    read = {r.full for r in rec.regs_read}
+    if "fpcw" in written:  # what it does not read already (FNSAVE reads them all)
+        return ([(REG_FPSW, -1)] if "fpsw" not in read else []) + \
+            [(REG_ST0, k) for k in range(8) if f"st{k}" not in read]
+    if "fpcw" in read:
+        return []  # FNSTCW/FNSTENV/FNSAVE already read it
+    if rec.mnemonic in _NO_CONTROL_WORD:
+        return []
+    if "fpsw" in written or any(n.startswith("st") and n[2:].isdigit() for n in written | read):
+        return [(REG_FPCW, -1)]
+    return []
+
+
 def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int = 3,
           simple_max_len: int = 7, uops_for=None, decoder_for=None, limits: P6Limits | None = None,
-          precisions: list[int | None] | None = None, adjust=None) -> StaticProgram:
+          precisions: list[int | None] | None = None, adjust=None, fpcw_serializes: bool = False,
+          rep_for=None) -> StaticProgram:
     """The static program of `records`; `precisions` gives each static's x87 precision index where
     its row depends on it (sim/cpus/precision.py), else the row's 64-bit figures are used.
     A family other than the P6 passes its own rules:
     `uops_for(rec, match, load_latency)` -> [(kind, ports, latency, unit, occupancy)] and
     `decoder_for(rec, match, uops)` -> DEC_* (the K6 model does; see sim/cpus/k6.py). The P6
     rules (:func:`p6_uops`) take the machine's `limits`. `adjust(rec, match)` -> match lets the
-    family replace a row's timing for this instruction (a locked access: sim/cpus/locking.py)."""
+    family replace a row's timing for this instruction (a locked access: sim/cpus/locking.py).
+    `fpcw_serializes`: the x87 control word is not renamed (the P6, :func:`fpcw_sources`).
+    `rep_for(rec, match)` -> the s_rep row (default :func:`rep_timing` on the row's own fields)."""
     if uops_for is None:
         units: dict = {}
 
@@ -256,6 +314,7 @@ def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int 
                                            "nuops", "uop0", "nsrc", "ndst")}
     s_src = np.zeros((n, MAX_OPS, 4), np.int64)
     s_dst = np.zeros((n, MAX_OPS, 4), np.int64)
+    s_rep = np.zeros((n, NREP), np.int64)
     uops: list[tuple[int, int, int, int, int]] = []
     matches = []
     for i, rec in enumerate(records):
@@ -268,6 +327,7 @@ def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int 
         if adjust is not None:
             match = adjust(rec, match)
         matches.append(match)
+        s_rep[i] = (rep_for or rep_timing)(rec, match)
         us = uops_for(rec, match, load_latency)
         s["uop0"][i], s["nuops"][i] = len(uops), len(us)
         uops.extend(us)
@@ -310,6 +370,8 @@ def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int 
                 srcs.append((rid, mask, first_compute, rel))
         if rec.flags_read:
             srcs.append((REG_FLAGS, flag_mask(rec.flags_read), first_compute, -1))
+        if fpcw_serializes:
+            srcs.extend((rid, 15, first_compute, rel) for rid, rel in fpcw_sources(rec))
         dsts = []
         for ref in rec.regs_written:
             rid, rel = reg_id(ref.name, ref.full)
@@ -328,4 +390,4 @@ def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int 
     u = np.array(uops, dtype=np.int64).reshape(-1, 5)
     return StaticProgram(records, matches, s["len"], s["pc"], s["dec"], s["lcp"], s["branch"], s["target"],
                          s["fpdelta"], s["zero"], s["nuops"], s["uop0"], s["nsrc"], s_src, s["ndst"], s_dst,
-                         u[:, 0].copy(), u[:, 1].copy(), u[:, 2].copy(), u[:, 3].copy(), u[:, 4].copy())
+                         u[:, 0].copy(), u[:, 1].copy(), u[:, 2].copy(), u[:, 3].copy(), u[:, 4].copy(), s_rep)

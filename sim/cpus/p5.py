@@ -267,6 +267,7 @@ class P5Model(FamilyModel):
         P[core.P_FMUL_SPACING] = mm["x87"]["fmul_spacing"]
         P[core.P_IMMDISP_MODE] = {"never": 0, "u-only": 1}[m["imm_disp_pairs"]]
         P[core.P_PFX_V] = int(bool(m["prefixed_pairs_in_v"]))
+        P[core.P_PFX_SHADOW] = int(bool(m.get("prefix_shadow", False)))
         pipe = mm["pipeline"]
         P[core.P_SAME_DWORD] = pipe["same_dword_penalty"]
         table = pipe["pair_clocks"]

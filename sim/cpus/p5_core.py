@@ -56,6 +56,7 @@ from sim.cpus.shared_core import btb_alloc  # shared BTB victim choice (LRU by l
  P_HIST_BITS, P_L2_LAT, P_L2_BUSY, P_DRAM_LAT, P_DRAM_LINE, P_DRAM_WB, P_FMUL_SPACING, P_FIRST_PASS,
  P_IMMDISP_MODE, P_PFX_V, P_SAME_DWORD, P_FST_EARLY) = range(22)
 P_PAIR_CLOCKS = 22   # 3 x 3 clocks of a pair by the memory kinds of its U and V instructions (MK_*)
+P_PFX_SHADOW = 31    # 1: a multi-clock instruction hides later prefix decode clocks (P54C, AF97 sec. 13)
 NPARAMS = 32
 # memory kinds of a pairable integer instruction (AF97-PAIR sec. 10.4's table)
 MK_PLAIN, MK_READ_MODIFY, MK_RMW = range(3)
@@ -175,8 +176,8 @@ def _load_miss(r, lvl, now, P, bus_free, ctr):
 # Loop-carried scalar state: kept in an int64 vector between calls, so a trace can be timed in
 # chunks (a streamed emulation) exactly as in one call (see :func:`new_state`).
 (V_ESP_AGI, V_FP_TOP, V_FP_FREE, V_FMUL_FREE, V_FP_DONE, V_WB_POS, V_BUS_FREE, V_REP_PREV_STORE, V_LAST_ILINE,
- V_T, V_SEG, V_SEG_START, V_PREV_PC, V_STOPPED, V_NRDTSC) = range(15)
-NSTATE = 15
+ V_T, V_SEG, V_SEG_START, V_PREV_PC, V_STOPPED, V_NRDTSC, V_SHADOW, V_SHADOW_GROUPS) = range(17)
+NSTATE = 17
 
 
 def new_state(P: np.ndarray, nstatic: int) -> tuple:
@@ -244,6 +245,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
     t = sv[V_T]
     seg = sv[V_SEG]
     seg_start = sv[V_SEG_START]
+    shadow = sv[V_SHADOW]                # prefix decode clocks a recent multi-clock group can still hide
+    shadow_groups = sv[V_SHADOW_GROUPS]  # groups that may still use them
     # what counts instructions from the run's start, counted from the chunk's
     first_l = stat_first - base
     tl_first_l = tl_first - base
@@ -313,7 +316,14 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
         pfx = 0 if rep_later else s_pfx[a]
         if group == 2:
             pfx += s_pfx[dyn_sid[li + 1]]
+        if pfx > 0 and shadow_groups > 0:
+            # AF97 sec. 13: each extra execute clock of a recent instruction decodes one prefix of
+            # the next two instructions or pairs (the P54C; the P55C's FIFO is modelled as full)
+            hidden = min(pfx, shadow)
+            pfx -= hidden
+            shadow -= hidden
         start += pfx
+        exec_from = start
         counters[seg, C_PREFIX] += pfx
         per_static[pa, S_PREFIX] += pfx
         # ---- AGI: an address register written in the preceding clock ------------------------
@@ -450,6 +460,15 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
         per_static[pa, S_BANK] += bank
         per_static[pa, S_WB] += wbw
         end = start + dur + mem + mis + bank + wbw
+        if P[P_PFX_SHADOW] == 1:
+            # any delay but a decode delay or a mispredict (AGI, execute clocks, misses) casts the shadow
+            if shadow_groups > 0:
+                shadow_groups -= 1
+                if shadow_groups == 0:
+                    shadow = 0
+            if end - exec_from - 1 > 0 and end - exec_from - 1 >= shadow:
+                shadow = end - exec_from - 1
+                shadow_groups = 2
         # ---- results --------------------------------------------------------------------------
         for k in range(group):
             s = dyn_sid[li + k]
@@ -601,5 +620,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
     sv[V_T] = t
     sv[V_SEG] = seg
     sv[V_SEG_START] = seg_start
+    sv[V_SHADOW] = shadow
+    sv[V_SHADOW_GROUPS] = shadow_groups
     return t
 

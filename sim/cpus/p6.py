@@ -120,7 +120,7 @@ class P6Model(FamilyModel):
 
     def lower(self, records, precisions) -> StaticProgram:
         return lower(records, self.table, self.l1_latency, self.machine["decode"]["simple_decoder_max_length"]["value"],
-                     limits=self.limits, precisions=precisions, adjust=self.locked)
+                     limits=self.limits, precisions=precisions, adjust=self.locked, fpcw_serializes=True)
 
 
 class P6Session(CoreSession):

@@ -25,6 +25,16 @@ line fill and writeback. Instruction fetch goes through its own L1I, which misse
 Branches: BTB of BTB_SETS x BTB_WAYS entries with HIST_BITS of local history and a table of 2-bit
 counters per entry (two-level adaptive); static prediction on a BTB miss (backward taken); a
 return stack; the front end restarts MISPREDICT cycles after a mispredicted branch executes.
+REP strings: the trace holds one execution per element. The first is decoded and runs its row's
+uops; the later ones are the microcode loop's (:func:`_rep_element`): no decode and no uops of their
+own, each `rep_element` clocks after the last (after the row's start-up), its accesses through the
+memory model (the loop waits for a miss). Fast strings (REP MOVS/STOS, rows with
+`fast_string_startup`; Intel SDM vol. 3 sec. 8.2.4, Agner Fog sec. 26.3): when ESI and EDI are
+8-aligned, |EDI - ESI| >= 32, the copy runs forward and ECX >= 64, the elements take the row's
+throughput and the run the fast start-up. ECX is known only when the run ends, so the loop charges
+the fast rate from the second element (when the direction is known) and either adds the fast
+start-up at the 64th element or, when the run ends shorter, the rest of the slow rate: the run's
+total is the source's either way. Nothing after the run decodes before its last element.
 """
 
 from __future__ import annotations
@@ -41,7 +51,7 @@ from sim.memory.hierarchy import (
 from sim.memory.replay import LOG_OFF, LOG_RECORD, LOG_REPLAY, logged_service, record_hit, replayed_hit
 from sim.cpus.lowering import (
     BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, DEC_SIMPLE, LOAD, NREGS, OCC_SCALE,
-    REG_FLAGS, REG_ST0, SIDE, STA, STD,
+    R_ELEMENT, R_FAST, R_FAST_START, R_KIND, R_START, REG_FLAGS, REG_ST0, REP_FAST, REP_NONE, SIDE, STA, STD,
 )
 from sim.cpus.contract import (
     C_NAMES, NC, C_CYCLES, C_INSTRUCTIONS, C_UOPS, C_DECODE_GROUPS, C_DECODER0, C_DECODER1, C_DECODER2,
@@ -68,8 +78,12 @@ NPARAMS = 32
 (V_FLAGS_MASK, V_FLAGS_RETIRE, V_FP_TOP, V_RS_PENDING, V_RS_TIME, V_NSTORES, V_SB_POS, V_LAST_COMMIT,
  V_LAST_STA_DONE, V_BUS_FREE, V_L2BUS_FREE, V_FW_N, V_RSB_TOP, V_DEC_CYCLE, V_DEC_POS, V_DEC_LIMIT,
  V_FETCH_RESTART, V_FE_READY, V_LAST_ILINE, V_REN_CYCLE, V_REN_COUNT, V_RET_CYCLE, V_RET_COUNT, V_U_GLOBAL,
- V_ROB_POS, V_Q_POS, V_SEG, V_SEG_START_RETIRE, V_MAX_RETIRE) = range(29)
-NSTATE = 29
+ V_ROB_POS, V_Q_POS, V_SEG, V_SEG_START_RETIRE, V_MAX_RETIRE, V_PREV_PC, V_REP_SID, V_REP_COUNT, V_REP_NEXT,
+ V_REP_MODE, V_REP_ADDR) = range(35)
+NSTATE = 35
+# V_REP_MODE bits: fast strings possible (kind, alignment, distance), direction seen forward / backward
+REP_CAPABLE, REP_FORWARD, REP_BACKWARD = 1, 2, 4
+FAST_MIN_COUNT = 64  # fast strings need ECX >= 64 (Intel SDM vol. 3 sec. 8.2.4; Agner Fog sec. 26.3)
 
 
 def new_state(P: np.ndarray, units: int) -> tuple:
@@ -84,6 +98,8 @@ def new_state(P: np.ndarray, units: int) -> tuple:
     sv[V_LAST_ILINE] = -1
     sv[V_REN_CYCLE] = -1
     sv[V_RET_CYCLE] = -1
+    sv[V_PREV_PC] = -1   # the PC of the instruction before the chunk (a REP string's later element)
+    sv[V_REP_SID] = -1   # the REP string whose run is open (-1: none)
     btb_sets, btb_ways, hist_bits = int(P[P_BTB_SETS]), int(P[P_BTB_WAYS]), int(P[P_HIST_BITS])
     rsb = np.zeros(int(P[P_RSB]), np.int64)
     rsb[0] = P[P_EXIT_ADDR]  # the harness's call into the kernel: its return is predictable
@@ -262,7 +278,7 @@ def _operand_lists(s_nuops, s_uop0, s_nsrc, s_src, s_ndst, s_dst, u_ports, nuops
 @njit(cache=True, nogil=True, error_model="numpy")
 def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
-             s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ,
+             s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ, s_rep,
              P, dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
              counters, per_static, stat_first, timeline, tl_first, rdtsc_sid, rdtsc_out, dlog,
              sv, reg_ready, reg_pmask, reg_pretire, reg_zeroed, rob_ring, rs_by_cycle, queue_ring, book, unit_free,
@@ -318,6 +334,12 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     seg = sv[V_SEG]
     seg_start_retire = sv[V_SEG_START_RETIRE]
     max_retire = sv[V_MAX_RETIRE]
+    prev_pc = sv[V_PREV_PC]
+    rep_sid = sv[V_REP_SID]
+    rep_count = sv[V_REP_COUNT]
+    rep_next = sv[V_REP_NEXT]  # hundredths of a cycle: when the loop's latest element was issued
+    rep_mode = sv[V_REP_MODE]
+    rep_addr = sv[V_REP_ADDR]
     # Plain L1 hits (the common case) are done here, not by sim.memory.hierarchy.service: the same
     # updates (LRU clock and stamp, dirty bit, request and hit counts), with the clock and the
     # counts kept in locals (written back around each service call and at the end)
@@ -349,6 +371,110 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         u0 = s_uop0[sid]
         dec = s_dec[sid]
         psid = sid if i >= stat_first else sink
+        rep_later = rep_sid == sid and prev_pc == pc
+        prev_pc = pc
+        if rep_sid >= 0 and not rep_later:
+            # the run ended without a closing execution (REPE/REPNE on the flags): settle it
+            rep_next = _rep_settle(s_rep, rep_sid, rep_count, rep_next, rep_mode)
+            rep_end = -(-rep_next // OCC_SCALE)
+            if rep_end > dec_cycle:
+                dec_cycle = rep_end
+            rep_sid = -1
+        if rep_later:
+            # ---- a later element of a REP string: the microcode loop ----------------------------
+            acc = acc_next
+            acc_end = acc
+            while acc_end < n_acc and mem_insn[acc_end] == li:
+                acc_end += 1
+            acc_next = acc_end
+            if acc_end == acc:
+                # the closing execution (ECX = 0): the run ends
+                rep_next = _rep_settle(s_rep, sid, rep_count, rep_next, rep_mode)
+                rep_sid = -1
+                t = -(-rep_next // OCC_SCALE)
+                wait = 0
+            else:
+                rep_count += 1
+                a = np.int64(mem_addr[acc])
+                if rep_count == 2:
+                    rep_mode |= REP_FORWARD if a > rep_addr else REP_BACKWARD
+                fast = (rep_mode & (REP_CAPABLE | REP_FORWARD)) == REP_CAPABLE | REP_FORWARD
+                rep_next += s_rep[sid, R_FAST] if fast else s_rep[sid, R_ELEMENT]
+                if fast and rep_count == FAST_MIN_COUNT:
+                    rep_next += max(0, s_rep[sid, R_FAST_START] - s_rep[sid, R_START]) * OCC_SCALE
+                t = -(-rep_next // OCC_SCALE)
+                wait = 0
+                while acc < acc_end:
+                    a = np.int64(mem_addr[acc])
+                    sz = np.int64(mem_size[acc])
+                    w_ = mem_write[acc] != 0
+                    acc += 1
+                    if w_:
+                        n_stores += 1
+                    else:
+                        n_loads += 1
+                    hit_row, hit_way = ((-1, -1) if w_ and not l1_write_back else
+                                        _l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
+                                        _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
+                    if hit_row >= 0:
+                        if w_:
+                            l1_store_hits += 1
+                            ddirty[hit_row, hit_way] = 1
+                        else:
+                            l1_load_hits += 1
+                        if l1_lru:
+                            dstamps[hit_row, hit_way] = d_now
+                        d_now += 1
+                    elif hit_row != REPLAYED_HIT:
+                        dclock[0] = d_now
+                        w, bus_free, l2bus_free = _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats,
+                                                               a, sz, w_, t, P, mshr, bus_free, l2bus_free, counters,
+                                                               per_static, seg, psid)
+                        d_now = dclock[0]
+                        if w > wait:
+                            wait = w  # the loop waits for its memory
+                rep_next += wait * OCC_SCALE
+            done = t + wait + 1
+            for j in range(s_ndst[sid]):
+                rid = s_dst[sid, j, 0]
+                if rid < NREGS and rid != REG_ST0:
+                    reg_ready[rid] = done
+            if done > ret_cycle:
+                ret_cycle = done
+                ret_count = 0
+            if t > dec_cycle:
+                dec_cycle = t  # nothing decodes before the loop has issued its last element
+            dec_pos = 3
+            if t > last_sta_done:
+                last_sta_done = t
+            if t > last_commit:
+                last_commit = t
+            if done > max_retire:
+                max_retire = done
+            n_insns += 1
+            per_static[psid, S_EXECUTIONS] += 1
+            per_static[psid, S_ISSUE_TO_RETIRE] += done - t
+            per_static[psid, S_DECODE_TO_RETIRE] += done - t
+            if tl_first <= i < tl_first + timeline.shape[0]:
+                row = timeline[i - tl_first]
+                row[0] = i
+                row[1] = sid
+                row[2] = t
+                row[3] = t
+                row[4] = t
+                row[5] = done - 1
+                row[6] = done
+                row[7] = 0
+            if seg < seg_end.shape[0] and i + 1 == seg_end[seg]:
+                counters[seg, C_CYCLES] = max_retire - seg_start_retire
+                _add_counts(counters, seg, n_insns, n_uops, n_groups, n_stall_decode, n_stall_dep, n_stall_port,
+                            n_loads, n_stores, n_branches, n_dec0, n_dec1, n_dec2, n_port0, n_port1, n_port2,
+                            n_port3, n_port4)
+                n_insns = n_uops = n_groups = n_stall_decode = n_stall_dep = n_stall_port = n_loads = n_stores = 0
+                n_branches = n_dec0 = n_dec1 = n_dec2 = n_port0 = n_port1 = n_port2 = n_port3 = n_port4 = 0
+                seg_start_retire = max_retire
+                seg += 1
+            continue
 
         # ---- front end: fetch (L1I) and decode ------------------------------------------------
         stall_fetch = 0
@@ -449,6 +575,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         top_after = (fp_top - s_fpdelta[sid]) & 7
 
         # ---- per uop ----------------------------------------------------------------------------
+        acc_first = acc_next
         acc = acc_next
         acc_end = acc
         while acc_end < n_acc and mem_insn[acc_end] == li:
@@ -664,6 +791,23 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 flags_mask = mask | 0x1C0 if (mask & 0x3F) == 0x3F else mask
                 flags_retire = inst_retire
         fp_top = top_after
+        if s_rep[sid, R_KIND] != REP_NONE:
+            # the first element of a REP string: the microcode loop starts after it
+            rep_sid = sid
+            rep_count = 1 if acc_end > acc_first else 0
+            rep_next = (inst_complete + s_rep[sid, R_START]) * OCC_SCALE
+            rep_mode = 0
+            rep_addr = np.int64(mem_addr[acc_first]) if acc_end > acc_first else 0
+            if s_rep[sid, R_KIND] == REP_FAST:
+                rep_mode = REP_CAPABLE
+                src, dst = np.int64(-1), np.int64(-1)
+                for q in range(acc_first, acc_end):
+                    if mem_write[q]:
+                        dst = np.int64(mem_addr[q])
+                    else:
+                        src = np.int64(mem_addr[q])
+                if dst < 0 or dst % 8 != 0 or (src >= 0 and (src % 8 != 0 or abs(dst - src) < 32)):
+                    rep_mode = 0
         if is_store:
             # commit after retirement, in order; a write miss first fetches the line (write-allocate)
             commit = max(inst_retire, last_commit + 1)
@@ -832,7 +976,23 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     sv[V_SEG] = seg
     sv[V_SEG_START_RETIRE] = seg_start_retire
     sv[V_MAX_RETIRE] = max_retire
+    sv[V_PREV_PC] = prev_pc
+    sv[V_REP_SID] = rep_sid
+    sv[V_REP_COUNT] = rep_count
+    sv[V_REP_NEXT] = rep_next
+    sv[V_REP_MODE] = rep_mode
+    sv[V_REP_ADDR] = rep_addr
     return max_retire
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _rep_settle(s_rep, sid, count, rep_next, mode):
+    """A REP string run of `count` elements has ended: a run that was charged the fast rate
+    while ECX might still reach 64 and ended shorter takes the rest of the loop's rate."""
+    fast = (mode & (REP_CAPABLE | REP_FORWARD)) == REP_CAPABLE | REP_FORWARD
+    if fast and 2 <= count < FAST_MIN_COUNT:
+        rep_next += (count - 1) * max(0, s_rep[sid, R_ELEMENT] - s_rep[sid, R_FAST])
+    return rep_next
 
 
 @njit(cache=True, nogil=True, inline="always")

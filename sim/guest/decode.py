@@ -474,8 +474,13 @@ _FIXES: dict[str, _Fix] = {
     "maskmovq": _Fix(mem="w"),
     "maskmovdqu": _Fix(mem="w"),
     "cmc": _Fix(flags_read=_F({"CF"})),
-    "rcl": _Fix(flags_read=_F({"CF"})),
-    "rcr": _Fix(flags_read=_F({"CF"})),
+    # capstone marks the destination of ROL/ROR/RCL/RCR and SETcc read-only: a memory destination
+    # is written too (issue 20: the K6 lowering gave such stores no store op)
+    "rol": _Fix(access=("rw", None)),
+    "ror": _Fix(access=("rw", None)),
+    "rcl": _Fix(flags_read=_F({"CF"}), access=("rw", None)),
+    "rcr": _Fix(flags_read=_F({"CF"}), access=("rw", None)),
+    **{f"set{cc}": _Fix(access=("w",)) for cc in "o no b ae e ne be a s ns p np l ge le g".split()},
     "lahf": _Fix(flags_read=_F({"SF", "ZF", "AF", "PF", "CF"})),
     "pushf": _Fix(flags_read=_ALL_FLAGS),
     "pushfd": _Fix(flags_read=_ALL_FLAGS),

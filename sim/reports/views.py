@@ -4,6 +4,7 @@ model's counters; they never change a simulation (the llvm-mca split)."""
 from __future__ import annotations
 
 import io
+import re
 
 import numpy as np
 from rich import box
@@ -155,6 +156,75 @@ def explain_rows(result: TimingResult) -> list[dict]:
             "row": match.describe(), "source": match.row.source, "estimated": match.row.estimated,
         })
     return rows
+
+
+# -- what the figures rest on: estimated rows, behaviour the model does not implement --------------
+# A note sentence naming behaviour the model leaves out (the tables' own words: "Start-up cost not
+# modelled separately.", "Not modelled: a power-of-2 divisor L 9 ...", "transition cost not modelled").
+_NOT_MODELLED = re.compile(r"not (?:modell?ed|enforced|implemented|reproduced)", re.IGNORECASE)
+_SENTENCE = re.compile(r"(?<=[.!?])\s+(?=[A-Z(])")
+
+
+def row_limits(row) -> list[str]:
+    """Why a table row's figures are not what the model runs, from the row itself: the `unreproduced`
+    field (a sourced explanation of a rate the model does not reproduce) and every sentence of its
+    note that names behaviour not modelled."""
+    out = []
+    if row.extra.get("unreproduced"):
+        out.append(str(row.extra["unreproduced"]))
+    out += [t.strip() for t in _SENTENCE.split(row.note or "") if _NOT_MODELLED.search(t)]
+    return list(dict.fromkeys(out))
+
+
+def caveats(result: TimingResult) -> dict:
+    """What the run's figures rest on, over the instructions the per-instruction table covers (the
+    last call; a loop's measured iterations): how many executions used a row marked estimated in
+    sim/cpus/tables/, and the rows whose behaviour the model does not implement (:func:`row_limits`)."""
+    run = result.run
+    rows = explain_rows(result)
+    matches = {(rec.pc, m.describe()): m for rec, m in zip(run.program.records, run.program.matches)}
+    total = sum(r["executions"] for r in rows)
+    estimated: dict[str, int] = {}
+    limits: dict[str, dict] = {}
+    for r in rows:
+        if r["estimated"]:
+            estimated[r["row"]] = estimated.get(r["row"], 0) + r["executions"]
+        match = matches.get((r["pc"], r["row"]))
+        why = row_limits(match.row) if match is not None else []
+        if why:
+            entry = limits.setdefault(match.row.key, {"row": match.row.key, "instructions": [], "executions": 0,
+                                                      "why": why})
+            entry["instructions"].append(r["instruction"])
+            entry["executions"] += r["executions"]
+    est = sum(estimated.values())
+    return {"instructions": total, "estimated_instructions": est,
+            "estimated_share": round(est / total, 4) if total else 0.0,
+            "estimated_rows": [{"row": k, "executions": n} for k, n in
+                               sorted(estimated.items(), key=lambda kv: (-kv[1], kv[0]))],
+            "not_modelled": sorted(limits.values(), key=lambda e: (-e["executions"], e["row"]))}
+
+
+def caveat_lines(result: TimingResult, c: dict | None = None) -> list[str]:
+    """One or two short lines for the summary (the rows and reasons: explain, --json)."""
+    c = c or caveats(result)
+    n, est = c["instructions"], c["estimated_instructions"]
+    rows = len(c["estimated_rows"])
+    lines = [f"estimated rows: {est:,} of {n:,} executed instructions ({100 * est / n if n else 0:.0f} %)"
+             + (f" use {rows} table row{'s' if rows > 1 else ''} marked estimated" if est else "")]
+    if c["not_modelled"]:
+        lines.append(not_modelled_line(c))
+    return lines
+
+
+def not_modelled_line(c: dict) -> str:
+    return "relies on behaviour not modelled: " + "; ".join(
+        f"{e['row']} ({e['executions']:,} executions)" for e in c["not_modelled"]) + " (why: explain, --json)"
+
+
+def caveat_details(result: TimingResult, c: dict | None = None) -> list[str]:
+    """The not-modelled rows with their reasons, for explain's legend."""
+    c = c or caveats(result)
+    return [f"not modelled, {e['row']} ({', '.join(e['instructions'])}): {' '.join(e['why'])}" for e in c["not_modelled"]]
 
 
 def _table(title: str | None = None) -> Table:

@@ -16,7 +16,11 @@ body touches is mapped zero-filled on first use (Unicorn's unmapped-memory hook)
 Measurement: the body runs ``iterations`` times twice from the same registers (the first pass
 warms caches and predictors). In the second pass the counters are cut where iteration
 ``iterations // 2`` and iteration ``iterations`` start; steady-state figures are the difference
-divided by the iterations between (start-up and drain cancel). Any family's model from
+divided by the iterations between (start-up cancels). The model is told that the body goes on
+after the trace (to the next iteration's first instruction), so the last back-edge is taken and
+nothing drains inside the window. An iteration starts where the PC reaches the first instruction
+from another instruction: a REP string instruction first in the body repeats at its own PC once
+per element, and its elements are one iteration. Any family's model from
 :func:`sim.cpus.make_model` serves, as for `retrosim time`.
 """
 
@@ -34,6 +38,7 @@ from unicorn import x86_const as X
 from sim.guest import asm
 from sim.guest import elf
 from sim.guest.cpu import GuestCpu
+from sim.guest import isa
 from sim.cpus import make_model
 from sim.guest.decode import Decoder
 from sim.guest.emu import Machine
@@ -55,6 +60,12 @@ NULL_LIMIT = 0x10000          # accesses below 64 KB are null-pointer bugs, not 
 MAX_DATA_PAGES = 4096         # 16 MB of demand-zero data at most
 MAX_INSTRUCTIONS = 5_000_000  # per pass: a body that needs more never reaches its back-edge
 DEFAULT_ITERATIONS = 100
+# Placement of the body's first instruction: ALIGN_SPAN bytes is the largest block any modelled
+# front end cuts code into (32-byte L1I lines and P5/K6 fetch, 16-byte P6 fetch blocks), so the
+# body's offset from an ALIGN_SPAN boundary decides everything alignment can change. The default
+# puts it on such a boundary (the start of the code, as every release has done).
+ALIGN_SPAN = 64
+DEFAULT_ALIGN = ALIGN_SPAN
 _STACK_TOP = elf.STACK_BASE + elf.STACK_SIZE - 4096  # room above ESP for [esp+k] reads
 
 _LABEL = re.compile(r"^\s*([A-Za-z_.$][\w.$@]*|\d+)\s*:(?!:)")
@@ -62,6 +73,7 @@ _LABEL_RUN = re.compile(r"^(?:\s*(?:[A-Za-z_.$][\w.$@]*|\d+)\s*:(?!:))*")
 _COND = re.compile(r"^(j(?!mp)[a-z]+|loop[a-z]*|jn?e?cxz)$")
 _JUMP = re.compile(r"^(j[a-z]+|loop[a-z]*|call[lw]?|ljmp|lcall)$")
 _REGISTERS = {p + r for r in ("ax", "bx", "cx", "dx", "si", "di", "bp", "sp") for p in ("e", "")}
+_REP_PREFIXES = {"rep", "repe", "repz", "repne", "repnz"}
 _LEAVES = {"ret", "retl", "retn", "retf", "iret", "iretd", "int", "int3", "into", "hlt", "sysenter", "syscall"}
 
 
@@ -140,12 +152,27 @@ def _rename(line: str, labels: set[str], suffix: str) -> str:
     return line
 
 
-def wrapper_source(body: Body, copies: int) -> tuple[str, list[int]]:
-    """The assembled file and, per generated line, the user's line number (0 for ours)."""
+def placement(align: int = DEFAULT_ALIGN, offset: int = 0) -> int:
+    """Bytes from an ALIGN_SPAN-byte boundary to the body's first instruction for ``--align N
+    --offset K``: the least aligned address that is a multiple of N (a multiple of N and of no
+    larger power of two, what `.p2align` may give a function's loop), then K bytes further."""
+    if align not in [1 << k for k in range(ALIGN_SPAN.bit_length())]:
+        raise ArgumentError(f"--align {align}: must be a power of two from 1 to {ALIGN_SPAN}")
+    if not 0 <= offset < align:
+        raise ArgumentError(f"--offset {offset}: must be from 0 to {align - 1} (less than --align {align})")
+    return (align % ALIGN_SPAN) + offset
+
+
+def wrapper_source(body: Body, copies: int, pad: int = 0) -> tuple[str, list[int]]:
+    """The assembled file and, per generated line, the user's line number (0 for ours). The body
+    starts `pad` bytes after an ALIGN_SPAN-byte boundary (the bytes before it are INT3, never run)."""
     out: list[tuple[str, int]] = []
     add = lambda text, n=0: out.append((text, n))  # noqa: E731
     add(".intel_syntax noprefix" if body.syntax == "intel" else ".att_syntax prefix")
     add(".text")
+    add(f".balign {ALIGN_SPAN}")
+    if pad:
+        add(f".fill {pad}, 1, 0xcc")
     add(".globl retrosim_loop")
     add("retrosim_loop:")
     if body.loop:
@@ -176,6 +203,13 @@ class LoopRun:
     cuts: list[int]        # end of warm pass, start of iteration n1, start of iteration n2 (measured pass)
     measured: int          # iterations between the last two cuts
     iteration_length: int  # instructions in the first measured iteration (for the timeline)
+    next_pc: int = -1      # where the body goes after the trace's last instruction (its back-edge's target)
+    address: int = 0       # the body's first instruction
+
+    @property
+    def alignment(self) -> int:
+        """The largest power of two (up to ALIGN_SPAN) the body's address is a multiple of."""
+        return min(ALIGN_SPAN, self.address & -self.address) if self.address else ALIGN_SPAN
 
 
 class _DemandZero:
@@ -227,14 +261,16 @@ def parse_regs(items) -> dict[str, int]:
 
 
 def run_body(body: Body, iterations: int = DEFAULT_ITERATIONS, regs: dict[str, int] | None = None,
-             assembler: str | None = None, cpu: GuestCpu | None = None) -> LoopRun:
-    """Assemble the body in its wrapper (for `cpu`'s instruction set, if given) and trace the warm
-    and the measured pass."""
+             assembler: str | None = None, cpu: GuestCpu | None = None, align: int = DEFAULT_ALIGN,
+             offset: int = 0) -> LoopRun:
+    """Assemble the body in its wrapper (for `cpu`'s instruction set, if given; placed as
+    :func:`placement` says) and trace the warm and the measured pass."""
     if iterations < 4:
         raise ArgumentError(f"--iterations must be at least 4, got {iterations}")
     regs = regs or dict(REG_DEFAULTS)
     n1, n2 = iterations // 2, iterations
-    text, lines = wrapper_source(body, n2 + 1)
+    pad = placement(align, offset)
+    text, lines = wrapper_source(body, n2 + 1, pad)
     with tempfile.TemporaryDirectory(prefix="retrosim-loop-") as tmp:
         path = Path(tmp) / "loop.S"
         path.write_text(text)
@@ -249,16 +285,22 @@ def run_body(body: Body, iterations: int = DEFAULT_ITERATIONS, regs: dict[str, i
     starts = [machine.symbol(f"retrosim_iter_{j}") for j in range(1 if body.loop else n2 + 1)]
     exit_pc = machine.symbol("retrosim_exit")
     lo = machine.symbol("retrosim_loop")
-    passes = [_pass(machine, body, regs, starts, exit_pc, lo, n2) for _ in range(2)]
-    warm, (meas, marks) = passes[0][0], passes[1]
+    if lo % ALIGN_SPAN != pad:  # the loader must keep the section's alignment
+        raise RetrosimError(f"{body.name}: the body was placed at {lo:#x}, not {pad} bytes past a "
+                            f"{ALIGN_SPAN}-byte boundary")
+    rep_first = machine.disassemble(starts[0]).split()[0].lower() in _REP_PREFIXES
+    passes = [_pass(machine, body, regs, starts, exit_pc, lo, n2, rep_first) for _ in range(2)]
+    warm, (meas, marks, next_pc) = passes[0][0], passes[1]
     cuts = [warm.instructions, warm.instructions + marks[n1], warm.instructions + marks[n2]]
-    return LoopRun(body, machine, Trace.concatenate([warm, meas]), cuts, n2 - n1, marks[n1 + 1] - marks[n1])
+    return LoopRun(body, machine, Trace.concatenate([warm, meas]), cuts, n2 - n1, marks[n1 + 1] - marks[n1],
+                   next_pc, starts[0])
 
 
 def _pass(machine: Machine, body: Body, regs: dict[str, int], starts: list[int], exit_pc: int, lo: int,
-          iterations: int) -> tuple[Trace, list[int]]:
+          iterations: int, rep_first: bool = False) -> tuple[Trace, list[int], int]:
     """Run from the body's start with `regs` until `iterations` iterations are complete; return the
-    trace up to the start of the next one and the index where each iteration starts."""
+    trace up to the start of the next one, the index where each iteration starts and the PC of the
+    next iteration's first instruction (what follows the trace)."""
     uc = machine.uc
     for name, value in regs.items():
         machine.set_reg(name, value)
@@ -281,7 +323,7 @@ def _pass(machine: Machine, body: Body, regs: dict[str, int], starts: list[int],
             tracer.drain()
             pc = machine.reg("eip")
             trace = Trace.concatenate(list(tracer._parts))
-            marks = _marks(trace.pc, starts, body.loop)
+            marks = _marks(trace.pc, starts, body.loop, rep_first)
             if len(marks) > iterations:
                 break
             outside = np.flatnonzero((trace.pc < lo) | (trace.pc >= exit_pc))
@@ -304,18 +346,25 @@ def _pass(machine: Machine, body: Body, regs: dict[str, int], starts: list[int],
     finally:
         tracer.detach()
     cut = marks[iterations]
+    next_pc = int(trace.pc[cut])
     trace = _truncate(trace, cut)
     outside = np.flatnonzero((trace.pc < lo) | (trace.pc >= exit_pc))
     if outside.size:
         k = int(outside[0])
         raise RetrosimError(f"{body.name}: the body branches out of itself: "
                             f"'{machine.disassemble(int(trace.pc[k - 1]))}' went to {int(trace.pc[k]):#010x}")
-    return trace, marks[:iterations + 1]
+    return trace, marks[:iterations + 1], next_pc
 
 
-def _marks(pc: np.ndarray, starts: list[int], loop: bool) -> list[int]:
+def _marks(pc: np.ndarray, starts: list[int], loop: bool, rep_first: bool = False) -> list[int]:
+    """Where each iteration (loop) or copy (block) starts in the pass's PC stream."""
     if loop:
-        return np.flatnonzero(pc == starts[0]).tolist()
+        at = pc == starts[0]
+        if rep_first:
+            # a REP string instruction appears once per element at the same PC: an iteration starts
+            # at its first element only (a one-instruction `l: loop l` still starts one per pass)
+            at[1:] &= pc[:-1] != starts[0]
+        return np.flatnonzero(at).tolist()
     first = []
     for s in starts:
         hit = np.flatnonzero(pc == s)
@@ -340,11 +389,13 @@ def _fault(machine: Machine, body: Body, fault: GuestFault, lo: int, hi: int) ->
 # -- timing ---------------------------------------------------------------------------------
 @dataclass
 class LoopTiming:
-    cpu: str
+    cpu: str                         # the preset, or the machine label with its overrides
     memory: str
     iterations: int                  # measured iterations (between the two cuts)
     per_iteration: dict[str, float]  # every counter divided by the measured iterations
     result: TimingResult = field(repr=False)  # for views.explain_rows / timeline_rows
+    address: int = 0                 # where the body's first instruction was placed
+    alignment: int = 0               # the largest power of two (up to ALIGN_SPAN) dividing it
 
     @property
     def cycles_per_iteration(self) -> float:
@@ -356,38 +407,102 @@ class LoopTiming:
 
 
 def time_run(run: LoopRun, cpu: str, memory: str | None = None, timeline_iterations: int = 3) -> LoopTiming:
-    """Time a traced body on one CPU preset (any family make_model knows)."""
+    """Time a traced body on one CPU (a preset or a machine label such as
+    ``k6-233{write_allocate.mode=full}``; any family make_model knows)."""
     model = make_model(cpu, memory)
     span = min(256, run.iteration_length * max(0, timeline_iterations))
-    core_run = model.run(run.trace, Decoder(run.machine.image.fetch), run.cuts, (run.cuts[1], span), run.cuts[1])
+    core_run = _run_model(model, run, (run.cuts[1], span))
     calls = [core_run.segment(k) for k in range(len(run.cuts))]
     per = {k: round(v / run.measured, 4) for k, v in calls[-1].items()}
-    result = TimingResult(model.preset.name, model.dram.name, "loop", Path(run.body.name), 1, calls, model,
-                          core_run, run.trace)
-    return LoopTiming(model.preset.name, model.dram.name, run.measured, per, result)
+    result = TimingResult(cpu, model.dram.name, "loop", Path(run.body.name), 1, calls, model, core_run, run.trace)
+    return LoopTiming(cpu, model.dram.name, run.measured, per, result, run.address, run.alignment)
+
+
+def _run_model(model, run: LoopRun, timeline: tuple[int, int]):
+    """`model.run` on the loop's trace, except that the body does not end after the trace: it goes on
+    to `run.next_pc` (the back-edge is taken). A run that ended there would take the last back-edge
+    as falling through, a mispredict the loop never has, inside the measured window."""
+    decoder = Decoder(run.machine.image.fetch)
+    session_type = type(model.session(decoder, list(run.cuts), run.cuts[1]))
+    session = session_type(model, decoder, list(run.cuts), timeline, run.cuts[1])
+    session.feed(run.trace, run.next_pc)
+    return session.finish()
+
+
+# What an instruction-set extension is called in "not timed (no MMX): ..." (sim/guest/isa.py names).
+EXTENSION_NAMES = {"cmov": "CMOV", "fcmov": "FCMOV/FCOMI", "mmx": "MMX", "sse": "SSE", "3dnow": "3DNow!",
+                   "fxsr": "FXSAVE/FXRSTOR", "sse2": "SSE2", "nopl": "multi-byte NOP"}
+
+
+def required_extensions(run: LoopRun) -> set[str]:
+    """The instruction-set extensions the executed body uses (sim/guest/isa.py)."""
+    records, _ = Decoder(run.machine.image.fetch).decode_trace(np.unique(run.trace.pc))
+    return {ext for rec in records if (ext := isa.record_extension(rec))}
 
 
 def time_body(text: str, cpus: list[str], name: str = "<stdin>", syntax: str | None = None,
               iterations: int = DEFAULT_ITERATIONS, regs: dict[str, int] | None = None,
-              assembler: str | None = None, timeline_iterations: int = 3) -> list[LoopTiming]:
-    from sim.cpus import presets
+              assembler: str | None = None, timeline_iterations: int = 3, memory: str | None = None,
+              align: int = DEFAULT_ALIGN, offset: int = 0) -> list[LoopTiming]:
+    """Time the body on every CPU in `cpus` (presets or machine labels); a CPU without an
+    instruction the body uses is an error."""
+    timings, _ = time_body_where_possible(text, cpus, name, syntax, iterations, regs, assembler,
+                                          timeline_iterations, memory, align, offset, skip=False)
+    return timings
+
+
+def time_body_where_possible(text: str, cpus: list[str], name: str = "<stdin>", syntax: str | None = None,
+                             iterations: int = DEFAULT_ITERATIONS, regs: dict[str, int] | None = None,
+                             assembler: str | None = None, timeline_iterations: int = 3,
+                             memory: str | None = None, align: int = DEFAULT_ALIGN, offset: int = 0,
+                             skip: bool = True) -> tuple[list[LoopTiming], dict[str, list[str]]]:
+    """Time the body on the CPUs in `cpus` that have every instruction it uses; return the timings
+    and the others by what they lack ({"MMX": [cpu, ...]}). With no CPU able to run it (or
+    `skip` false and one CPU unable), the first refusal is the error."""
+    from sim.cpus import presets, split_label
 
     body = parse_body(text, name, syntax)
+    placement(align, offset)  # a bad --align / --offset fails before any emulation
+    bases = {}
     for c in cpus:  # an unknown preset fails before any emulation
-        if c not in presets.available():
-            raise ArgumentError(f"unknown CPU preset '{c}' (choose one of: {', '.join(presets.available())})")
+        base, _ = split_label(c)
+        if base not in presets.available():
+            raise ArgumentError(f"unknown CPU preset '{base}' (choose one of: {', '.join(presets.available())})")
+        bases[c] = base
+
+    def isa_key(c):
+        t = targets[c]
+        return (t.gnu_march, t.zig_mcpu, t.emulator_cpu)
+
     # one emulation per instruction set: the body assembles for each CPU's own (MMX, 3DNow!, SSE)
-    # and runs on the Unicorn CPU model that has it
-    targets = {c: GuestCpu.from_preset(presets.load(c)) for c in cpus}
-    runs = {}
+    # and runs on the Unicorn CPU model that has it; an assembler that refuses an instruction for
+    # one of them is kept as that set's answer
+    targets = {c: GuestCpu.from_preset(presets.load(bases[c])) for c in cpus}  # each preset read once
+    runs: dict[tuple, LoopRun | RetrosimError] = {}
     for c in cpus:
-        t = targets[c]
-        key = (t.gnu_march, t.zig_mcpu, t.emulator_cpu)
+        key = isa_key(c)
         if key not in runs:
-            runs[key] = run_body(body, iterations, regs, assembler, cpu=t)
-    out = []
+            try:
+                runs[key] = run_body(body, iterations, regs, assembler, cpu=targets[c], align=align, offset=offset)
+            except (AssemblerError, isa.IsaError) as e:
+                runs[key] = e
+    done = [r for r in runs.values() if isinstance(r, LoopRun)]
+    if not done:
+        raise next(iter(runs.values()))
+    needed = required_extensions(done[0])
+    out, missing = [], {}
     for c in cpus:
-        t = targets[c]
-        run = runs[(t.gnu_march, t.zig_mcpu, t.emulator_cpu)]
-        out.append(time_run(run, c, timeline_iterations=timeline_iterations))
-    return out
+        lacks = sorted(needed - targets[c].extensions, key=isa.EXTENSIONS.index)
+        run = runs[isa_key(c)]
+        if lacks and isinstance(run, LoopRun) and not skip:
+            # assembled (an assembler may accept more than the CPU has), but the CPU lacks it
+            records, _ = Decoder(run.machine.image.fetch).decode_trace(np.unique(run.trace.pc))
+            for rec in records:
+                isa.check_record(rec, targets[c], lambda rec=rec: f"{body.name}: '{rec.mnemonic} {rec.op_str}'".strip())
+        if lacks and skip:
+            missing.setdefault(", ".join(EXTENSION_NAMES[x] for x in lacks), []).append(c)
+            continue
+        if not isinstance(run, LoopRun):
+            raise run  # refused for another reason than an extension the body uses
+        out.append(time_run(run, c, memory, timeline_iterations=timeline_iterations))
+    return out, missing
