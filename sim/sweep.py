@@ -76,9 +76,9 @@ class Spec:
 
 
 def _text(value) -> str:
-    from sim.cpus import _format
+    from sim.cpus import format_value
 
-    return _format(value)
+    return format_value(value)
 
 
 def load_spec(path: str | Path) -> Spec:

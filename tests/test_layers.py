@@ -157,3 +157,15 @@ def test_no_import_cycles(graph):
                  for n in comp for t, line in edges[n] if t in members]
         bad.append(" <-> ".join(comp) + "\n  " + "\n  ".join(where))
     assert not bad, "import cycles:\n" + "\n".join(bad)
+
+
+def test_no_module_imports_another_modules_private_names():
+    """A name with a leading underscore is its module's own: what another module needs is made
+    public (or the code moves), so a module's private helpers can change without a search."""
+    bad = []
+    for name, path in modules().items():
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), str(path))):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "sim":
+                bad += [f"{path.relative_to(SIM.parent)}:{node.lineno}: {node.module}.{a.name}"
+                        for a in node.names if a.name.startswith("_") and not a.name.startswith("__")]
+    assert not bad, "private names imported from another module:\n" + "\n".join(bad)

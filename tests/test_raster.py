@@ -10,7 +10,7 @@ from sim import reference as ref
 def coverage(spans, width, height):
     """How many spans cover each pixel."""
     cover = np.zeros(width * height, np.int64)
-    pix, _, _ = R._expand(spans, width)
+    pix, _, _ = R.expand_spans(spans, width)
     np.add.at(cover, pix, 1)
     return cover.reshape(height, width)
 
@@ -196,7 +196,7 @@ def test_geometry_rejects_bad_input():
 def test_span_depths_reproduce_the_plane_at_pixel_centres():
     g = R.random_scene(320, 240, 100, 3.0, 9)
     s = R.rasterize(g, 320, 240)
-    pix, span_of, k = R._expand(s, 320)
+    pix, span_of, k = R.expand_spans(s, 320)
     x = s.x0[span_of] + k + 0.5
     y = s.y[span_of] + 0.5
     want = barycentric_depth(g, s.tri[span_of], x, y)
@@ -241,7 +241,7 @@ def test_integer_span_parameters_decode_within_the_rounding_error():
     s = R.rasterize(g, 640, 480)
     z0, dz = R.span_parameters(s, "z32")
     assert z0.dtype == np.uint32 and dz.dtype == np.uint32
-    pix, span_of, k = R._expand(s, 640)
+    pix, span_of, k = R.expand_spans(s, 640)
     exact = s.depth0[span_of] + k * s.ddepth[span_of]
     z = ((z0.astype(np.uint64)[span_of] + k.astype(np.uint64) * dz.astype(np.uint64)[span_of]) & 0xFFFFFFFF)
     bound = (0.5 + 0.5 * k + 1e-6) / 2.0 ** 32  # round(z0) and k times round(dz)

@@ -105,7 +105,7 @@ def _set_syntax(ctx, param, value):
     """--syntax applies to every source the command assembles (set for each invocation, None too)."""
     from sim.guest import asm
 
-    asm._syntax.set(value)
+    asm.use_syntax(value)
     return value
 
 

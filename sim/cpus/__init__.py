@@ -69,8 +69,8 @@ def _check_value(cpu: str, key: str, value, old) -> float | str | bool:
     where = f"CPU preset '{cpu}': override {key}"
     if key in CHOICES:
         if value not in CHOICES[key] or type(value) is not type(CHOICES[key][0]):
-            shown = ", ".join(_format(c) for c in CHOICES[key])
-            raise RetrosimError(f"{where}: expected one of {shown}, got {_format(value)}")
+            shown = ", ".join(format_value(c) for c in CHOICES[key])
+            raise RetrosimError(f"{where}: expected one of {shown}, got {format_value(value)}")
         return value
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise RetrosimError(f"{where}: expected a finite number, got {value!r}")
@@ -92,7 +92,7 @@ _LABEL = re.compile(r"^([A-Za-z0-9._-]+)(?:\{(.*)\})?$")
 _FORBIDDEN = set(":{},=")
 
 
-def _format(value) -> str:
+def format_value(value) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, float) and value == int(value):
@@ -133,10 +133,10 @@ def machine_label(cpu: str, overrides: dict | None = None) -> str:
     if not merged:
         return base
     for k, v in merged.items():
-        if _FORBIDDEN & set(_format(v)):
-            raise RetrosimError(f"CPU preset '{base}': override {k}: value {_format(v)!r} may not contain "
+        if _FORBIDDEN & set(format_value(v)):
+            raise RetrosimError(f"CPU preset '{base}': override {k}: value {format_value(v)!r} may not contain "
                                 f"any of {' '.join(sorted(_FORBIDDEN))}")
-    return base + "{" + ",".join(f"{k}={_format(merged[k])}" for k in sorted(merged)) + "}"
+    return base + "{" + ",".join(f"{k}={format_value(merged[k])}" for k in sorted(merged)) + "}"
 
 
 def split_label(label: str) -> tuple[str, dict]:

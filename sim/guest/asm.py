@@ -187,6 +187,11 @@ _INTEL_HINT = re.compile(rb"\bptr\b|(?<![%\w.$])(?:e[abcd]x|e[sd]i|e[sb]p|[abcd]
 
 
 @contextmanager
+def use_syntax(syntax: str | None) -> None:
+    """Set the syntax of every later assembly in this context (a command's --syntax)."""
+    _syntax.set(syntax)
+
+
 def source_syntax(syntax: str | None):
     """Assemble every source without its own syntax directive as `syntax` (the CLI's --syntax)."""
     token = _syntax.set(syntax)

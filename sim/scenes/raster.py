@@ -454,7 +454,7 @@ def count_rows(geometry: Geometry, width: int, height: int) -> int:
 # --------------------------------------------------------------------------------------------
 # the exact reference and the kernels' expected frames
 
-def _expand(spans: Spans, width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def expand_spans(spans: Spans, width: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every pixel visit in draw order: (flat pixel index, span index, k = position in the span)."""
     counts = spans.count.astype(np.int64)
     total = int(counts.sum())
@@ -494,7 +494,7 @@ def reference(spans: Spans, width: int, height: int) -> tuple[np.ndarray, np.nda
     different triangles' planes are resolved in draw order, as in the kernels).
     Returns depth float64 [h, w] (+inf where nothing was drawn) and owner int32 [h, w] (the winning
     triangle index, -1 where nothing was drawn)."""
-    pix, span_of, k = _expand(spans, width)
+    pix, span_of, k = expand_spans(spans, width)
     values = spans.depth0[span_of] + k * spans.ddepth[span_of]
     depth = np.full(width * height, np.inf)
     winner = np.full(width * height, -1, np.int64)
@@ -609,7 +609,7 @@ def simulate_frame(spans: Spans, variant: str, width: int, height: int, *, edx: 
             if c:
                 _, reg_edx, reg_ecx = ref.fp16z_span(zb[s:s + c], fb[s:s + c], z, d, col, reg_edx, reg_ecx)
         return zb.reshape(height, width), fb.reshape(height, width)
-    pix, span_of, k = _expand(spans, width)
+    pix, span_of, k = expand_spans(spans, width)
     winner = np.full(width * height, -1, np.int64)
     if variant == "zf32":
         ext = _zf32_values(spans, pix.size)

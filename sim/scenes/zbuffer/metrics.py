@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from sim import reference as ref
-from sim.scenes.raster import CLEAR_VALUE, VARIANTS, Spans, _expand, stored_depth
+from sim.scenes.raster import CLEAR_VALUE, VARIANTS, Spans, expand_spans, stored_depth
 
 FORMATS = ("fp16z", "z16", "z32")  # the fixed-point formats fp16_precision tabulates
 
@@ -147,7 +147,7 @@ def z_fighting(fbuf, spans: Spans, pairs, owner, colours=None) -> ZFighting:
     is_far = np.zeros(ntri, bool)
     is_far[pairs[:, 1]] = True
     far_spans = spans.select(is_far[spans.tri])
-    pix, span_of, _ = _expand(far_spans, w)
+    pix, span_of, _ = expand_spans(far_spans, w)
     far_tri = far_spans.tri[span_of].astype(np.int64)
     win = owner.reshape(-1)[pix].astype(np.int64)
     contested = (win >= 0) & np.isin(far_tri * ntri + win, keys)
