@@ -5,7 +5,7 @@ Every operand kind is here at 8, 16 and 32 bits where the instruction has it: re
 memory and immediate (imm8 and full-size) operands; the string instructions with and without
 REP/REPE/REPNE; the stack, flag, BCD, bit, segment-register and control-transfer forms; the whole
 x87 set. A few forms exist only on some of the CPUs (CMOVcc, FCOMI, multi-byte NOP, FFREEP,
-FXSAVE, PREFETCHh, SFENCE, ...): GNU as refuses them for the others, or sim/isa.py does.
+FXSAVE, PREFETCHh, SFENCE, ...): GNU as refuses them for the others, or sim/guest/isa.py does.
 """
 
 R = {8: ("al", "cl"), 16: ("ax", "cx"), 32: ("eax", "ecx")}

@@ -1,4 +1,4 @@
-"""Tests for sim.decode, driven by real instructions assembled with GNU as."""
+"""Tests for sim.guest.decode, driven by real instructions assembled with GNU as."""
 
 from __future__ import annotations
 

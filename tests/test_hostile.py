@@ -407,7 +407,7 @@ def test_timing_memory_is_bounded_with_the_limit_named(write_kernel):
     # explain picks its timeline from the whole trace, so the model holds it all
     line = fails("explain", src, env={"RETROSIM_MODEL_MB": "10"})  # 2 x 400,002 instructions x 90 bytes > 10 MB
     assert "RETROSIM_MODEL_MB=10" in line and "800,004 instructions" in line  # 2 calls (--repeat 2)
-    # time streams the trace through the model (sim/stream.py): nothing grows with its length
+    # time streams the trace through the model (sim/timing/stream.py): nothing grows with its length
     r = cli("time", src, "--json", env={"RETROSIM_MODEL_MB": "10"})
     assert r.returncode == 0, r.stderr[-2000:]
 

@@ -32,10 +32,10 @@ PRESETS = ["pentium-90", "pentium-mmx-233", "pentium-pro-200", "pentium2-233", "
 # at most this many instructions complete per clock: two (U and V pipes) on the P5, three on the P6 (uops) and K6
 WIDTH = {"p5": 2, "p6": 3, "k6": 3}
 
-# Loading DS or SS (MOV sreg / POP sreg) is a system instruction here (sim/isa.py), on every preset.
+# Loading DS or SS (MOV sreg / POP sreg) is a system instruction here (sim/guest/isa.py), on every preset.
 SYSTEM = {"pop es", "pop ds", "pop fs", "pop gs", "mov ds, cx", "mov ds, word ptr [esi]"}
 # GNU as accepts FXSAVE/FXRSTOR for -march=pentiumpro and pentiumii, but CPUID.01H:EDX.FXSR is clear on
-# the Pentium Pro and the Pentium II model 3 (sim/isa.py): the model refuses them there.
+# the Pentium Pro and the Pentium II model 3 (sim/guest/isa.py): the model refuses them there.
 REFUSED = {"pentium-pro-200": {"fxsave [esi]", "fxrstor [esi]"}, "pentium2-233": {"fxsave [esi]", "fxrstor [esi]"}}
 
 

@@ -1,4 +1,4 @@
-"""A run timed in chunks (a streamed emulation, sim/stream.py) reports exactly what the whole trace does."""
+"""A run timed in chunks (a streamed emulation, sim/timing/stream.py) reports exactly what the whole trace does."""
 
 import numpy as np
 import pytest

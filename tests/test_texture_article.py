@@ -1,5 +1,5 @@
 """The texture article's perspective span renderers (kernels/texture/persp.S): each variant draws
-exactly what the model of its arithmetic says (sim/texture_frame.py), and that model stays within
+exactly what the model of its arithmetic says (sim/scenes/texture/frame.py), and that model stays within
 the error its approximations allow of the exact perspective mapping."""
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""Texture scenes (kind = "texture", sim/texture_scene.py): loading with clear errors, the
-dispatch from sim.scene / sim.runner / sim.report / sim.baseline, a small run, its claims."""
+"""Texture scenes (kind = "texture", sim/scenes/texture/scene.py): loading with clear errors, the
+dispatch from sim.scenes.zbuffer.scene / sim.scenes.zbuffer.runner / sim.scenes.zbuffer.report / sim.scenes.baseline, a small run, its claims."""
 
 from __future__ import annotations
 

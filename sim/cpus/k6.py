@@ -373,7 +373,7 @@ class K6Model(FamilyModel):
         return K6Session.whole(self, trace, decoder, segments, timeline, stat_first, access_logs)
 
     def session(self, decoder: Decoder, segments: list[int], stat_first: int = 0, check=None) -> "K6Session":
-        """A run fed in chunks (sim/stream.py), as :meth:`sim.cpus.p6.P6Model.session`."""
+        """A run fed in chunks (sim/timing/stream.py), as :meth:`sim.cpus.p6.P6Model.session`."""
         return K6Session(self, decoder, segments, (0, 0), stat_first, check)
 
 

@@ -299,7 +299,7 @@ class P5Model(FamilyModel):
         return P5Session.whole(self, trace, decoder, segments, timeline, stat_first)
 
     def session(self, decoder: Decoder, segments: list[int], stat_first: int = 0, check=None) -> P5Session:
-        """A run fed in chunks (sim/stream.py), as :meth:`sim.cpus.p6.P6Model.session`."""
+        """A run fed in chunks (sim/timing/stream.py), as :meth:`sim.cpus.p6.P6Model.session`."""
         return P5Session(self, decoder, segments, (0, 0), stat_first, check)
 
     # ---- vocabulary for the views ---------------------------------------------------------------

@@ -113,7 +113,7 @@ class P6Model(FamilyModel):
         return P6Session.whole(self, trace, decoder, segments, timeline, stat_first, access_logs)
 
     def session(self, decoder: Decoder, segments: list[int], stat_first: int = 0, check=None) -> "P6Session":
-        """A run fed in chunks (sim/stream.py); `segments` as for :meth:`run`, an end not yet known
+        """A run fed in chunks (sim/timing/stream.py); `segments` as for :meth:`run`, an end not yet known
         as a large number (set it with :meth:`P6Session.end_segment` before the chunk it ends).
         `check(records)` sees each chunk's new static instructions before they are lowered."""
         return P6Session(self, decoder, segments, (0, 0), stat_first, check)

@@ -2,7 +2,7 @@
 
 FDIV, FSQRT and their relatives take a time set by the precision-control field of the x87 control
 word in force (24, 53 or 64 bits), not by their operands; the trace carries that word for every
-instruction (sim/trace.py). A model's cores key everything on static instructions, so a
+instruction (sim/guest/trace.py). A model's cores key everything on static instructions, so a
 precision-dependent static that ran at several precisions becomes one static per precision: the
 first precision it ran at keeps its id, the others get new ids appended after the decoder's
 records (same record, same PC), and the dynamic index is rewritten to point at them. Lowering then

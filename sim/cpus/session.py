@@ -1,7 +1,7 @@
 """A timing run fed in chunks: the static program grows as the trace brings new instructions.
 
 A core times a trace in one pass, in program order, so it can equally take the trace a chunk at a
-time (a streamed emulation: sim/stream.py) if its loop-carried state survives between chunks (each
+time (a streamed emulation: sim/timing/stream.py) if its loop-carried state survives between chunks (each
 family's core keeps it in a state vector and arrays, :func:`sim.cpus.p6_core.new_state`). What
 the chunks change is the static program: a chunk may run instructions no earlier chunk ran, or a
 precision-dependent x87 instruction at a new precision (sim/cpus/precision.py). :class:`Statics`
@@ -145,7 +145,7 @@ class CoreSession:
 
     def prepare(self, chunk: Trace) -> tuple[np.ndarray, list[InsnRecord]]:
         """The chunk's static ids and the static instructions it adds: what :meth:`feed` needs first,
-        done ahead by whoever makes the chunks (sim/stream.py: the emulating thread), in chunk order."""
+        done ahead by whoever makes the chunks (sim/timing/stream.py: the emulating thread), in chunk order."""
         return self.statics.index(chunk)
 
     def feed(self, chunk: Trace, next_pc: int, access_logs=None, prepared=None) -> None:

@@ -1,7 +1,7 @@
 """Instruction timing tables as data: load a family's TOML table and find the row for a decoded
 instruction, saying exactly which row a prediction used.
 
-Rows are keyed by (mnemonic, operand signature) in the vocabulary of :mod:`sim.decode`. A lookup
+Rows are keyed by (mnemonic, operand signature) in the vocabulary of :mod:`sim.guest.decode`. A lookup
 tries the exact key first, then the documented generalisations below, cheapest first, and
 reports the one it used: the reader of `retrosim explain` sees "add r8,i8 -> add r32,i32".
 
@@ -42,7 +42,7 @@ _WIDER = {"r8": ("r32",), "r16": ("r32",), "m8": ("m32",), "m16": ("m32",), "i8"
 ROW_FIELDS = {"mnemonic", "signature", "uops", "decoder", "latency", "throughput", "source", "note", "estimated"}
 OVERRIDABLE = {"latency", "throughput", "precision_throughput"}  # what a K6 model_overrides entry may replace
 # x87 precision control: a row field `precision_F = [24-bit, 53-bit, 64-bit]` gives field F at each
-# precision (the control word in force, sim/trace.py); F itself holds the 64-bit (FNINIT) figure
+# precision (the control word in force, sim/guest/trace.py); F itself holds the 64-bit (FNINIT) figure
 PRECISION_FIELDS = ("latency", "throughput", "cycles")
 PRECISION_NAMES = ("24-bit", "53-bit", "64-bit")
 TOP_LEVEL = {"insn", "unsupported"}

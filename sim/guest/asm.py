@@ -264,7 +264,7 @@ def _for_cpu(message: str, cpu) -> str:
     return f"{m['where']}: {name} is not available on {cpu.name}{why}{m['rest']}"
 
 
-# The guest map reserves 12 MB for code and data (sim.elf.CODE_LIMIT): an object much larger than
+# The guest map reserves 12 MB for code and data (sim.guest.elf.CODE_LIMIT): an object much larger than
 # that can never load, so the assembler is stopped (RLIMIT_FSIZE) before a `.space 1<<30` fills the disk.
 MAX_OBJECT_BYTES = 64 << 20
 DIGEST_SUFFIX = ".sha256"

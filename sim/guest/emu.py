@@ -1,7 +1,7 @@
 """Run kernels under Unicorn (i686): guest memory map, cdecl calls, budgets, faults, RDTSC, traces.
 
 The emulator knows nothing about timing. A call returns the kernel's results and, when asked, the
-native :class:`~sim.trace.Trace` of what it executed. RDTSC is intercepted so that a timing model
+native :class:`~sim.guest.trace.Trace` of what it executed. RDTSC is intercepted so that a timing model
 can answer it (see :class:`RdtscEvent`).
 """
 

@@ -11,7 +11,7 @@ that is not a `#` comment, an empty comment, or the next `@` tag):
     # @entry div_window(n) -> per iteration: DIV r32 (20 clocks on X), then
     # 16 independent ADD r32,i8 and DEC/JNZ
 
-The names are documentation; the count is enforced by :meth:`sim.emu.Machine.call`.
+The names are documentation; the count is enforced by :meth:`sim.guest.emu.Machine.call`.
 """
 
 from __future__ import annotations

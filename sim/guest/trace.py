@@ -9,7 +9,7 @@ hook stops the emulator *before* the instruction runs; the runner drains the buf
 The x87 control word (its precision control sets FDIV/FSQRT latency) is known for every
 instruction without a per-instruction register read: a third native hook, registered only on the
 static PCs of the instructions that can change it (FLDCW, FNINIT, FRSTOR, FNSAVE, FLDENV, FNSTENV,
-FXRSTOR: :data:`CONTROL_WORD_WRITERS`, found by the :class:`~sim.emu.Machine`), marks a read as
+FXRSTOR: :data:`CONTROL_WORD_WRITERS`, found by the :class:`~sim.guest.emu.Machine`), marks a read as
 pending; the code hook of the next instruction reads FPCW (the writer has run by then) and records
 (instruction index, control word). Each run segment also starts with a read, so every chunk opens
 with the control word in force.
@@ -319,7 +319,7 @@ class NativeTracer:
     def __init__(self, uc, instruction_capacity: int = 1 << 20, access_capacity: int = 1 << 20,
                  control_word_pcs=(), control_word_capacity: int = 1 << 12):
         """`control_word_pcs`: static PCs of the instructions that write the x87 control word
-        (the machine finds them: :meth:`sim.emu.Machine.control_word_pcs`)."""
+        (the machine finds them: :meth:`sim.guest.emu.Machine.control_word_pcs`)."""
         self.uc = uc
         self.icap = int(instruction_capacity)
         self.acap = int(access_capacity) + ACCESS_SLACK
@@ -333,7 +333,7 @@ class NativeTracer:
         self.held_bytes = 0  # bytes of the drained chunks (bounded by trace_limit_bytes)
         self._parts: list[Trace] = []
         self.active = False
-        # a streamed run (sim/stream.py) hands each validated chunk to `sink` instead of holding it
+        # a streamed run (sim/timing/stream.py) hands each validated chunk to `sink` instead of holding it
         self.sink = None
 
     def attach(self) -> None:

@@ -491,7 +491,7 @@ class Hierarchy:
 
     def run(self, trace, *, classify: bool = False, cold: bool = True) -> HierarchyStats:
         """Simulate ``trace`` (anything with ``mem_addr``/``mem_size``/``mem_write`` arrays, e.g. a
-        :class:`sim.trace.Trace`). ``cold`` empties the caches first; ``classify`` adds the
+        :class:`sim.guest.trace.Trace`). ``cold`` empties the caches first; ``classify`` adds the
         compulsory/capacity/conflict split of each level's misses (needs a cold start)."""
         addr = np.ascontiguousarray(trace.mem_addr, dtype=np.uint32)
         size = np.ascontiguousarray(trace.mem_size, dtype=np.uint8)

@@ -3,7 +3,7 @@
 Which level serves each data access depends only on the order of the accesses and the caches'
 geometry and policies, never on when the accesses happen: the cores call the hierarchy in program
 order (an instruction's loads, then its store), whatever the cycle. A model re-timed with only its
-latencies or estimates changed (the claims' robustness pass, sim/claims.py) therefore sees the same
+latencies or estimates changed (the claims' robustness pass, sim/scenes/claims.py) therefore sees the same
 results again. The first such run records every packed :func:`sim.memory.hierarchy.service` result
 of the data side; the others read them back instead of walking the caches.
 

@@ -1,6 +1,6 @@
 """Claims checked as widely as they are stated, and how robust each verdict is to the model's estimates.
 
-A scene's ``[[claims]]`` (sim.scene.Claim) name the machines their words cover. :func:`evaluate`
+A scene's ``[[claims]]`` (sim.scenes.zbuffer.scene.Claim) name the machines their words cover. :func:`evaluate`
 checks each claim on every covered machine of the run (holds / does not hold, with the counters
 that explain the difference) and lists the covered machines of the scene that the run left out.
 

@@ -1,7 +1,7 @@
 """Speed benchmark: the same Z-buffer workload emulated three ways, measured in one run.
 
-End to end (emulate with the native trace, decode, time on a CPU model: `sim.timing.time_kernel`,
-which runs the model beside the emulator on the streamed trace, sim/stream.py) is compared with the
+End to end (emulate with the native trace, decode, time on a CPU model: `sim.timing.kernel.time_kernel`,
+which runs the model beside the emulator on the streamed trace, sim/timing/stream.py) is compared with the
 native trace alone; `model_only` is the timing model alone on an emulated trace (decode included),
 the part of end to end that emulation does not hide. `cores` says how many host cores the run could
 use: with one, streaming cannot overlap the two.

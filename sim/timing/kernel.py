@@ -36,7 +36,7 @@ class TimingResult:
     calls: list[dict]                 # counters per call
     model: object = field(repr=False)
     run: object = field(repr=False)
-    trace: Trace | None = field(repr=False)  # None when the run was streamed (sim/stream.py)
+    trace: Trace | None = field(repr=False)  # None when the run was streamed (sim/timing/stream.py)
 
     @property
     def last(self) -> dict:

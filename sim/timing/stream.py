@@ -1,6 +1,6 @@
 """Emulate and time at once: the timing model runs beside the emulator on the trace as it is made.
 
-The emulator records the trace in chunks (sim/trace.py; CHUNK instructions here) and finds each
+The emulator records the trace in chunks (sim/guest/trace.py; CHUNK instructions here) and finds each
 chunk's static instructions; instead of joining the chunks into one trace and then timing it, a
 worker thread times each chunk as soon as it arrives (all but its last instruction, which waits
 for the next chunk's first PC: a branch's outcome), and drops it. Both sides run without the GIL
@@ -11,7 +11,7 @@ trace is never held whole: at most QUEUE_CHUNKS chunks wait.
 The cycle counts are those of timing the joined trace (a core's state is carried between chunks:
 sim/cpus/session.py; tests/test_stream.py checks every counter, per-static sum and RDTSC value
 against the whole-trace run). A kernel that reads RDTSC is timed the classic way afterwards (its
-answers need a first timing pass: sim/timing.py), as is a run that asks for a timeline window
+answers need a first timing pass: sim/timing/kernel.py), as is a run that asks for a timeline window
 (chosen from the whole trace).
 """
 

@@ -10,14 +10,14 @@ Format::
     description = "..."             # optional
 
     [workloads]
-    names = ["screen", "ties"]      # required: sim.snap.WORKLOADS
+    names = ["screen", "ties"]      # required: sim.scenes.snap.workload.WORKLOADS
     vertices = 2048                 # required: (x, y) vertices per workload
     seed = 1998                     # required
     width = 640                     # optional (default 640): the screen the coordinates fall on
     height = 480                    # optional (default 480)
 
     [run]
-    variants = ["trick-24", "portable-64"]   # required: sim.snap.VARIANTS
+    variants = ["trick-24", "portable-64"]   # required: sim.scenes.snap.workload.VARIANTS
     cpus = ["pentium-133", "k6-2-300"]       # required: CPU preset[:memory preset]
     timing_workload = "screen"      # optional (default the first of workloads.names): the cycles
                                     # are measured on it (the models' times do not depend on values)

@@ -101,7 +101,7 @@ def snap(machine: Machine, variant: Variant, coords: np.ndarray) -> np.ndarray:
 
 
 def setup(variant: Variant, coords: np.ndarray):
-    """A timing setup (sim.timing.Setup): the vertices in a fresh machine, the call's arguments."""
+    """A timing setup (sim.timing.kernel.Setup): the vertices in a fresh machine, the call's arguments."""
     def build(machine: Machine) -> list:
         machine.reset_fpu()
         return [machine.arena.put(np.ascontiguousarray(coords, np.float32)), coords.shape[0], variant.control_word]

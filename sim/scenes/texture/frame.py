@@ -2,7 +2,7 @@
 (kernels/texture/persp.S): the geometry, the span records the kernels read, the exact float64
 texture coordinates of every pixel, and a bit-exact model of what each variant draws.
 
-Conventions: pixel (x, y) has its centre at (x + 0.5, y + 0.5) (sim.raster's rasterizer and fill
+Conventions: pixel (x, y) has its centre at (x + 0.5, y + 0.5) (sim.scenes.raster's rasterizer and fill
 rule). A triangle carries per-vertex texture coordinates (s, t) in texels and a depth w; u/w, v/w
 and 1/w are planes over the screen (a, b, c in the article), so the exact coordinates of a pixel
 are u = a / c, v = b / c. The texture is 256x256 8-bit, rows on 256-byte boundaries, on a 64 KB
@@ -104,7 +104,7 @@ def grid_scene(width: int, height: int, columns: int, rows: int, seed: int, w_ra
 
 
 def texture(seed: int = 1997) -> np.ndarray:
-    """A 256x256 8-bit texture (the same as sim.texture's, so both reports read one bitmap)."""
+    """A 256x256 8-bit texture (the same as sim.reports.texture_loops's, so both reports read one bitmap)."""
     return np.random.default_rng(seed).integers(0, 256, TEX_SIZE * TEX_SIZE, dtype=np.uint8)
 
 

@@ -22,7 +22,7 @@ Format::
     st_range = [40.0, 216.0]        # optional: vertex texture coordinates in texels (0 <= lo <= hi <= 256)
 
     [run]
-    variants = ["a", "b", "c", "d", "e"]   # required: the article's steps (sim.texture_frame.VARIANTS)
+    variants = ["a", "b", "c", "d", "e"]   # required: the article's steps (sim.scenes.texture.frame.VARIANTS)
     cpus = ["pentium-133", "k6-2-300"]     # required: CPU preset[:memory preset]
     timing_stride = 4               # optional (default 1): time every n-th span of the frame (a
                                     #   representative subset; every pixel is still checked)
@@ -470,7 +470,7 @@ def run_scene(scene: TextureScene, cpus: list[str] | None = None, progress=None,
         got = draw_frame(variant, params, w, h, tex)
         if not np.array_equal(got, expected_frame(model_pixels, params, w, h, tex)):
             raise RetrosimError(f"{scene.path}: variant {variant}: the emulated frame differs from the model of the "
-                                "kernel's arithmetic (sim/texture_frame.py): a kernel or emulator bug")
+                                "kernel's arithmetic (sim/scenes/texture/frame.py): a kernel or emulator bug")
         result.accuracy[variant] = F.error_metrics(model_pixels, variant, u_exact, v_exact)
         emulations[variant] = emulate_variant(variant, timed, w, h, tex)
     machines = [MachineKey.parse(spec) for spec in cpus or scene.cpus]
@@ -649,7 +649,7 @@ def to_markdown(result: TextureResult, png_name: str | None) -> str:
              f"{s.st_range[0]:g}..{s.st_range[1]:g} texels), a 256x256 8-bit texture, {result.spans:,} spans, "
              f"{result.pixels:,} pixels, no overdraw (the article's span sorter hands the renderer visible spans "
              f"only). Every pixel of every variant is checked against the model of its arithmetic "
-             f"(sim/texture_frame.py). Timed: every {s.timing_stride}th span ({result.timed_spans:,} spans, "
+             f"(sim/scenes/texture/frame.py). Timed: every {s.timing_stride}th span ({result.timed_spans:,} spans, "
              f"{result.timed_pixels:,} pixels, the same distribution of span lengths), drawn twice in one machine "
              "state; the second pass is reported (caches and predictors warm).", "",
              "Variants (kernels/texture/persp.S):", ""]

@@ -50,7 +50,7 @@ def span_records(spans, variant: str, width: int, zbuf: int, fbuf: int, colours:
 
 
 def frame_setup(spans, variant: str, width: int, height: int, colours: np.ndarray, layout: list):
-    """A setup function for sim.timing.emulate: builds the frame in a fresh machine's arena and
+    """A setup function for sim.timing.kernel.emulate: builds the frame in a fresh machine's arena and
     returns the driver's arguments. The chosen addresses are appended to `layout`."""
     zbytes = -(-width * height * raster.ZBUF_DTYPE[variant].itemsize // 32) * 32  # the clear works in 32-byte lines
 

@@ -1,7 +1,7 @@
-"""Error of a Z-buffer variant's frame against the exact float64 reference (sim.raster.reference).
+"""Error of a Z-buffer variant's frame against the exact float64 reference (sim.scenes.raster.reference).
 
 Every measure takes the variant's final buffers (zbuf, fbuf) as the kernel (or
-sim.raster.simulate_frame) left them, and the exact (depth, owner) of the same spans. The frame
+sim.scenes.raster.simulate_frame) left them, and the exact (depth, owner) of the same spans. The frame
 buffer tells which triangle won a pixel through its colour (by default triangle index + 1; pass
 `colours`, the Geometry's colour array, otherwise: triangles sharing a colour cannot be told apart).
 Results are frozen dataclasses with `.as_dict()` for JSON.
@@ -79,7 +79,7 @@ def visibility_errors(fbuf, owner, colours=None, zbuf=None, variant: str | None 
 
 @dataclass(frozen=True)
 class DepthError:
-    """Stored depth (decoded with sim.raster.stored_depth) against the exact depth of the pixel's
+    """Stored depth (decoded with sim.scenes.raster.stored_depth) against the exact depth of the pixel's
     exact winner, over covered pixels, in units of the scene's exact depth range (max - min of the
     covered exact depths; `depth_range`, or 1.0 when all depths are equal). `worst_abs`/`mean_abs`
     are in depth units. The stored depth belongs to whichever triangle the variant let win, so a

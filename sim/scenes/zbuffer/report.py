@@ -41,7 +41,7 @@ def _cpu_label(key: str) -> str:
 def evaluate_claims(result: SceneResult) -> list[dict]:
     """Each `[[claims]]` entry of the scene checked on every machine of the run its words cover,
     with the counters that explain the outcome and its robustness to the model's estimates
-    (sim.claims). A claim the model does not reproduce is reported as such, not tuned away."""
+    (sim.scenes.claims). A claim the model does not reproduce is reported as such, not tuned away."""
     from sim.scenes.claims import evaluate
 
     return evaluate(result, EXPLAIN_COUNTERS)

@@ -24,7 +24,7 @@ from sim.timing.kernel import time_emulation
 @dataclass(frozen=True)
 class Accuracy:
     variant: str
-    matches_reference_model: bool  # Unicorn's buffers equal sim.raster.simulate_frame bit for bit
+    matches_reference_model: bool  # Unicorn's buffers equal sim.scenes.raster.simulate_frame bit for bit
     visibility: dict | None
     depth_error: dict | None
     z_fighting: dict | None = None
@@ -46,7 +46,7 @@ class SceneResult:
     accuracy: dict[str, Accuracy] = field(default_factory=dict)
     precision: dict | None = None
     # (variant, cpu key) -> {(parameter, value): counters of the last call}: the claims' robustness
-    # to the model's estimates (sim.claims.perturbed_timings); empty when not measured
+    # to the model's estimates (sim.scenes.claims.perturbed_timings); empty when not measured
     sensitivity: dict = field(default_factory=dict)
 
     def timing(self, variant: str, key: str) -> Timing:
@@ -103,7 +103,7 @@ def _time_task(shared, i: int, key: str, robust: bool) -> tuple[dict, dict | Non
 def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | None = None,
               robustness: bool = True, jobs: int = 1) -> SceneResult:
     """Run a scene. With `robustness` (default), the claims' verdicts are also re-timed with each
-    estimated model parameter at the ends of its plausible range (sim.claims), on the machines the
+    estimated model parameter at the ends of its plausible range (sim.scenes.claims), on the machines the
     claims cover only; a scene without claims costs nothing more.
 
     `jobs` > 1 times each variant's emulation on the machines in that many forked processes

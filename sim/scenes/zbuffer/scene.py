@@ -52,7 +52,7 @@ Format::
     memories = ["sdram-pc100"]      # optional: only with these memory presets
     # (cpu = "..." is accepted as a one-entry cpus). At least one covered machine must be in run.cpus.
 
-Generators are those of sim.raster (random_scene, coplanar_far_scene, ...) with the keys above as
+Generators are those of sim.scenes.raster (random_scene, coplanar_far_scene, ...) with the keys above as
 their arguments. Metrics: "visibility" (wrong winners), "depth_error" (stored vs exact depth),
 "fp16_precision" (the format table, needs no frame), "z_fighting" (coplanar_far only).
 
@@ -78,7 +78,7 @@ VARIANTS = raster.VARIANTS
 METRICS = ("visibility", "depth_error", "fp16_precision", "z_fighting")
 GENERATORS = ("random", "coplanar_far", "steep", "near_far", "tiny", "triangles")
 SPAN_RECORD_BYTES = 32  # kernels/zbuffer/draw.inc: 8 dwords per span
-ARENA_ALIGN = 64        # sim.emu.Arena.alloc's default alignment
+ARENA_ALIGN = 64        # sim.guest.emu.Arena.alloc's default alignment
 ZBUF_BYTES = {v: raster.ZBUF_DTYPE[v].itemsize for v in VARIANTS}
 KERNEL_DIR = "kernels/zbuffer"
 MAX_COORDINATE = 1 << 20  # screens are at most 32768 wide; the plane math stays exact far beyond
@@ -170,7 +170,7 @@ class Needs:
     entries:       the frame entry point of each variant (<v>_frame, see kernels/zbuffer/draw.inc);
     cpus:          CPU presets; memories: the memory presets they run with; machines: the pairs;
     metrics:       the metrics to compute;
-    reference:     whether the exact float64 reference (sim.raster.reference) is needed: only for
+    reference:     whether the exact float64 reference (sim.scenes.raster.reference) is needed: only for
                    visibility, depth_error and z_fighting (fp16_precision is a property of the
                    formats and needs no frame at all);
     colour_buffer: whether any metric reads the frame buffer (visibility, z_fighting). When False
@@ -205,7 +205,7 @@ def _align(n: int, a: int) -> int:
 
 
 def frame_arena_bytes(width: int, height: int, spans: int, zbuf_bytes_per_pixel: int) -> dict:
-    """Guest arena bytes one frame takes, allocation by allocation as sim.emu.Arena lays them out
+    """Guest arena bytes one frame takes, allocation by allocation as sim.guest.emu.Arena lays them out
     (each aligned to 64 bytes): the depth buffer rounded up to whole 32-byte lines (the frame
     driver clears 8 dwords per iteration), the 16-bit colour buffer, and 32 bytes per span record."""
     pixels = width * height
