@@ -1,0 +1,97 @@
+"""Hostile input, issues 25 and 26: output writers, input files read by commands, the assembler's
+cache and limits, Unicorn's memory, and messages. Every case: exit 2, one stderr line, no
+traceback, bounded time and memory (the cases about hangs and memory run in a subprocess under an
+address-space limit and a timeout). No case names a real system path as an output.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import stat
+from pathlib import Path
+
+import pytest
+
+from tests.test_hostile import OK, cli, fails, one_error, own_cache  # noqa: F401  (own_cache: autouse fixture)
+
+
+# -- every writer is the checked writer ---------------------------------------------------------
+def _never(*a, **k):
+    raise AssertionError("the work ran before the output path was checked")
+
+
+@pytest.mark.parametrize("command", ["texture-loops", "conformance", "validate"])
+def test_report_writers_refuse_a_fifo_a_folder_and_a_missing_folder_before_the_work(command, tmp_path, monkeypatch):
+    from sim.reports import conformance, texture_loops, validation
+
+    monkeypatch.setattr(texture_loops, "report", _never)
+    monkeypatch.setattr(conformance, "run_family", _never)
+    monkeypatch.setattr(validation, "run_family", _never)
+    fifo = tmp_path / "fifo.md"
+    os.mkfifo(fifo)
+    line = fails(command, "--out", fifo)
+    assert "not a regular file" in line and str(fifo) in line
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)  # still the FIFO
+    folder = tmp_path / "dir"
+    folder.mkdir()
+    assert "is a folder" in fails(command, "--out", folder)
+    assert os.listdir(folder) == []  # no temporary file left behind
+    assert "does not exist" in fails(command, "--out", tmp_path / "no" / "r.md")
+
+
+def test_report_writers_follow_the_umask_and_leave_no_temporary_file(tmp_path, monkeypatch):
+    from sim.reports import conformance, texture_loops
+
+    monkeypatch.setattr(texture_loops, "report", lambda cpus=None: "# texture\n")
+    monkeypatch.setattr(conformance, "run_family", lambda fam, progress=None: ([], []))
+    monkeypatch.setattr(conformance, "render", lambda results: "# conformance\n")
+    old = os.umask(0o022)
+    try:
+        texture_loops.write_report(tmp_path / "t.md")
+        conformance.write_report(tmp_path / "c.md", ("p6",))
+    finally:
+        os.umask(old)
+    assert sorted(os.listdir(tmp_path)) == ["c.md", "t.md"]
+    for name in ("t.md", "c.md"):
+        assert stat.S_IMODE(os.stat(tmp_path / name).st_mode) == 0o644
+
+
+def test_no_module_writes_a_file_except_through_the_checked_writer():
+    """mkstemp/os.replace/write_text only in sim/output.py, the assembler cache (sim/guest/asm.py)
+    and into private temporary folders (loop's wrapper, conformance's benchmark source)."""
+    import re
+
+    root = Path(__file__).resolve().parent.parent / "sim"
+    allowed = {"output.py", "asm.py"}
+    private_temp = {("timing", "loop.py"), ("reports", "conformance.py")}  # write_text into a TemporaryDirectory
+    pattern = re.compile(r"mkstemp|os\.replace|open\([^)]*['\"][wa]b?['\"]")
+    for path in root.rglob("*.py"):
+        if path.name in allowed:
+            continue
+        text = path.read_text()
+        assert not pattern.search(text), f"{path}: writes a file without sim.output"
+        if "write_text(" in text or "write_bytes(" in text:
+            assert (path.parent.name, path.name) in private_temp, f"{path}: writes a file without sim.output"
+
+
+# -- reports/baselines.json is read like every other input ---------------------------------------
+def test_baselines_file_that_is_a_fifo_a_device_huge_or_deep(tmp_path, monkeypatch):
+    from sim.scenes import baseline
+
+    path = tmp_path / "baselines.json"
+    monkeypatch.setattr(baseline, "BASELINE_FILE", path)
+    os.mkfifo(path)  # would block `check` for ever
+    assert "not a regular file" in fails("check", "zbuffer-small")
+    path.unlink()
+    path.symlink_to("/dev/zero")  # would grow without end
+    assert "not a regular file" in fails("check", "zbuffer-small")
+    path.unlink()
+    with open(path, "wb") as f:  # sparse: 3 GB of size, no disk
+        f.truncate(3 << 30)
+    assert "more than the 16 MB" in fails("check", "zbuffer-small")
+    path.write_text("[" * 100_000 + "]" * 100_000)
+    line = fails("check", "zbuffer-small")
+    assert str(path) in line and "nested too deeply" in line
+    path.write_text('{"a": {"b": {"cycles": ' + "9" * 5000 + "}}}")
+    assert str(path) in fails("check", "zbuffer-small")
