@@ -95,3 +95,36 @@ def test_baselines_file_that_is_a_fifo_a_device_huge_or_deep(tmp_path, monkeypat
     assert str(path) in line and "nested too deeply" in line
     path.write_text('{"a": {"b": {"cycles": ' + "9" * 5000 + "}}}")
     assert str(path) in fails("check", "zbuffer-small")
+
+
+# -- Unicorn under an address-space limit ---------------------------------------------------------
+def run_limited(args, limit: int, timeout: int = 240, cwd=None):
+    """The CLI in a subprocess under `limit` bytes of address space."""
+    import resource
+    import subprocess
+    import sys
+
+    from tests.test_hostile import ROOT
+
+    def limit_memory():
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "NUMBA_NUM_THREADS": "1"}
+    return subprocess.run([sys.executable, "-m", "sim.cli", *map(str, args)], capture_output=True, text=True,
+                          env=env, timeout=timeout, preexec_fn=limit_memory, cwd=cwd)
+
+
+def test_an_emulator_fits_in_a_gigabyte_of_address_space(write_kernel, tmp_path):
+    """Unicorn's default code buffer alone is 1 GB of address space; ours is smaller."""
+    src = write_kernel(OK, "k.S")
+    proc = run_limited(["time", src, "--cpu", "pentium-133"], 1 << 30, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+
+
+@pytest.mark.parametrize("command", [["loop", "BODY", "--cpu", "all"], ["validate", "--family", "p5", "--out", "v.md"]])
+def test_emulators_past_a_ulimit_give_the_documented_line(command, tmp_path):
+    (tmp_path / "body.s").write_text("add eax, ebx\n")
+    args = [str(tmp_path / "body.s") if a == "BODY" else a for a in command]
+    line = one_error(run_limited(args, 900 << 20, cwd=tmp_path))
+    assert line.startswith("retrosim: error: out of host memory"), line
+    assert not (tmp_path / "v.md").exists()
