@@ -7,6 +7,7 @@ address-space limit and a timeout). No case names a real system path as an outpu
 from __future__ import annotations
 
 import json
+import time
 import os
 import stat
 from pathlib import Path
@@ -128,3 +129,80 @@ def test_emulators_past_a_ulimit_give_the_documented_line(command, tmp_path):
     line = one_error(run_limited(args, 900 << 20, cwd=tmp_path))
     assert line.startswith("retrosim: error: out of host memory"), line
     assert not (tmp_path / "v.md").exists()
+
+
+# -- the assembler cache sees every include; the assembler runs under limits ----------------------
+INCLUDES = """.intel_syntax noprefix
+.macro add_from f
+.include "\\f"
+.endm
+.globl f
+# @entry f() -> 7
+f:
+    nop; .include "a.inc"
+    .INCLUDE "b.inc"
+    add_from c.inc
+    ret
+"""
+
+
+def test_an_edited_include_in_any_form_rebuilds_the_object(write_kernel, tmp_path):
+    from sim.guest.emu import Machine
+
+    src = write_kernel(INCLUDES, "inc.S")
+    folder = Path(src).parent
+    for name, line in (("a.inc", "mov eax, 1"), ("b.inc", "add eax, 2"), ("c.inc", "add eax, 4")):
+        (folder / name).write_text(line + "\n")
+    assert Machine.from_source(src, assembler="gnu").call("f").eax == 7
+    for name, line, want in (("a.inc", "mov eax, 8", 14), ("b.inc", "add eax, 16", 28), ("c.inc", "add eax, 32", 56)):
+        (folder / name).write_text(line + "\n")
+        assert Machine.from_source(src, assembler="gnu").call("f").eax == want, name
+
+
+def test_the_zig_back_end_refuses_an_include_it_cannot_report(write_kernel, tmp_path):
+    from sim.guest import asm
+
+    if "zig" not in asm.available_assemblers():
+        pytest.skip("zig not installed")
+    src = write_kernel(INCLUDES, "inc.S")
+    for name in ("a.inc", "b.inc", "c.inc"):
+        (Path(src).parent / name).write_text("nop\n")
+    line = fails("time", src, "--assembler", "zig")
+    assert f"{src}:3: .include" in line and "macro argument" in line
+
+
+def test_an_include_of_a_fifo_inside_a_macro_is_stopped_by_the_time_limit(write_kernel, tmp_path):
+    src = write_kernel(INCLUDES.replace('nop; .include "a.inc"\n    .INCLUDE "b.inc"\n', "")
+                       .replace("add_from c.inc", "add_from p.fifo"), "fifo.S")
+    os.mkfifo(Path(src).parent / "p.fifo")
+    line = one_error(cli("time", src, env={"RETROSIM_ASM_SECONDS": "3"}, timeout=60, cwd=tmp_path))
+    assert line == (f"retrosim: error: {src}: the assembler ran past 3 s and was stopped (a huge or nested .rept, "
+                    "or an .include of a pipe?); $RETROSIM_ASM_SECONDS sets the limit")
+
+
+REPT = ".intel_syntax noprefix\n.globl f\n# @entry f() -> 7\nf:\n{body}\n    ret\n"
+
+
+@pytest.mark.parametrize("assembler", ["gnu", "zig"])
+@pytest.mark.parametrize("body", [".rept 100000000\nnop\n.endr",  # 3.6 GB unbounded
+                                  ".rept 100000000\n.endr",  # a minute unbounded
+                                  ".rept 10000\n.rept 10000\nnop\n.endr\n.endr"])
+def test_huge_rept_is_stopped_by_the_assembler_limits(assembler, body, write_kernel, tmp_path):
+    from sim.guest import asm
+
+    if assembler not in asm.available_assemblers():
+        pytest.skip(f"{assembler} not installed")
+    src = write_kernel(REPT.format(body=body), "rept.S")
+    start = time.monotonic()
+    proc = cli("time", src, "--assembler", assembler, env={"RETROSIM_ASM_SECONDS": "10"}, timeout=90, cwd=tmp_path)
+    assert time.monotonic() - start < 60
+    if proc.returncode == 0 and assembler == "zig" and ".rept 100000000\n.endr" in body:
+        return  # clang expands an empty .rept in no time
+    line = one_error(proc)
+    assert line.startswith(f"retrosim: error: {src}: the "), line
+    assert "memory limit" in line or "ran past 10 s" in line or "object passed" in line, line
+
+
+def test_a_bad_assembler_time_limit_is_one_line(write_kernel):
+    src = write_kernel(OK, "k.S")
+    assert "RETROSIM_ASM_SECONDS" in fails("time", src, env={"RETROSIM_ASM_SECONDS": "nan"})
