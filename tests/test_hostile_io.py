@@ -206,3 +206,40 @@ def test_huge_rept_is_stopped_by_the_assembler_limits(assembler, body, write_ker
 def test_a_bad_assembler_time_limit_is_one_line(write_kernel):
     src = write_kernel(OK, "k.S")
     assert "RETROSIM_ASM_SECONDS" in fails("time", src, env={"RETROSIM_ASM_SECONDS": "nan"})
+
+
+# -- messages -------------------------------------------------------------------------------------
+def test_a_loop_fault_names_the_file_once(tmp_path):
+    body = tmp_path / "nullptr.s"
+    body.write_text("mov eax, [0]\n")
+    line = fails("loop", body)
+    assert line.count("nullptr.s") == 1 and "guest fault" in line, line
+
+
+@pytest.mark.parametrize("args, expect", [
+    ("buf:f32:256:0x40000000", "FILL must be a decimal float for f32, got '0x40000000'"),
+    ("buf:f64:4:zz", "FILL must be a decimal float for f64, got 'zz'"),
+    ("1.5xf", "'1.5x' before the 'f' is not a decimal float"),
+])
+def test_float_fills_and_arguments_say_float(args, expect, write_kernel):
+    line = fails("run-kernel", write_kernel(OK, "k.S"), "--args", args)
+    assert expect in line and "not a number" not in line
+
+
+JUMP = ".intel_syntax noprefix\n.globl f\n# @entry f() -> 7\nf:\n    {insn}\n    ret\n"
+
+
+@pytest.mark.parametrize("insn", ["jmp 0x12345678", "call 0x400"])
+def test_a_jump_to_a_bare_address_is_a_guest_fault_there(insn, write_kernel):
+    line = fails("time", write_kernel(JUMP.format(insn=insn), "j.S"))
+    assert "undefined symbol" not in line
+    assert "outside the kernel's code" in line and ("0x12345678" in line or "0x00000400" in line), line
+
+
+def test_an_instruction_the_cpu_lacks_is_refused_before_the_fault_it_causes(write_kernel):
+    # FXSAVE [esp] writes the FPU control word over the return address: the RET then jumps to 0x37f
+    src = write_kernel(JUMP.format(insn="fxsave [esp]"), "fx.S")
+    for command in ("time", "explain"):
+        line = fails(command, src, "--cpu", "pentium-pro-200")
+        assert "fxsave is not available on pentium-pro-200" in line, line
+    assert "guest fault" in fails("time", src, "--cpu", "pentium3-500")  # it has FXSR: the fault is the error

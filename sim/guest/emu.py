@@ -173,6 +173,9 @@ class Machine:
         uc.hook_add(UC_HOOK_MEM_INVALID, self._on_invalid)
         uc.hook_add(UC_HOOK_INTR, self._on_interrupt)
         self._tracer: NativeTracer | None = None
+        # called with the PCs a traced run executed before a guest fault, before the fault is raised:
+        # an instruction the CPU lacks (the ISA check) is the cause to report, not what it broke later
+        self.before_fault: Callable[[np.ndarray], None] | None = None
         # instructions per trace chunk (the tracer's buffer); a streamed run asks for smaller ones
         self.trace_chunk = 1 << 20
         self._rdtsc_cb = _RDTSC_CB(self._on_rdtsc)  # keep a reference: Unicorn holds only the pointer
@@ -245,7 +248,12 @@ class Machine:
         for name, addr in self.image.symbols.items():
             if addr <= pc and (best is None or addr > best[1]):
                 best = (name, addr)
-        if best is None or self.image.section_of(pc) is None:
+        if self.image.section_of(pc) is None:
+            base, code = self.image.code
+            if not base <= pc < base + len(code):  # the guest runs where no kernel code is: say so
+                return f"{pc:#010x} (outside the kernel's code: a jump or call to a bare address?)"
+            return f"{pc:#010x}"
+        if best is None:
             return f"{pc:#010x}"
         return f"{pc:#010x} ({best[0]}+{pc - best[1]:#x})"
 
@@ -329,7 +337,15 @@ class Machine:
                 if budget and tr.recorded >= budget:
                     self._check_finished(budget)
                 tr.limit(budget - tr.recorded if budget else tr.icap)
-                self._run_segment(pc)
+                try:
+                    self._run_segment(pc)
+                except GuestFault:
+                    if self.before_fault is not None:
+                        pcs = tr.executed_pcs()
+                        base, code = self.image.code
+                        # only instructions in the kernel's code: a jump to nowhere is recorded at its target
+                        self.before_fault(pcs[(pcs >= base) & (pcs < base + len(code))])
+                    raise
                 tr.drain()
                 pc = self.reg("eip")
             if on_chunk is not None:
