@@ -316,8 +316,11 @@ _OUT_OF_MEMORY = re.compile(rb"out of memory|memory exhausted|cannot allocate|ca
 def _limit_assembler() -> None:  # runs in the assembler's child process, before exec
     import resource
 
-    resource.setrlimit(resource.RLIMIT_FSIZE, (MAX_OBJECT_BYTES, MAX_OBJECT_BYTES))
-    resource.setrlimit(resource.RLIMIT_AS, (ASM_MEMORY, ASM_MEMORY))
+    for kind, limit in ((resource.RLIMIT_FSIZE, MAX_OBJECT_BYTES), (resource.RLIMIT_AS, ASM_MEMORY)):
+        for current in resource.getrlimit(kind):  # never above a limit already set (`ulimit -v`)
+            if current != resource.RLIM_INFINITY:
+                limit = min(limit, current)
+        resource.setrlimit(kind, (limit, limit))
 
 
 def assembler_seconds() -> float:
