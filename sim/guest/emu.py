@@ -341,9 +341,11 @@ class Machine:
                     self._run_segment(pc)
                 except GuestFault:
                     if self.before_fault is not None:
-                        pcs = tr.executed_pcs()
+                        # the instructions that completed (the last one recorded is the one that
+                        # faulted: its fault is the error), in the kernel's code (a jump to nowhere
+                        # is recorded at its target)
+                        pcs = tr.executed_pcs()[:-1]
                         base, code = self.image.code
-                        # only instructions in the kernel's code: a jump to nowhere is recorded at its target
                         self.before_fault(pcs[(pcs >= base) & (pcs < base + len(code))])
                     raise
                 tr.drain()
