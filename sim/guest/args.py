@@ -21,12 +21,15 @@ ARGS_HELP = ("comma-separated cdecl arguments: integers (12, -3, 0x1F), 32-bit f
              + ", ".join(_DTYPES))
 
 
-def _f32(text: str, what: str) -> np.float32:
-    """A 32-bit float, refusing finite values that overflow it (1e40 would silently become inf)."""
+def _f32(text: str, what: str, field: str | None = None) -> np.float32:
+    """A 32-bit float, refusing finite values that overflow it (1e40 would silently become inf).
+    `field`: the buffer field the text is ("FILL"); None for a float argument (1.5f)."""
     try:
         value = float(text)
     except ValueError:
-        raise ArgumentError(f"{what}: not a number") from None
+        if field is None:
+            raise ArgumentError(f"{what}: '{text}' before the 'f' is not a decimal float (as in 1.5f)") from None
+        raise ArgumentError(f"{what}: {field} must be a decimal float for f32, got '{text}'") from None
     with np.errstate(over="ignore"):
         single = np.float32(value)
     if math.isfinite(value) and not math.isfinite(single):
@@ -54,12 +57,12 @@ def _buffer(item: str, what: str, machine) -> tuple[np.ndarray, np.dtype, int]:
     if len(parts) == 4:
         if dtype.kind == "f":
             if dtype == np.float32:
-                fill = _f32(parts[3], what)
+                fill = _f32(parts[3], what, "FILL")
             else:
                 try:
                     fill = float(parts[3])
                 except ValueError:
-                    raise ArgumentError(f"{what}: FILL must be a number") from None
+                    raise ArgumentError(f"{what}: FILL must be a decimal float for {parts[1]}, got '{parts[3]}'") from None
         else:
             try:
                 fill = int(parts[3], 0)

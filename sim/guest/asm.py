@@ -9,7 +9,10 @@ without one, ``syntax`` (or :func:`source_syntax` around a command) chooses, els
 unambiguous (``%`` register prefixes mean AT&T; ``ptr`` or bare register names mean Intel).
 
 Objects are cached by content hash (source bytes, included files, assembler identity and flags) so a
-scene that names ten kernels assembles each once per machine, and a stale object can never be used.
+scene that names ten kernels assembles each once per machine, and a stale object can never be used:
+beside each object the files GNU as reported reading (--MD) are listed with their hashes and checked
+on every hit; the zig back end reports none, so an include it could read unseen is refused. The
+assembler runs under a time limit ($RETROSIM_ASM_SECONDS, 60 s) and a 1 GB memory limit.
 """
 
 from __future__ import annotations
@@ -37,8 +40,13 @@ from sim.output import file_mode, temporary_file
 
 CACHE_ENV = "RETROSIM_CACHE"
 ASSEMBLER_ENV = "RETROSIM_ASSEMBLER"
-# .include (assembly, scanned for its own includes) and .incbin (bytes): both are part of the object
-_INCLUDE = re.compile(rb'^\s*(?:[\w.$]+:\s*)*\.(include|incbin)\s+"([^"]+)"', re.MULTILINE)
+# .include (assembly, scanned for its own includes) and .incbin (bytes): both are part of the object.
+# Directives are case-insensitive and may follow a `;` or labels. This scan only forms the cache key;
+# what the assembler really read (also an .include inside a macro, whose name is a macro argument)
+# is recorded from its dependency output and checked on every cache hit (see _manifest).
+_INCLUDE = re.compile(rb'(?:^|;)[ \t]*(?:[\w.$]+:[ \t]*)*\.(include|incbin)[ \t]+"([^"]+)"',
+                      re.MULTILINE | re.IGNORECASE)
+_ANY_INCLUDE = re.compile(rb'\.(?:include|incbin)\b', re.IGNORECASE)
 
 
 @dataclass(frozen=True)
@@ -149,9 +157,10 @@ def read_source(path: Path, what: str) -> bytes:
     return b"".join(chunks)
 
 
-def _content_key(source: Path, asm: Assembler, march: str | None = None) -> str:
+def _content_key(source: Path, asm: Assembler, march: str | None = None, depfile: bool = True) -> str:
     """Hash of everything the object depends on: the source, its .include files, the assembler
-    and its flags (the CPU it assembles for included)."""
+    and its flags (the CPU it assembles for included). `depfile`: the assembler reports what it
+    read (checked on each cache hit); without it, an include the scan cannot follow is refused."""
     h = hashlib.sha256()
     h.update(repr((asm.name, asm.version, _with_march(asm.command, march)[1:])).encode())
     seen: set[Path] = set()
@@ -167,11 +176,35 @@ def _content_key(source: Path, asm: Assembler, march: str | None = None) -> str:
         h.update(str(path.name).encode() + b"\0" + data)
         if binary:
             continue  # .incbin data: not scanned for directives
+        if not depfile:
+            _refuse_unseen_includes(data, _shown(path, source))
         for m in _INCLUDE.finditer(data):
             line = data.count(b"\n", 0, m.start(2)) + 1
-            kind, name = m.group(1).decode(), m.group(2).decode(errors="replace")
+            kind, name = m.group(1).decode().lower(), m.group(2).decode(errors="replace")
             pending.append((path.parent / name, f'{_shown(path, source)}:{line}: .{kind} "{name}"', kind == "incbin"))
     return h.hexdigest()
+
+
+def _refuse_unseen_includes(data: bytes, shown: str) -> None:
+    """One line for an .include/.incbin the scan cannot follow (a name built from a macro's
+    arguments, or written in a form it does not parse): its file could change unseen."""
+    seen = {m.start(0) + m.group(0).lower().index(b"." + m.group(1).lower()) for m in _INCLUDE.finditer(data)}
+    for m in _ANY_INCLUDE.finditer(data):
+        start = data.rfind(b"\n", 0, m.start()) + 1
+        before = data[start:m.start()]
+        if m.start() in seen or b"#" in before or b"/*" in before:
+            continue
+        line = data.count(b"\n", 0, m.start()) + 1
+        name = m.group(0).decode().lower()
+        raise AssemblerError(f"{shown}:{line}: {name} whose file the assembler cache cannot see (a name "
+                             f"from a macro argument?); with the zig back end write {name} \"file\" with a "
+                             "literal name, or assemble with GNU as, which reports what it read")
+    for m in _INCLUDE.finditer(data):
+        if b"\\" in m.group(2):
+            line = data.count(b"\n", 0, m.start(2)) + 1
+            raise AssemblerError(f"{shown}:{line}: .{m.group(1).decode().lower()} of a name built from a macro "
+                                 "argument: the zig back end cannot report the file it reads, so the assembler "
+                                 "cache cannot see it; use a literal name, or GNU as")
 
 
 def _shown(path: Path, source: Path) -> str:
@@ -270,10 +303,63 @@ MAX_OBJECT_BYTES = 64 << 20
 DIGEST_SUFFIX = ".sha256"
 
 
-def _limit_output_size() -> None:  # runs in the assembler's child process, before exec
+# The assembler runs under a time and a memory limit: `.rept 100000000` wants 3.6 GB, an empty one
+# runs for a minute, and an .include of a pipe waits for ever. A kernel assembles in well under a second.
+ASM_SECONDS_ENV = "RETROSIM_ASM_SECONDS"
+ASM_SECONDS = 60
+ASM_MEMORY = 1 << 30
+# GNU as says so; clang (zig) crashes with a signal and prints a crash report instead
+_OUT_OF_MEMORY = re.compile(rb"out of memory|memory exhausted|cannot allocate|can't allocate|OutOfMemory|bad_alloc"
+                            rb"|command failed (?:with exit code 1[3-9][0-9]|due to signal)", re.IGNORECASE)
+
+
+def _limit_assembler() -> None:  # runs in the assembler's child process, before exec
     import resource
 
-    resource.setrlimit(resource.RLIMIT_FSIZE, (MAX_OBJECT_BYTES, MAX_OBJECT_BYTES))
+    for kind, limit in ((resource.RLIMIT_FSIZE, MAX_OBJECT_BYTES), (resource.RLIMIT_AS, ASM_MEMORY)):
+        for current in resource.getrlimit(kind):  # never above a limit already set (`ulimit -v`)
+            if current != resource.RLIM_INFINITY:
+                limit = min(limit, current)
+        resource.setrlimit(kind, (limit, limit))
+
+
+def assembler_seconds() -> float:
+    raw = os.environ.get(ASM_SECONDS_ENV)
+    if raw is None:
+        return ASM_SECONDS
+    try:
+        value = float(raw)
+    except ValueError:
+        value = float("nan")
+    if not 0 < value <= 3600:
+        raise AssemblerError(f"${ASM_SECONDS_ENV}={raw!r}: must be a number of seconds above 0 and at most 3600")
+    return value
+
+
+def _run_assembler(argv: list[str], source: Path) -> tuple[int, bytes]:
+    """(exit status, stderr) of the assembler, run in its own process group so that a time-out or
+    an interrupt stops it and anything it started."""
+    seconds = assembler_seconds()
+    proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                            preexec_fn=_limit_assembler, start_new_session=True)
+    try:
+        _, err = proc.communicate(timeout=seconds)
+    except subprocess.TimeoutExpired:
+        _kill(proc)
+        raise AssemblerError(f"{source}: the assembler ran past {seconds:g} s and was stopped (a huge or nested "
+                             f".rept, or an .include of a pipe?); ${ASM_SECONDS_ENV} sets the limit") from None
+    except BaseException:  # Ctrl-C, SIGTERM: never leave the assembler running
+        _kill(proc)
+        raise
+    return proc.returncode, err
+
+
+def _kill(proc: subprocess.Popen) -> None:
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    proc.communicate()
 
 
 def _digest(data: bytes) -> str:
@@ -281,16 +367,46 @@ def _digest(data: bytes) -> str:
 
 
 def _verified(target: Path) -> bool:
-    """True when the cached object matches the digest stored beside it. A damaged, truncated or
+    """True when the cached object matches the digest stored beside it and every file the
+    assembler read for it (listed below the digest) is unchanged. A damaged, truncated or
     unreadable entry (or one without a digest) is removed, so it is rebuilt."""
     digest = target.with_name(target.name + DIGEST_SUFFIX)
     try:
-        ok = digest.read_text(encoding="ascii").strip() == _digest(target.read_bytes())
-    except (OSError, UnicodeDecodeError):
+        first, *deps = digest.read_text(encoding="utf-8", errors="surrogateescape").splitlines()
+        ok = first.strip() == _digest(target.read_bytes()) and all(_unchanged(line) for line in deps)
+    except (OSError, UnicodeDecodeError, ValueError):
         ok = False
     if not ok:
         evict(target)
     return ok
+
+
+def _unchanged(line: str) -> bool:
+    """A manifest line `sha256 path`: does the file still hold those bytes?"""
+    want, path = line.split(" ", 1)
+    try:
+        return _digest(read_source(Path(path), path)) == want
+    except AssemblerError:  # gone, or now a pipe or too big: rebuild, and the assembler says what is wrong
+        return False
+
+
+def _dependencies(depfile: Path, source: Path) -> list[Path]:
+    """The files GNU as read (its --MD output, `obj: file file ...`), without the source itself."""
+    text = depfile.read_text(encoding="utf-8", errors="surrogateescape").replace("\\\n", " ")
+    _, _, names = text.partition(": ")
+    paths = [Path(os.path.abspath(n.replace("\\ ", " "))) for n in re.split(r"(?<!\\)\s+", names) if n]
+    own = Path(os.path.abspath(source))
+    return sorted({p for p in paths if p != own})
+
+
+def _manifest(deps: list[Path], source: Path) -> str:
+    """One `sha256 path` line per file the assembler read, read with the same guards as a source."""
+    lines = []
+    for p in deps:
+        if "\n" in str(p):
+            raise AssemblerError(f"{source}: includes a file whose name has a line break: {p!r}")
+        lines.append(f"{_digest(read_source(p, f'{source}: included file'))} {p}")
+    return "".join(line + "\n" for line in lines)
 
 
 def evict(target: str | os.PathLike) -> None:
@@ -332,27 +448,33 @@ def assemble(source: str | os.PathLike, assembler: str | None = None, cpu: Guest
     flags = _syntax_flags(asm, syntax or _syntax.get() or detect_syntax(text))
     cpu = require_cpu(cpu)
     march = cpu.march(asm.name) if cpu is not None else None
-    key = _content_key(source, asm, march) + "-".join(("", *flags))  # also checks every include
+    depfile = asm.name == "gnu"  # GNU as reports the files it read (--MD); zig does not
+    key = _content_key(source, asm, march, depfile) + "-".join(("", *flags))  # also checks every include
     key = hashlib.sha256(key.encode()).hexdigest() if flags else key
     out_dir = cache_dir()
     target = out_dir / f"{source.stem}-{asm.name}-{march or 'i686'}-{key[:20]}.o"
     if target.is_file() and _verified(target):
         return target
     _prepare_cache(out_dir)
-    with temporary_file(out_dir, ".tmp-", ".o") as tmp, temporary_file(out_dir, ".tmp-", ".sha256") as digest_tmp:
-        proc = subprocess.run(asm.argv(source, tmp, flags, march), capture_output=True, check=False,
-                              preexec_fn=_limit_output_size)
-        if proc.returncode != 0:
-            if proc.returncode == -signal.SIGXFSZ or (tmp.exists() and tmp.stat().st_size >= MAX_OBJECT_BYTES):
+    with (temporary_file(out_dir, ".tmp-", ".o") as tmp, temporary_file(out_dir, ".tmp-", ".sha256") as digest_tmp,
+          temporary_file(out_dir, ".tmp-", ".d") as deps_tmp):
+        extra = (*flags, "--MD", str(deps_tmp)) if depfile else flags
+        returncode, stderr = _run_assembler(asm.argv(source, tmp, extra, march), source)
+        if returncode != 0:
+            if returncode == -signal.SIGXFSZ or (tmp.exists() and tmp.stat().st_size >= MAX_OBJECT_BYTES):
                 raise AssemblerError(f"{source}: the object passed {MAX_OBJECT_BYTES >> 20} MB and was stopped "
                                      f"(the guest map holds {(CODE_LIMIT - CODE_BASE) >> 20} MB of code and data; "
                                      "a huge .space or .fill?)")
+            if returncode < 0 or _OUT_OF_MEMORY.search(stderr):
+                raise AssemblerError(f"{source}: the assembler passed its {ASM_MEMORY >> 20} MB memory limit and was "
+                                     "stopped (a huge or nested .rept or .irp?)")
             # a binary or non-UTF-8 source is echoed back in the messages: never fail on decoding them
-            raise AssemblerError(_for_cpu(format_diagnostics(proc.stderr.decode("utf-8", errors="replace"), source, tmp),
+            raise AssemblerError(_for_cpu(format_diagnostics(stderr.decode("utf-8", errors="replace"), source, tmp),
                                           cpu))
+        manifest = _manifest(_dependencies(deps_tmp, source), source) if depfile else ""
         data = tmp.read_bytes()
         os.chmod(tmp, file_mode())
-        digest_tmp.write_text(_digest(data) + "\n", encoding="ascii")
+        digest_tmp.write_text(_digest(data) + "\n" + manifest, encoding="utf-8", errors="surrogateescape")
         os.chmod(digest_tmp, file_mode())
         # digest first, then the object: a reader that finds the object finds its digest
         os.replace(digest_tmp, target.with_name(target.name + DIGEST_SUFFIX))

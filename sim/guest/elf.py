@@ -192,7 +192,9 @@ def _apply(rel, symtab, target: str, address, regions, index_to_name, path: Path
                         "(only R_386_32 and R_386_PC32 are supported)")
     sym = symtab.get_symbol(rel["r_info_sym"])
     shndx = sym["st_shndx"]
-    if shndx == "SHN_UNDEF":
+    if rel["r_info_sym"] == 0:  # no symbol: an absolute address (`jmp 0x12345678`), value 0 by the ELF spec
+        shndx = "SHN_ABS"
+    elif shndx == "SHN_UNDEF":
         raise LoadError(f"{path}: {target}+{rel['r_offset']:#x}: undefined symbol '{sym.name}'")
     if shndx == "SHN_ABS":
         s_value = sym["st_value"]

@@ -8,6 +8,7 @@ can answer it (see :class:`RdtscEvent`).
 from __future__ import annotations
 
 import ctypes
+import mmap
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,7 +16,7 @@ from typing import Callable
 
 import numpy as np
 from capstone import CS_ARCH_X86, CS_MODE_32, Cs
-from unicorn import (UC_ARCH_X86, UC_ERR_EXCEPTION, UC_ERR_FETCH_PROT, UC_ERR_FETCH_UNMAPPED, UC_ERR_INSN_INVALID,
+from unicorn import (UC_ARCH_X86, UC_ERR_EXCEPTION, UC_ERR_FETCH_PROT, UC_ERR_FETCH_UNMAPPED, UC_ERR_INSN_INVALID, UC_ERR_NOMEM,
                      UC_ERR_READ_PROT, UC_ERR_READ_UNMAPPED, UC_ERR_WRITE_PROT, UC_ERR_WRITE_UNMAPPED, UC_HOOK_CODE,
                      UC_HOOK_INSN, UC_HOOK_INTR, UC_HOOK_MEM_INVALID, UC_HOOK_MEM_READ, UC_HOOK_MEM_WRITE,
                      UC_MEM_FETCH_PROT, UC_MEM_FETCH_UNMAPPED, UC_MEM_WRITE, UC_MEM_WRITE_PROT, UC_MEM_WRITE_UNMAPPED, UC_MODE_32, UC_PROT_ALL, UC_PROT_EXEC, UC_PROT_READ, UC_PROT_WRITE, Uc, UcError)
@@ -31,6 +32,22 @@ from sim.guest.trace import CONTROL_WORD_WRITERS, NativeTracer, Trace
 
 DEFAULT_BUDGET = 200_000_000  # instructions per call; 0 means unlimited
 DEFAULT_ARENA = 64 << 20
+# Unicorn's translated-code buffer. Its default is 1 GB of address space per engine (the validation
+# run peaked at 18 GB virtual for 249 MB resident); a kernel's code is at most 12 MB, and a full
+# buffer is only flushed and refilled, so 64 MB costs nothing measurable and lets a `ulimit -v` hold.
+TCG_BUFFER = 64 << 20
+NO_MEMORY = ("out of host memory (a limit of the machine or of `ulimit -v`) for a {what}; "
+             "lower the workload (--budget, --repeat, the scene's size) or raise the limit")
+
+
+def _reserve(nbytes: int, what: str) -> None:
+    """Fail with MemoryError unless `nbytes` of address space can be had now. Unicorn cannot report
+    a failed allocation of its code buffer: it prints its own message and exits the process."""
+    try:
+        probe = mmap.mmap(-1, nbytes, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS, prot=0)  # PROT_NONE: address space only
+    except OSError:
+        raise MemoryError(NO_MEMORY.format(what=what)) from None
+    probe.close()
 FPU_RESET_CW = 0x037F  # FNINIT state: all exceptions masked, 64-bit precision, round to nearest
 
 _GPRS = {"eax": X.UC_X86_REG_EAX, "ebx": X.UC_X86_REG_EBX, "ecx": X.UC_X86_REG_ECX, "edx": X.UC_X86_REG_EDX,
@@ -138,7 +155,36 @@ class Machine:
         self.image = image
         self.entries = entries or {}
         self.rdtsc = rdtsc
+        arena_size = elf.page_up(arena_size)
+        # everything the engine maps below: code buffer, arena, stack, code and data, and a margin
+        _reserve(TCG_BUFFER + arena_size + elf.STACK_SIZE + elf.CODE_LIMIT + (64 << 20), "guest emulator")
         self.uc = uc = Uc(UC_ARCH_X86, UC_MODE_32)
+        uc.ctl_set_tcg_buffer_size(TCG_BUFFER)
+        try:
+            self._map(image, arena_size, emulator_cpu)
+        except UcError as e:
+            if e.errno == UC_ERR_NOMEM:
+                raise MemoryError(NO_MEMORY.format(what="guest emulator")) from None
+            raise
+        self.arena = Arena(uc, elf.ARENA_BASE, arena_size)
+        self.reset_fpu()
+        self._fault: tuple[str, int] | None = None
+        self._interrupt: int | None = None
+        uc.hook_add(UC_HOOK_MEM_INVALID, self._on_invalid)
+        uc.hook_add(UC_HOOK_INTR, self._on_interrupt)
+        self._tracer: NativeTracer | None = None
+        # called with the PCs a traced run executed before a guest fault, before the fault is raised:
+        # an instruction the CPU lacks (the ISA check) is the cause to report, not what it broke later
+        self.before_fault: Callable[[np.ndarray], None] | None = None
+        # instructions per trace chunk (the tracer's buffer); a streamed run asks for smaller ones
+        self.trace_chunk = 1 << 20
+        self._rdtsc_cb = _RDTSC_CB(self._on_rdtsc)  # keep a reference: Unicorn holds only the pointer
+        handle = ctypes.c_size_t()
+        uclib.uc_hook_add(uc._uch, ctypes.byref(handle), UC_HOOK_INSN, ctypes.cast(self._rdtsc_cb, ctypes.c_void_p),
+                          None, ctypes.c_uint64(1), ctypes.c_uint64(0), X.UC_X86_INS_RDTSC)
+
+    def _map(self, image: elf.GuestImage, arena_size: int, emulator_cpu: str | None) -> None:
+        uc = self.uc
         if emulator_cpu:  # a Unicorn CPU model (e.g. ATHLON: the default one has no 3DNow!)
             uc.ctl_set_cpu_model(getattr(X, f"UC_CPU_X86_{emulator_cpu}"))
         uc.mem_map(elf.EXIT_ADDR, elf.PAGE, UC_PROT_READ | UC_PROT_EXEC)
@@ -149,21 +195,7 @@ class Machine:
                 uc.mem_map(base, elf.page_up(len(blob)), prot)
                 uc.mem_write(base, bytes(blob))
         uc.mem_map(elf.STACK_BASE, elf.STACK_SIZE, UC_PROT_READ | UC_PROT_WRITE)
-        arena_size = elf.page_up(arena_size)
         uc.mem_map(elf.ARENA_BASE, arena_size, UC_PROT_ALL)
-        self.arena = Arena(uc, elf.ARENA_BASE, arena_size)
-        self.reset_fpu()
-        self._fault: tuple[str, int] | None = None
-        self._interrupt: int | None = None
-        uc.hook_add(UC_HOOK_MEM_INVALID, self._on_invalid)
-        uc.hook_add(UC_HOOK_INTR, self._on_interrupt)
-        self._tracer: NativeTracer | None = None
-        # instructions per trace chunk (the tracer's buffer); a streamed run asks for smaller ones
-        self.trace_chunk = 1 << 20
-        self._rdtsc_cb = _RDTSC_CB(self._on_rdtsc)  # keep a reference: Unicorn holds only the pointer
-        handle = ctypes.c_size_t()
-        uclib.uc_hook_add(uc._uch, ctypes.byref(handle), UC_HOOK_INSN, ctypes.cast(self._rdtsc_cb, ctypes.c_void_p),
-                          None, ctypes.c_uint64(1), ctypes.c_uint64(0), X.UC_X86_INS_RDTSC)
 
     @classmethod
     def from_source(cls, source: str | Path, assembler: str | None = None, cpu: GuestCpu | None = None,
@@ -216,7 +248,12 @@ class Machine:
         for name, addr in self.image.symbols.items():
             if addr <= pc and (best is None or addr > best[1]):
                 best = (name, addr)
-        if best is None or self.image.section_of(pc) is None:
+        if self.image.section_of(pc) is None:
+            base, code = self.image.code
+            if not base <= pc < base + len(code):  # the guest runs where no kernel code is: say so
+                return f"{pc:#010x} (outside the kernel's code: a jump or call to a bare address?)"
+            return f"{pc:#010x}"
+        if best is None:
             return f"{pc:#010x}"
         return f"{pc:#010x} ({best[0]}+{pc - best[1]:#x})"
 
@@ -300,7 +337,17 @@ class Machine:
                 if budget and tr.recorded >= budget:
                     self._check_finished(budget)
                 tr.limit(budget - tr.recorded if budget else tr.icap)
-                self._run_segment(pc)
+                try:
+                    self._run_segment(pc)
+                except GuestFault:
+                    if self.before_fault is not None:
+                        # the instructions that completed (the last one recorded is the one that
+                        # faulted: its fault is the error), in the kernel's code (a jump to nowhere
+                        # is recorded at its target)
+                        pcs = tr.executed_pcs()[:-1]
+                        base, code = self.image.code
+                        self.before_fault(pcs[(pcs >= base) & (pcs < base + len(code))])
+                    raise
                 tr.drain()
                 pc = self.reg("eip")
             if on_chunk is not None:

@@ -404,6 +404,13 @@ class NativeTracer:
             chunk.validate()
             self.sink(chunk)
 
+    def executed_pcs(self) -> np.ndarray:
+        """The PCs recorded since the last take and not yet handed to a sink (a faulted run's last
+        instructions: the ISA check looks at them before the fault is reported)."""
+        b = self.buffer
+        pending = b[HEADER:HEADER + int(b[0])].astype(np.uint32)
+        return np.concatenate([*(p.pc for p in self._parts), pending]) if self._parts else pending
+
     def take(self) -> Trace:
         """The whole trace since the last take, as one validated :class:`Trace`."""
         self.drain()

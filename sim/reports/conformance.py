@@ -13,12 +13,12 @@ chain of copies).
 
 from __future__ import annotations
 
-import os
 import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from sim import output
 from sim.cpus import make_model, presets
 from sim.cpus.families import FAMILIES
 from sim.cpus.table import TimingRow, load_table
@@ -477,12 +477,10 @@ def render(family_results: dict[str, tuple[list[RowResult], list[str]]]) -> str:
 
 
 def write_report(path: Path, families=tuple(FAMILY_ISA), progress=None) -> dict:
+    """Run `families` and write the report to `path` through the checked writer (sim.output): the
+    target is checked before the minute of work, and a device, pipe or folder there is refused."""
     start = time.monotonic()
+    path = output.check_output_file(path, "--out")
     results = {fam: run_family(fam, progress) for fam in families}
-    text = render(results)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=path.parent)
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
+    output.atomic_write(path, render(results).encode(), "--out")
     return results, time.monotonic() - start

@@ -9,12 +9,11 @@ are what the models are compared with.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from sim import output
 from sim.cpus.families import FAMILIES, order as family_order
 from sim.guest.kernels import kernels_root
 
@@ -220,10 +219,7 @@ def report(cpus: list[str] | None = None, n: int = 256) -> str:
 
 
 def write_report(out: Path, cpus: list[str] | None = None) -> Path:
-    text = report(cpus)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=".texture-", suffix=".md")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, out)
+    """Write the report to `out` through the checked writer (sim.output), the target checked first."""
+    out = output.check_output_file(out, "--out")
+    output.atomic_write(out, report(cpus).encode(), "--out")
     return out

@@ -7,6 +7,8 @@ the same commit, and say why) or a bug. Counts are integers, so comparison is ex
 from __future__ import annotations
 
 import json
+import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,22 +46,48 @@ def entries(result) -> dict[str, dict[str, int]]:
     return baseline_entries(result)
 
 
+MAX_BASELINE_BYTES = 16 << 20  # the committed file has ~60 KB; a thousand scenes would fit
+
+
+def _read(path: Path) -> bytes:
+    """The file's bytes, read like every other input: only a regular file (a FIFO would block,
+    /dev/zero never ends), at most MAX_BASELINE_BYTES, checked on the open file itself."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # opening a FIFO must not wait
+    except OSError as e:
+        raise BaselineError(f"{path}: cannot read: {e.strerror or e}") from None
+    with os.fdopen(fd, "rb") as f:
+        st = os.fstat(f.fileno())
+        if not stat.S_ISREG(st.st_mode):
+            raise BaselineError(f"{path}: not a regular file (a device, pipe or folder)")
+        if st.st_size > MAX_BASELINE_BYTES:
+            raise BaselineError(f"{path}: {st.st_size:,} bytes, more than the {MAX_BASELINE_BYTES >> 20} MB "
+                                "a baselines file may have")
+        data = f.read(MAX_BASELINE_BYTES + 1)
+    if len(data) > MAX_BASELINE_BYTES:  # it grew while being read
+        raise BaselineError(f"{path}: more than the {MAX_BASELINE_BYTES >> 20} MB a baselines file may have")
+    return data
+
+
 def load(path: Path | None = None) -> dict:
     """The recorded baselines ({} when there is no file); a damaged file is one clear error."""
     path = Path(path) if path is not None else BASELINE_FILE
-    if not path.exists():
+    if not os.path.lexists(path):
         return {}
+    restore = "restore it from git (git checkout -- reports/baselines.json)"
     try:
-        text = path.read_bytes().decode("utf-8")
+        text = _read(path).decode("utf-8")
         data = json.loads(text)
     except OSError as e:
         raise BaselineError(f"{path}: cannot read: {e.strerror or e}") from None
     except UnicodeDecodeError as e:
-        raise BaselineError(f"{path}: not UTF-8 text ({e.reason} at byte {e.start}); "
-                            "restore it from git (git checkout -- reports/baselines.json)") from None
+        raise BaselineError(f"{path}: not UTF-8 text ({e.reason} at byte {e.start}); {restore}") from None
     except json.JSONDecodeError as e:
-        raise BaselineError(f"{path}:{e.lineno}: not valid JSON ({e.msg}); "
-                            "restore it from git (git checkout -- reports/baselines.json)") from None
+        raise BaselineError(f"{path}:{e.lineno}: not valid JSON ({e.msg}); {restore}") from None
+    except RecursionError:
+        raise BaselineError(f"{path}: nested too deeply to be baselines (scene, case, counter); {restore}") from None
+    except ValueError as e:  # an integer of more than 4300 digits
+        raise BaselineError(f"{path}: not valid baselines ({e}); {restore}") from None
     # expected shape: {scene: {case: {counter: int}}}
     if not isinstance(data, dict):
         raise BaselineError(f"{path}: expected a JSON object of scenes, got {type(data).__name__}")

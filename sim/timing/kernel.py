@@ -118,6 +118,9 @@ def emulate(source: str | Path, entry: str, setup: Setup | None = None, repeat: 
     answers = iter(rdtsc_values or [])
     clock = (lambda ev: next(answers, 0)) if rdtsc_values is not None else None
     machine = Machine.from_source(source, assembler=assembler, cpu=isa_cpu, rdtsc=clock)
+    if isa_cpu is not None:  # an instruction the CPU lacks is the error, not the fault it caused later
+        machine.before_fault = lambda pcs: check_records(Decoder(machine.image.fetch).decode_trace(pcs)[0], isa_cpu,
+                                                         Path(source), machine, assembler, isa_cpu)
     args = setup(machine) if setup else []
     parts = []
     for k in range(repeat):

@@ -377,7 +377,8 @@ def _marks(pc: np.ndarray, starts: list[int], loop: bool, rep_first: bool = Fals
 def _fault(machine: Machine, body: Body, fault: GuestFault, lo: int, hi: int) -> RetrosimError:
     if not lo <= fault.pc <= hi:  # a computed jump left the body and landed on no code
         return RetrosimError(f"{body.name}: the body branches out of itself: a jump went to {fault.pc:#010x}")
-    msg = str(fault).replace(" (retrosim_loop+", " (body+").replace(" (retrosim_iter_0+", " (body+")
+    msg = str(fault).removeprefix(f"{body.name}: ")  # the machine's fault names the file already: once is enough
+    msg = msg.replace(" (retrosim_loop+", " (body+").replace(" (retrosim_iter_0+", " (body+")
     msg = re.sub(r" \(retrosim_\w+\+0x[0-9a-f]+\)", "", msg)
     if fault.address is not None and fault.address < NULL_LIMIT and lo <= fault.pc < hi:
         msg += " (below 64 KB: a null pointer; set the register with --reg)"

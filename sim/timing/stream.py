@@ -108,6 +108,8 @@ def emulate_and_time(source: str | Path, entry: str, setup, model, cpu, repeat: 
         raise RetrosimError(f"--repeat must be at least 1, got {repeat}")
     machine = Machine.from_source(source, assembler=assembler, cpu=cpu)
     machine.trace_chunk = CHUNK
+    if check is not None:  # an instruction the CPU lacks is the error, not the fault it caused later
+        machine.before_fault = lambda pcs: check(machine, Decoder(machine.image.fetch).decode_trace(pcs)[0])
     args = setup(machine) if setup else []
     session = model.session(Decoder(machine.image.fetch), [1 << 62] * repeat, stat_first=0 if repeat == 1 else 1 << 62,
                             check=(lambda records: check(machine, records)) if check else None)
