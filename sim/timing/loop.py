@@ -60,6 +60,10 @@ NULL_LIMIT = 0x10000          # accesses below 64 KB are null-pointer bugs, not 
 MAX_DATA_PAGES = 4096         # 16 MB of demand-zero data at most
 MAX_INSTRUCTIONS = 5_000_000  # per pass: a body that needs more never reaches its back-edge
 DEFAULT_ITERATIONS = 100
+MAX_ITERATIONS = 100_000      # -n: a loop of that many iterations traces in seconds
+# A block is repeated, not looped: its wrapper holds -n + 1 copies, and assembling and decoding
+# 20,000 one-instruction copies takes about 15 s (GNU as): 40,000 instructions is the most a wrapper may hold.
+MAX_BLOCK_INSTRUCTIONS = 40_000
 # Placement of the body's first instruction: ALIGN_SPAN bytes is the largest block any modelled
 # front end cuts code into (32-byte L1I lines and P5/K6 fetch, 16-byte P6 fetch blocks), so the
 # body's offset from an ALIGN_SPAN boundary decides everything alignment can change. The default
@@ -75,6 +79,9 @@ _JUMP = re.compile(r"^(j[a-z]+|loop[a-z]*|call[lw]?|ljmp|lcall)$")
 _REGISTERS = {p + r for r in ("ax", "bx", "cx", "dx", "si", "di", "bp", "sp") for p in ("e", "")}
 _REP_PREFIXES = {"rep", "repe", "repz", "repne", "repnz"}
 _LEAVES = {"ret", "retl", "retn", "retf", "iret", "iretd", "int", "int3", "into", "hlt", "sysenter", "syscall"}
+# those that are system instructions (sim/guest/isa.py): refused as such, as `retrosim time` does
+_SYSTEM_LEAVES = {"retf", "iret", "iretd", "int", "int1", "int3", "into", "hlt", "sysenter", "sysexit", "syscall",
+                  "sysret", "ljmp", "lcall"}
 
 
 @dataclass
@@ -108,7 +115,9 @@ def _syntax_of(text: str, syntax: str | None) -> str:
     return asm.detect_syntax(text.encode()) or "intel"
 
 
-def parse_body(text: str, name: str = "<stdin>", syntax: str | None = None) -> Body:
+def parse_body(text: str, name: str = "<stdin>", syntax: str | None = None, cpu: GuestCpu | None = None) -> Body:
+    """Split the body into lines and find its shape. `cpu` names the CPU in the refusal of a system
+    instruction (as `retrosim time` words it)."""
     syntax = _syntax_of(text, syntax)
     lines, labels, head, order = [], set(), set(), []
     for number, raw in enumerate(text.splitlines(), 1):
@@ -129,6 +138,8 @@ def parse_body(text: str, name: str = "<stdin>", syntax: str | None = None) -> B
     for number, insn in order:  # static check: every jump target must be a label of the body
         words = insn.replace(",", " ").split()
         op = words[0].lower()
+        if op in _SYSTEM_LEAVES:
+            raise isa.system_refusal(f"{name}:{number}", " ".join(insn.split()), cpu)
         if op in _LEAVES:
             raise RetrosimError(f"{name}:{number}: '{insn}' leaves the body (a loop body cannot return or trap)")
         if _JUMP.match(op) and len(words) == 2 and words[1].lower() not in _REGISTERS and re.fullmatch(r"[A-Za-z_.$][\w.$@]*|\d+[bf]", words[1]):
@@ -237,10 +248,13 @@ def _truncate(trace: Trace, n: int) -> Trace:
     return trace.head(n)
 
 
-def _user_line(body: Body, lines: list[int], message: str, generated: Path) -> str:
+def _user_line(body: Body, lines: list[int], message: str, generated: Path, wrapper: str | None = None) -> str:
+    """An assembler message about the generated file, on the user's line (or naming `wrapper`)."""
     m = re.match(rf"^{re.escape(str(generated))}:(\d+): (.*)$", message)
     if not m:
-        return message.replace(str(generated), body.name)
+        if wrapper and message.startswith(f"{generated}: "):  # about the file as a whole
+            message = message[len(str(generated)) + 2:]
+        return message.replace(str(generated), wrapper or body.name)
     k = int(m.group(1)) - 1
     n = lines[k] if 0 <= k < len(lines) else 0
     return f"{body.name}:{n}: {m.group(2)}" if n else f"{body.name}: {m.group(2)}"
@@ -260,26 +274,51 @@ def parse_regs(items) -> dict[str, int]:
     return regs
 
 
+def check_iterations(body: Body, iterations: int) -> None:
+    """Refuse an iteration count outside what the harness can do in bounded time and memory."""
+    if not 4 <= iterations <= MAX_ITERATIONS:
+        raise ArgumentError(f"--iterations {iterations}: must be from 4 to {MAX_ITERATIONS:,}")
+    size = sum(len(line) + 1 for _, line in body.lines) * (1 if body.loop else iterations + 1)
+    if size > asm.MAX_SOURCE_BYTES:
+        raise ArgumentError(f"--iterations {iterations}: the wrapper generated around {body.name} would have "
+                            f"{size:,} bytes, more than the {asm.MAX_SOURCE_BYTES >> 20} MB a source may have")
+    total = (iterations + 1) * body.instructions
+    if not body.loop and total > MAX_BLOCK_INSTRUCTIONS:
+        most = MAX_BLOCK_INSTRUCTIONS // body.instructions - 1
+        raise ArgumentError(f"--iterations {iterations}: {body.name} is a block (no back-edge), so it is repeated "
+                            f"{iterations + 1:,} times, {total:,} instructions to assemble; the limit is "
+                            f"{MAX_BLOCK_INSTRUCTIONS:,}: use -n {most} or less (at least 4), or end the body with "
+                            "a jump back to its first instruction")
+
+
+def _assemble(body: Body, copies: int, pad: int, assembler: str | None, cpu: GuestCpu | None) -> Machine:
+    """The body's wrapper (`copies` copies of a block), assembled and loaded. Messages name the
+    user's lines; a limit the wrapper exceeds names the wrapper, not the user's file."""
+    text, lines = wrapper_source(body, copies, pad)
+    with tempfile.TemporaryDirectory(prefix="retrosim-loop-") as tmp:
+        path = Path(tmp) / "loop.S"
+        path.write_text(text)
+        wrapper = f"the wrapper generated around {body.name}" + (f" ({copies:,} copies)" if copies > 1 else "")
+        try:
+            return Machine.from_source(path, assembler=assembler, cpu=cpu)
+        except AssemblerError as e:
+            raise AssemblerError(_user_line(body, lines, str(e), path, wrapper)) from None
+        except RetrosimError as e:
+            raise RetrosimError(str(e).replace(str(path), wrapper)) from None
+
+
 def run_body(body: Body, iterations: int = DEFAULT_ITERATIONS, regs: dict[str, int] | None = None,
              assembler: str | None = None, cpu: GuestCpu | None = None, align: int = DEFAULT_ALIGN,
              offset: int = 0) -> LoopRun:
     """Assemble the body in its wrapper (for `cpu`'s instruction set, if given; placed as
     :func:`placement` says) and trace the warm and the measured pass."""
-    if iterations < 4:
-        raise ArgumentError(f"--iterations must be at least 4, got {iterations}")
+    check_iterations(body, iterations)
     regs = regs or dict(REG_DEFAULTS)
     n1, n2 = iterations // 2, iterations
     pad = placement(align, offset)
-    text, lines = wrapper_source(body, n2 + 1, pad)
-    with tempfile.TemporaryDirectory(prefix="retrosim-loop-") as tmp:
-        path = Path(tmp) / "loop.S"
-        path.write_text(text)
-        try:
-            machine = Machine.from_source(path, assembler=assembler, cpu=cpu)
-        except AssemblerError as e:
-            raise AssemblerError(_user_line(body, lines, str(e), path)) from None
-        except RetrosimError as e:
-            raise RetrosimError(str(e).replace(str(path), body.name)) from None
+    # a block is first assembled once: its errors are then the user's lines, once each
+    for copies in ((n2 + 1,) if body.loop else (1, n2 + 1)):
+        machine = _assemble(body, copies, pad, assembler, cpu)
     machine.image.path = Path(body.name)
     _DemandZero(machine)
     starts = [machine.symbol(f"retrosim_iter_{j}") for j in range(1 if body.loop else n2 + 1)]
@@ -461,14 +500,17 @@ def time_body_where_possible(text: str, cpus: list[str], name: str = "<stdin>", 
     `skip` false and one CPU unable), the first refusal is the error."""
     from sim.cpus import presets, split_label
 
-    body = parse_body(text, name, syntax)
     placement(align, offset)  # a bad --align / --offset fails before any emulation
+    if not cpus:
+        raise ArgumentError("no CPU to time the body on")
     bases = {}
     for c in cpus:  # an unknown preset fails before any emulation
         base, _ = split_label(c)
         if base not in presets.available():
             raise ArgumentError(f"unknown CPU preset '{base}' (choose one of: {', '.join(presets.available())})")
         bases[c] = base
+    targets = {c: GuestCpu.from_preset(presets.load(bases[c])) for c in cpus}  # each preset read once
+    body = parse_body(text, name, syntax, targets[cpus[0]])
 
     def isa_key(c):
         t = targets[c]
@@ -477,7 +519,6 @@ def time_body_where_possible(text: str, cpus: list[str], name: str = "<stdin>", 
     # one emulation per instruction set: the body assembles for each CPU's own (MMX, 3DNow!, SSE)
     # and runs on the Unicorn CPU model that has it; an assembler that refuses an instruction for
     # one of them is kept as that set's answer
-    targets = {c: GuestCpu.from_preset(presets.load(bases[c])) for c in cpus}  # each preset read once
     runs: dict[tuple, LoopRun | RetrosimError] = {}
     for c in cpus:
         key = isa_key(c)
@@ -489,20 +530,37 @@ def time_body_where_possible(text: str, cpus: list[str], name: str = "<stdin>", 
     done = [r for r in runs.values() if isinstance(r, LoopRun)]
     if not done:
         raise next(iter(runs.values()))
-    needed = required_extensions(done[0])
-    out, missing = [], {}
+    records = {id(r): Decoder(r.machine.image.fetch).decode_trace(np.unique(r.trace.pc))[0] for r in done}
+    for run in done:  # a system instruction has no timing on any CPU (as `retrosim time` refuses it)
+        for rec in records[id(run)]:
+            if isa.is_system(rec):
+                raise isa.system_refusal(_where(run, rec.pc), f"{rec.mnemonic} {rec.op_str}".strip(), targets[cpus[0]])
+    out, missing, refusals = [], {}, []
     for c in cpus:
-        lacks = sorted(needed - targets[c].extensions, key=isa.EXTENSIONS.index)
         run = runs[isa_key(c)]
-        if lacks and isinstance(run, LoopRun) and not skip:
-            # assembled (an assembler may accept more than the CPU has), but the CPU lacks it
-            records, _ = Decoder(run.machine.image.fetch).decode_trace(np.unique(run.trace.pc))
-            for rec in records:
-                isa.check_record(rec, targets[c], lambda rec=rec: f"{body.name}: '{rec.mnemonic} {rec.op_str}'".strip())
-        if lacks and skip:
+        if not isinstance(run, LoopRun):
+            refusals.append(run)
+            lacks = sorted(required_extensions(done[0]) - targets[c].extensions, key=isa.EXTENSIONS.index)
+            if skip and lacks:  # the assembler refused what the body needs for this CPU
+                missing.setdefault(", ".join(EXTENSION_NAMES[x] for x in lacks), []).append(c)
+                continue
+            raise run  # refused for another reason than an extension the body uses
+        try:  # assembled (an assembler may accept more than the CPU has): the CPU must have it all
+            for rec in records[id(run)]:
+                isa.check_record(rec, targets[c], lambda rec=rec, run=run: _where(run, rec.pc))
+        except isa.IsaError as e:
+            if not skip:
+                raise
+            refusals.append(e)
+            lacks = sorted(required_extensions(run) - targets[c].extensions, key=isa.EXTENSIONS.index)
             missing.setdefault(", ".join(EXTENSION_NAMES[x] for x in lacks), []).append(c)
             continue
-        if not isinstance(run, LoopRun):
-            raise run  # refused for another reason than an extension the body uses
         out.append(time_run(run, c, memory, timeline_iterations=timeline_iterations))
+    if not out:  # no CPU could run it: the refusal `retrosim time` gives on the first one
+        raise refusals[0]
     return out, missing
+
+
+def _where(run: LoopRun, pc: int) -> str:
+    """Where an instruction of the body is, as `retrosim time` says it (`file: pc ADDRESS (entry+k)`)."""
+    return f"{run.body.name}: pc {pc:#010x} (body+{pc - run.address:#x})"
