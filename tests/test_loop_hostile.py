@@ -80,3 +80,89 @@ def test_cpus_without_the_extension_are_listed_not_timed():
     assert r.exit_code == 0, r.output
     assert "not timed (no FXSAVE/FXRSTOR): pentium-pro-200" in r.output
     assert "pentium3-500" in r.output
+
+
+# -- arguments and input --------------------------------------------------------------------
+@pytest.mark.parametrize("args, says", [
+    (["--reg", "ecx=0x1FFFFFFFF"], "32 bits"),
+    (["--reg", "ecx=-0x80000001"], "32 bits"),
+    (["--timeline", "-1"], "--timeline -1"),
+    (["--cpu", ",,,"], "names no CPU"),
+    (["-n", "1000000000"], "100,000"),
+    (["-n", "3"], "from 4"),
+])
+def test_bad_arguments_are_refused(args, says):
+    assert says in loop_fails("l: nop\ndec ecx\njnz l\n", *args, seconds=20)
+
+
+def test_register_values_keep_32_bits():
+    r = run(["loop", "-", "--brief", "--json", "--reg", "ecx=-1", "--reg", "edx=0xFFFFFFFF"], "l: nop\ndec ecx\njnz l\n")
+    assert r.exit_code == 0, r.output
+    assert '"ecx": "0xffffffff"' in r.output and '"edx": "0xffffffff"' in r.output
+
+
+def test_a_directory_is_named_as_one(tmp_path):
+    assert "is a directory" in fails(["loop", tmp_path])
+
+
+@pytest.mark.parametrize("data, says", [
+    (b"nop\n\xff\n", "byte 4 (0xff)"),
+    (bytes(range(256)) * 120_000, "more than 1 MB"),
+])
+def test_stdin_bytes_are_bounded_and_checked(data, says):
+    assert says in fails(["loop", "-"], data, seconds=20)
+
+
+def test_a_huge_block_is_refused_up_front_naming_the_wrapper():
+    got = loop_fails("add eax, 1\n", "-n", "50000", seconds=10)
+    assert "block" in got and "-n " in got and "<stdin> has" not in got
+    got = loop_fails("mov eax, 0" + "+0" * 1500 + "\n", "-n", "9000", seconds=10)
+    assert "wrapper generated around <stdin>" in got and "16 MB" in got
+
+
+# -- what a body may hold ------------------------------------------------------------------
+@pytest.mark.parametrize("body, says", [
+    (".data\nnop\n", "<stdin>:1: '.data': a section directive"),
+    (".end\nnop\n", "<stdin>:1: '.end'"),
+    ("nop\n.section .rodata\n", "<stdin>:2: '.section .rodata'"),
+    (".code16\nadd ax, bx\n", "<stdin>:1: '.code16': 16-bit code"),
+    (".code64\nadd rax, rbx\n", "<stdin>:1: '.code64': 64-bit code"),
+    ("nop\n.rept 2\n", "<stdin>:2: '.rept' is never closed"),
+    ("nop\n.endr\n", "<stdin>:2: '.endr' closes nothing"),
+    ("ecx: add ecx, 1\n", "<stdin>:1: 'ecx' is a register"),
+    ("ptr: nop\n", "<stdin>:1: 'ptr' is a register or operand keyword"),
+    ("word: add eax, 1\n", "<stdin>:1: 'word'"),
+])
+def test_body_directives_and_labels_get_user_facing_messages(body, says):
+    got = loop_fails(body, "-n", "8", seconds=20)
+    assert got.startswith(says), got
+    assert "retrosim_" not in got
+
+
+def test_harness_names_never_leak():
+    got = loop_fails('nop\n.ascii "x\n', "-n", "8", seconds=20)
+    assert "retrosim_" not in got
+
+
+def test_a_label_named_like_a_mnemonic_is_renamed_only_as_a_label():
+    """A block's copies get their own labels; `add:` must not turn the ADD mnemonics into `add__r0`."""
+    r = run(["loop", "-", "--brief", "--json", "-n", "8"], "add: add eax, 1\nadc ebx, 0\njz add\nadd ecx, 2\n")
+    assert r.exit_code == 0, (r.output, r.exception)
+    assert '"instructions_per_iteration": 4' in r.output
+
+
+def test_a_macro_in_a_block_is_defined_once():
+    r = run(["loop", "-", "--brief", "--json", "-n", "8"], ".macro twice r\nadd \\r, 1\nadd \\r, 1\n.endm\ntwice eax\n")
+    assert r.exit_code == 0, (r.output, r.exception)
+    assert '"instructions_per_iteration": 2' in r.output
+
+
+def test_a_hash_inside_a_string_is_not_a_comment():
+    from sim.timing.loop import strip_comment
+
+    assert strip_comment('mov eax, "#"  # comment', "intel") == 'mov eax, "#"'
+    assert strip_comment(".ascii \"a#b\" ; c", "intel") == '.ascii "a#b"'
+    assert strip_comment("mov al, '#'  ; c", "intel") == "mov al, '#'"
+    assert strip_comment("movb $'#, %al # c", "att") == "movb $'#, %al"
+    got = loop_fails('mov eax, "#"\n', "-n", "8", seconds=20)
+    assert "'#'" in got and "unbalanced" not in got

@@ -241,7 +241,8 @@ def _loop_explain_table(t) -> Table:
 @click.option("--offset", "offset", default=0, show_default=True, metavar="K",
               help="then K bytes further (0 <= K < N): --align 16 --offset 3 starts the body 19 bytes past a "
                    "64-byte boundary")
-@click.option("--timeline", "timeline", default=3, show_default=True, help="iterations shown in the timeline")
+@click.option("--timeline", "timeline", default=3, show_default=True, callback=bounded(0, 1000),
+              help="iterations shown in the timeline")
 @click.option("--brief", is_flag=True, help="only the table of cycles per iteration")
 @click.option("--assembler", type=click.Choice(["gnu", "zig"]), help="assembler back end (default: GNU as)")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
@@ -251,13 +252,7 @@ def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset
     from sim.timing import loop
     from sim.reports import views
 
-    if source == "-":
-        text, name = sys.stdin.read(), "<stdin>"
-    else:
-        path = Path(source)
-        if not path.is_file():
-            raise ArgumentError(f"{source}: no such file")
-        text, name = path.read_text(errors="replace"), source
+    text, name = loop.read_body(source, sys.stdin.buffer)
     loop.placement(align, offset)
     if memory:
         load_dram(memory)

@@ -60,6 +60,7 @@ NULL_LIMIT = 0x10000          # accesses below 64 KB are null-pointer bugs, not 
 MAX_DATA_PAGES = 4096         # 16 MB of demand-zero data at most
 MAX_INSTRUCTIONS = 5_000_000  # per pass: a body that needs more never reaches its back-edge
 DEFAULT_ITERATIONS = 100
+MAX_BODY_BYTES = 1 << 20      # a loop body is instructions only: 1 MB is far beyond any
 MAX_ITERATIONS = 100_000      # -n: a loop of that many iterations traces in seconds
 # A block is repeated, not looped: its wrapper holds -n + 1 copies, and assembling and decoding
 # 20,000 one-instruction copies takes about 15 s (GNU as): 40,000 instructions is the most a wrapper may hold.
@@ -78,6 +79,21 @@ _COND = re.compile(r"^(j(?!mp)[a-z]+|loop[a-z]*|jn?e?cxz)$")
 _JUMP = re.compile(r"^(j[a-z]+|loop[a-z]*|call[lw]?|ljmp|lcall)$")
 _REGISTERS = {p + r for r in ("ax", "bx", "cx", "dx", "si", "di", "bp", "sp") for p in ("e", "")}
 _REP_PREFIXES = {"rep", "repe", "repz", "repne", "repnz"}
+_PREFIXES = _REP_PREFIXES | {"lock", "data16", "addr16", "data32", "addr32", "cs", "ds", "es", "fs", "gs", "ss"}
+# Directives a body may not hold: the harness places it in .text, in 32-bit code, and ends it itself.
+_PLACEMENT_DIRECTIVES = {".data": "a section directive", ".bss": "a section directive", ".section": "a section directive",
+                         ".text": "a section directive", ".previous": "a section directive",
+                         ".pushsection": "a section directive", ".popsection": "a section directive",
+                         ".subsection": "a section directive", ".org": "an .org",
+                         ".end": ".end", ".code16": "16-bit code", ".code16gcc": "16-bit code", ".code64": "64-bit code"}
+# Intel-syntax names GNU as reads as registers or operand keywords, never as a label
+_INTEL_RESERVED = ({p + r for r in ("ax", "bx", "cx", "dx", "si", "di", "bp", "sp") for p in ("e", "")}
+                   | {r + x for r in "abcd" for x in "lh"} | {"cs", "ds", "es", "fs", "gs", "ss", "st"}
+                   | {f"{k}{i}" for k in ("mm", "xmm", "cr", "dr", "tr") for i in range(8)}
+                   | {"byte", "word", "dword", "fword", "qword", "tbyte", "oword", "xmmword", "ptr", "offset",
+                      "short", "near", "far", "flat"})
+_OPENERS = (".rept", ".irp", ".irpc", ".macro", ".if")
+_CLOSERS = {".endr": (".rept", ".irp", ".irpc"), ".endm": (".macro",), ".endif": (".if",)}
 _LEAVES = {"ret", "retl", "retn", "retf", "iret", "iretd", "int", "int3", "into", "hlt", "sysenter", "syscall"}
 # those that are system instructions (sim/guest/isa.py): refused as such, as `retrosim time` does
 _SYSTEM_LEAVES = {"retf", "iret", "iretd", "int", "int1", "int3", "into", "hlt", "sysenter", "sysexit", "syscall",
@@ -95,13 +111,28 @@ class Body:
     head_labels: set[str]          # labels on the first instruction
     instructions: int              # static instruction count
     loop: bool                     # ends with a conditional jump to its first instruction
+    macros: list[tuple[int, str]] = field(default_factory=list)  # .macro ... .endm, assembled once before the body
 
 
 def strip_comment(line: str, syntax: str) -> str:
-    """Remove `//`, `#` and (Intel) `;` comments. In GNU as `;` separates statements, so a MASM
-    listing's `; comment` would be assembled as code without this."""
-    cut = [line.find(m) for m in ("//", "#") + ((";",) if syntax == "intel" else ()) if m in line]
-    return (line[:min(cut)] if cut else line).rstrip()
+    """Remove `//`, `#` and (Intel) `;` comments, but not inside a string ("a#b") or a character
+    constant ('#', GNU as's '#). In GNU as `;` separates statements, so a MASM listing's
+    `; comment` would be assembled as code without this."""
+    marks = ("//", "#") + ((";",) if syntax == "intel" else ())
+    i = 0
+    while i < len(line):
+        ch = line[i]
+        if ch == '"':
+            m = re.compile(r'"(?:[^"\\]|\\.)*"?').match(line, i)
+            i = m.end()
+            continue
+        if ch == "'":
+            i += 3 if line[i + 2:i + 3] == "'" else 2
+            continue
+        if line.startswith(marks, i):
+            return line[:i].rstrip()
+        i += 1
+    return line.rstrip()
 
 
 def _syntax_of(text: str, syntax: str | None) -> str:
@@ -117,22 +148,44 @@ def _syntax_of(text: str, syntax: str | None) -> str:
 
 def parse_body(text: str, name: str = "<stdin>", syntax: str | None = None, cpu: GuestCpu | None = None) -> Body:
     """Split the body into lines and find its shape. `cpu` names the CPU in the refusal of a system
-    instruction (as `retrosim time` words it)."""
+    instruction (as `retrosim time` words it). Macro definitions are kept apart (assembled once,
+    before the body, which a block repeats)."""
     syntax = _syntax_of(text, syntax)
-    lines, labels, head, order = [], set(), set(), []
+    lines, labels, head, order, macros, nesting = [], set(), set(), [], [], []
     for number, raw in enumerate(text.splitlines(), 1):
         line = strip_comment(raw, syntax)
         rest = line
         while (m := _LABEL.match(rest)):
+            if syntax == "intel" and m.group(1).lower() in _INTEL_RESERVED:
+                raise RetrosimError(f"{name}:{number}: '{m.group(1)}' is a register or operand keyword in Intel "
+                                    "syntax and cannot be a label: rename it")
             labels.add(m.group(1))
             if not order:
                 head.add(m.group(1))
             rest = rest[m.end():]
         rest = rest.strip()
-        if rest and not rest.startswith("."):
+        word = rest.split(None, 1)[0].lower() if rest else ""
+        if word in _PLACEMENT_DIRECTIVES:
+            raise RetrosimError(f"{name}:{number}: '{rest}': {_PLACEMENT_DIRECTIVES[word]} cannot be part of a loop "
+                                "body (the harness places it in 32-bit .text and ends it itself)")
+        if word.startswith(_OPENERS):
+            nesting.append((number, word))
+        elif word in _CLOSERS or word.startswith(".else"):
+            if word in _CLOSERS and (not nesting or not nesting[-1][1].startswith(_CLOSERS[word])):
+                raise RetrosimError(f"{name}:{number}: '{word}' closes nothing")
+            if word in _CLOSERS:
+                opened = nesting.pop()
+                if opened[1] == ".macro" and not nesting:  # a definition ends: assembled once, before the body
+                    macros.append((number, line))
+                    continue
+        in_macro = any(w == ".macro" for _, w in nesting)
+        if rest and not rest.startswith(".") and not in_macro:
             order.append((number, rest))
         if line.strip():
-            lines.append((number, line))
+            (macros if in_macro else lines).append((number, line))
+    if nesting:
+        number, word = nesting[-1]
+        raise RetrosimError(f"{name}:{number}: '{word}' is never closed in the body")
     if not order:
         raise RetrosimError(f"{name}: no instructions in the body")
     for number, insn in order:  # static check: every jump target must be a label of the body
@@ -153,14 +206,25 @@ def parse_body(text: str, name: str = "<stdin>", syntax: str | None = None, cpu:
     # a conditional jump back to the first instruction (or an unconditional one: the harness stops
     # by counting iterations, so an endless loop is fine) makes the body a loop
     loop = bool(_COND.match(last[0].lower()) or last[0].lower() in ("jmp", "jmpl")) and target in head
-    return Body(name, syntax, lines, labels, head, len(order), loop)
+    return Body(name, syntax, lines, labels, head, len(order), loop, macros)
 
 
 def _rename(line: str, labels: set[str], suffix: str) -> str:
-    """Give a repeated copy its own labels (numeric local labels need no renaming)."""
-    for lab in sorted((x for x in labels if not x.isdigit()), key=len, reverse=True):
-        line = re.sub(rf"(?<![\w.$@]){re.escape(lab)}(?![\w.$@])", lab + suffix, line)
-    return line
+    """Give a repeated copy its own labels (numeric local labels need no renaming): in label
+    definitions and operands, never in the mnemonic or its prefixes (a label may be called `add`)."""
+    named = [x for x in labels if not x.isdigit()]
+    if not named:
+        return line
+    run = _LABEL_RUN.match(line).end()
+    head, rest = line[:run], line[run:]
+    prefixes = "" if rest.lstrip().startswith(".") else r"(?:(?:" + "|".join(sorted(_PREFIXES)) + r")\s+)*"
+    words = re.match(r"\s*" + prefixes + r"\S*", rest, re.IGNORECASE)
+    mnemonic, operands = rest[:words.end()], rest[words.end():]
+    for lab in sorted(named, key=len, reverse=True):
+        pattern = rf"(?<![\w.$@%]){re.escape(lab)}(?![\w.$@])"
+        head = re.sub(pattern, lab + suffix, head)
+        operands = re.sub(pattern, lab + suffix, operands)
+    return head + mnemonic + operands
 
 
 def placement(align: int = DEFAULT_ALIGN, offset: int = 0) -> int:
@@ -181,6 +245,8 @@ def wrapper_source(body: Body, copies: int, pad: int = 0) -> tuple[str, list[int
     add = lambda text, n=0: out.append((text, n))  # noqa: E731
     add(".intel_syntax noprefix" if body.syntax == "intel" else ".att_syntax prefix")
     add(".text")
+    for n, line in body.macros:
+        add(line, n)
     add(f".balign {ALIGN_SPAN}")
     if pad:
         add(f".fill {pad}, 1, 0xcc")
@@ -252,12 +318,42 @@ def _user_line(body: Body, lines: list[int], message: str, generated: Path, wrap
     """An assembler message about the generated file, on the user's line (or naming `wrapper`)."""
     m = re.match(rf"^{re.escape(str(generated))}:(\d+): (.*)$", message)
     if not m:
-        if wrapper and message.startswith(f"{generated}: "):  # about the file as a whole
-            message = message[len(str(generated)) + 2:]
-        return message.replace(str(generated), wrapper or body.name)
+        if wrapper and re.match(rf"^{re.escape(str(generated))}: {re.escape(str(generated))} has ", message):
+            # a limit on the file as a whole: the wrapper's, not the user's file's
+            return message.replace(f"{generated}: {generated}", wrapper)
+        return message.replace(str(generated), body.name)
     k = int(m.group(1)) - 1
-    n = lines[k] if 0 <= k < len(lines) else 0
-    return f"{body.name}:{n}: {m.group(2)}" if n else f"{body.name}: {m.group(2)}"
+    # a harness line (a label of ours) that fails was broken by the user line before it (an open
+    # string or expression): the message names that line and none of the harness's names
+    n = next((lines[j] for j in range(min(k, len(lines) - 1), -1, -1) if lines[j]), 0)
+    text = re.sub(r"`?'?retrosim_\w+:?'?`?", "the next line the harness adds", m.group(2)) if not lines[k] else m.group(2)
+    return f"{body.name}:{n}: {text}" if n else f"{body.name}: {text}"
+
+
+def read_body(source: str, stdin) -> tuple[str, str]:
+    """The body's text and its name for messages, from FILE or - (standard input, binary): at most
+    MAX_BODY_BYTES, UTF-8 (a bad byte is refused with its offset)."""
+    if source == "-":
+        data, name = stdin.read(MAX_BODY_BYTES + 1), "<stdin>"
+    else:
+        path, name = Path(source), source
+        if path.is_dir():
+            raise ArgumentError(f"{source}: is a directory, not a file with a loop body")
+        if not path.exists():
+            raise ArgumentError(f"{source}: no such file")
+        if not path.is_file():
+            raise ArgumentError(f"{source}: not a regular file")
+        try:
+            with path.open("rb") as f:
+                data = f.read(MAX_BODY_BYTES + 1)
+        except OSError as e:
+            raise ArgumentError(f"{source}: cannot be read ({e.strerror})") from None
+    if len(data) > MAX_BODY_BYTES:
+        raise ArgumentError(f"{name}: more than {MAX_BODY_BYTES >> 20} MB; a loop body is instructions only")
+    try:
+        return data.decode("utf-8"), name
+    except UnicodeDecodeError as e:
+        raise ArgumentError(f"{name}: byte {e.start} ({data[e.start]:#04x}) is not UTF-8 text") from None
 
 
 def parse_regs(items) -> dict[str, int]:
@@ -268,9 +364,12 @@ def parse_regs(items) -> dict[str, int]:
         if name not in REG_DEFAULTS or not value.strip():
             raise ArgumentError(f"--reg {item}: expected R=V with R one of {', '.join(REG_DEFAULTS)}")
         try:
-            regs[name] = int(value, 0) & 0xFFFFFFFF
+            number = int(value, 0)
         except ValueError:
             raise ArgumentError(f"--reg {item}: '{value}' is not an integer") from None
+        if not -(1 << 31) <= number < 1 << 32:
+            raise ArgumentError(f"--reg {item}: {name} holds 32 bits (from -0x80000000 to 0xFFFFFFFF)")
+        regs[name] = number & 0xFFFFFFFF
     return regs
 
 
@@ -304,7 +403,7 @@ def _assemble(body: Body, copies: int, pad: int, assembler: str | None, cpu: Gue
         except AssemblerError as e:
             raise AssemblerError(_user_line(body, lines, str(e), path, wrapper)) from None
         except RetrosimError as e:
-            raise RetrosimError(str(e).replace(str(path), wrapper)) from None
+            raise RetrosimError(_user_line(body, lines, str(e), path, wrapper)) from None
 
 
 def run_body(body: Body, iterations: int = DEFAULT_ITERATIONS, regs: dict[str, int] | None = None,
