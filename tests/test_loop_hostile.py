@@ -166,3 +166,12 @@ def test_a_hash_inside_a_string_is_not_a_comment():
     assert strip_comment("movb $'#, %al # c", "att") == "movb $'#, %al"
     got = loop_fails('mov eax, "#"\n', "-n", "8", seconds=20)
     assert "'#'" in got and "unbalanced" not in got
+
+
+def test_a_loop_striding_through_memory_runs_only_the_iterations_asked():
+    """Each iteration touches a new page: the tracer must stop at -n iterations, not run a whole
+    buffer (65,536 instructions, 16,384 pages) first and hit the 16 MB data limit."""
+    r = run(["loop", "-", "--brief", "--json", "-n", "10"], "l: mov eax, [ebx]\nadd ebx, 4096\ndec ecx\njnz l\n")
+    assert r.exit_code == 0, (r.output, r.exception)
+    assert r.seconds < 30
+    assert '"measured_iterations": 5' in r.output

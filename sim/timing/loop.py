@@ -448,9 +448,14 @@ def _pass(machine: Machine, body: Body, regs: dict[str, int], starts: list[int],
                           control_word_pcs=machine.control_word_pcs())
     tracer.attach()
     pc = starts[0]
+    # Run no further than the iterations still needed can take (from the instructions per iteration
+    # seen so far), so a body that touches a new page per iteration maps only the pages `iterations`
+    # iterations touch, not a whole trace buffer's worth; before the first iteration completes, the
+    # budget grows fourfold per segment.
+    budget = 1024
     try:
         while True:
-            tracer.limit(min(tracer.icap, MAX_INSTRUCTIONS - tracer.recorded))
+            tracer.limit(min(tracer.icap, budget, MAX_INSTRUCTIONS - tracer.recorded))
             machine._fault = machine._interrupt = None
             try:
                 uc.emu_start(pc, exit_pc)
@@ -464,6 +469,12 @@ def _pass(machine: Machine, body: Body, regs: dict[str, int], starts: list[int],
             marks = _marks(trace.pc, starts, body.loop, rep_first)
             if len(marks) > iterations:
                 break
+            done = len(marks) - 1  # complete iterations so far
+            if done >= 1:
+                per = (marks[-1] - marks[0]) / done
+                budget = int((iterations + 1 - done) * per) + 16
+            else:
+                budget *= 4
             outside = np.flatnonzero((trace.pc < lo) | (trace.pc >= exit_pc))
             if outside.size:
                 k = int(outside[0])
