@@ -175,3 +175,21 @@ def test_a_loop_striding_through_memory_runs_only_the_iterations_asked():
     assert r.exit_code == 0, (r.output, r.exception)
     assert r.seconds < 30
     assert '"measured_iterations": 5' in r.output
+
+
+def test_output_fits_the_terminal_and_p5_tables_name_their_cpu():
+    import os
+    import subprocess
+    import sys
+
+    body = "l: add eax, ebx\nadd esi, 1\nimul edi, edi\ndec ecx\njnz l\n"
+    r = subprocess.run([sys.executable, "-m", "sim.cli", "loop", "-", "-c", "pentium-133,pentium2-233", "-n", "20",
+                        "--timeline", "6"], input=body, capture_output=True, text=True, timeout=300,
+                       env={**os.environ, "COLUMNS": "60"})
+    assert r.returncode == 0, r.stderr
+    out = r.stdout.splitlines()
+    start = next(i for i, line in enumerate(out) if line.startswith("timeline on pentium2-233"))
+    chart = [line for line in out[start + 1:] if line.rstrip().endswith(("]", "ecx", "ebx", "1", "edi", "0x400000"))]
+    assert len(chart) >= 20
+    assert max(len(line) for line in chart) <= 60
+    assert any(line.startswith("pentium-133: per instruction") for line in out)

@@ -281,10 +281,11 @@ def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset
         for t in timings:
             if hasattr(t.result.model, "explain_cells"):  # a family with columns of its own (P5)
                 for part in views.explain_tables(t.result, console.width):
+                    part.title = f"{escape(t.cpu)}: {part.title}"  # several CPUs: each table names its own
                     console.print(part)
             else:
                 console.print(_loop_explain_table(t))
-            text_tl = views.timeline_text(t.result)
+            text_tl = views.timeline_text(t.result, columns=console.width)
             if text_tl:
                 console.print(f"[bold]timeline[/] on {escape(t.cpu)}: {timeline} iterations from the middle of the measured pass")
                 console.print(text_tl, markup=False, highlight=False, soft_wrap=True)
