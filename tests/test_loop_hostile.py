@@ -193,3 +193,26 @@ def test_output_fits_the_terminal_and_p5_tables_name_their_cpu():
     assert len(chart) >= 20
     assert max(len(line) for line in chart) <= 60
     assert any(line.startswith("pentium-133: per instruction") for line in out)
+
+
+# -- warnings: one stderr line each ---------------------------------------------------------
+def warnings_of(r) -> list[str]:
+    return [line for line in r.stderr.splitlines() if line.startswith("retrosim: warning: ")]
+
+
+def test_forced_syntax_contradicting_the_body_is_warned():
+    r = run(["loop", "-", "--brief", "--syntax", "intel", "-n", "8"], "l: mov %eax, %ebx\ndec %ecx\njnz l\n")
+    assert r.exit_code == 0, (r.output, r.exception)
+    w, = warnings_of(r)
+    assert "--syntax intel" in w and "AT&T" in w
+    r = run(["loop", "-", "--brief", "--syntax", "intel", "-n", "8"], "l: mov eax, ebx\ndec ecx\njnz l\n")
+    assert r.exit_code == 0 and not warnings_of(r)
+
+
+def test_x87_stack_growth_is_warned():
+    r = run(["loop", "-", "--brief", "-n", "8"], "l: fld dword ptr [esi]\ndec ecx\njnz l\n")
+    assert r.exit_code == 0, (r.output, r.exception)
+    w, = warnings_of(r)
+    assert "pushes 1 more x87 register" in w and "overflows" in w
+    r = run(["loop", "-", "--brief", "-n", "8"], "l: fld dword ptr [esi]\nfstp dword ptr [edi]\ndec ecx\njnz l\n")
+    assert r.exit_code == 0 and not warnings_of(r)

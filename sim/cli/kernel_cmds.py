@@ -13,7 +13,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from sim.guest import kernels as catalogue_mod
-from sim.errors import ArgumentError
+from sim.errors import ArgumentError, RetrosimError
 from sim.cli.app import (
     bounded, buffer_summary, choose_entry, console, cpu_choice, cpu_list, err_console, load_machine, main,
     memory_option, parse_args, resolve_machine, set_option, with_kernel_options, with_timing_options,
@@ -256,6 +256,12 @@ def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset
     loop.placement(align, offset)
     if memory:
         load_dram(memory)
+    try:  # a forced --syntax that contradicts the body: said before the assembler's complaints
+        syntax_warnings = loop.parse_body(text, name, syntax).warnings
+    except RetrosimError:
+        syntax_warnings = []  # refused below, with the CPU named
+    for warning in syntax_warnings:
+        click.echo(f"retrosim: warning: {warning}", err=True)
     labels = []
     for cpu in cpu_list(cpus):  # --set applies to every CPU, as `time --set` does to its one
         label, set_memory, _ = resolve_machine(cpu, sets)
@@ -264,10 +270,15 @@ def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset
     timings, not_timed = loop.time_body_where_possible(text, list(dict.fromkeys(labels)), name, syntax, iterations,
                                                        loop.parse_regs(regs), assembler, timeline, memory, align,
                                                        offset)
+    warnings = list(dict.fromkeys(w for t in timings for w in t.warnings))
+    for warning in warnings:
+        click.echo(f"retrosim: warning: {warning}", err=True)
+    warnings = syntax_warnings + warnings
     if as_json:
         click.echo(json.dumps({"source": name, "registers": {k: f"{v:#010x}" for k, v in loop.parse_regs(regs).items()},
                                "placement": _placement(timings, align, offset),
                                "not_timed": not_timed,
+                               "warnings": warnings,
                                "results": [{"cpu": t.cpu, "memory": t.memory,
                                             "cycles_per_iteration": t.cycles_per_iteration,
                                             "uops_per_iteration": t.uops_per_iteration,

@@ -112,6 +112,7 @@ class Body:
     instructions: int              # static instruction count
     loop: bool                     # ends with a conditional jump to its first instruction
     macros: list[tuple[int, str]] = field(default_factory=list)  # .macro ... .endm, assembled once before the body
+    warnings: list[str] = field(default_factory=list)  # one line each, for stderr
 
 
 def strip_comment(line: str, syntax: str) -> str:
@@ -135,22 +136,26 @@ def strip_comment(line: str, syntax: str) -> str:
     return line.rstrip()
 
 
-def _syntax_of(text: str, syntax: str | None) -> str:
+def _syntax_of(text: str, syntax: str | None) -> tuple[str, list[str]]:
+    """The body's syntax and a warning when a forced --syntax contradicts what the text says."""
+    m = re.search(r"^\s*\.(intel|att)_syntax", text, re.MULTILINE)
+    detected = m.group(1) if m else asm.detect_syntax(text.encode())
     if syntax:
         if syntax not in asm.SYNTAXES:
             raise ArgumentError(f"--syntax {syntax}: choose intel or att")
-        return syntax
-    m = re.search(r"^\s*\.(intel|att)_syntax", text, re.MULTILINE)
-    if m:
-        return m.group(1)
-    return asm.detect_syntax(text.encode()) or "intel"
+        if detected and detected != syntax:
+            names = {"intel": "Intel", "att": "AT&T"}
+            return syntax, [f"--syntax {syntax}: the body looks like {names[detected]} syntax; it is read as "
+                            f"{names[syntax]} (operand order {'destination first' if syntax == 'intel' else 'source first'})"]
+        return syntax, []
+    return detected or "intel", []
 
 
 def parse_body(text: str, name: str = "<stdin>", syntax: str | None = None, cpu: GuestCpu | None = None) -> Body:
     """Split the body into lines and find its shape. `cpu` names the CPU in the refusal of a system
     instruction (as `retrosim time` words it). Macro definitions are kept apart (assembled once,
     before the body, which a block repeats)."""
-    syntax = _syntax_of(text, syntax)
+    syntax, warnings = _syntax_of(text, syntax)
     lines, labels, head, order, macros, nesting = [], set(), set(), [], [], []
     for number, raw in enumerate(text.splitlines(), 1):
         line = strip_comment(raw, syntax)
@@ -206,7 +211,7 @@ def parse_body(text: str, name: str = "<stdin>", syntax: str | None = None, cpu:
     # a conditional jump back to the first instruction (or an unconditional one: the harness stops
     # by counting iterations, so an endless loop is fine) makes the body a loop
     loop = bool(_COND.match(last[0].lower()) or last[0].lower() in ("jmp", "jmpl")) and target in head
-    return Body(name, syntax, lines, labels, head, len(order), loop, macros)
+    return Body(name, syntax, lines, labels, head, len(order), loop, macros, warnings)
 
 
 def _rename(line: str, labels: set[str], suffix: str) -> str:
@@ -545,6 +550,7 @@ class LoopTiming:
     result: TimingResult = field(repr=False)  # for views.explain_rows / timeline_rows
     address: int = 0                 # where the body's first instruction was placed
     alignment: int = 0               # the largest power of two (up to ALIGN_SPAN) dividing it
+    warnings: list[str] = field(default_factory=list)  # about the body's run (one line each)
 
     @property
     def cycles_per_iteration(self) -> float:
@@ -564,7 +570,8 @@ def time_run(run: LoopRun, cpu: str, memory: str | None = None, timeline_iterati
     calls = [core_run.segment(k) for k in range(len(run.cuts))]
     per = {k: round(v / run.measured, 4) for k, v in calls[-1].items()}
     result = TimingResult(cpu, model.dram.name, "loop", Path(run.body.name), 1, calls, model, core_run, run.trace)
-    return LoopTiming(cpu, model.dram.name, run.measured, per, result, run.address, run.alignment)
+    return LoopTiming(cpu, model.dram.name, run.measured, per, result, run.address, run.alignment,
+                      x87_warnings(run))
 
 
 def _run_model(model, run: LoopRun, timeline: tuple[int, int]):
@@ -576,6 +583,23 @@ def _run_model(model, run: LoopRun, timeline: tuple[int, int]):
     session = session_type(model, decoder, list(run.cuts), timeline, run.cuts[1])
     session.feed(run.trace, run.next_pc)
     return session.finish()
+
+
+def x87_warnings(run: LoopRun) -> list[str]:
+    """A warning when the body leaves the x87 stack deeper or shallower after each iteration: the
+    eight-register stack then overflows (or underflows) within a few iterations on real hardware, a
+    stack fault (Intel SDM vol. 1, "x87 FPU stack overflow or underflow": #IS, NaN results when
+    masked), so the timing describes no real run. Unicorn does not fault, so the trace cannot tell."""
+    window = run.trace.pc[run.cuts[1]:run.cuts[2]]
+    pcs, counts = np.unique(window, return_counts=True)
+    records, _ = Decoder(run.machine.image.fetch).decode_trace(pcs)
+    delta = {rec.pc: rec.fpu_stack_delta for rec in records}
+    net = sum(int(delta.get(int(pc), 0)) * int(n) for pc, n in zip(pcs, counts)) / run.measured
+    if not net:
+        return []
+    what = f"pushes {net:g} more x87 register(s) than it pops" if net > 0 else f"pops {-net:g} more x87 register(s) than it pushes"
+    return [f"{run.body.name}: each iteration {what}: the 8-register x87 stack {'overflows' if net > 0 else 'underflows'} "
+            "within 8 iterations on real hardware (a stack fault), so this timing describes no real run"]
 
 
 # What an instruction-set extension is called in "not timed (no MMX): ..." (sim/guest/isa.py names).
