@@ -216,3 +216,20 @@ def test_x87_stack_growth_is_warned():
     assert "pushes 1 more x87 register" in w and "overflows" in w
     r = run(["loop", "-", "--brief", "-n", "8"], "l: fld dword ptr [esi]\nfstp dword ptr [edi]\ndec ecx\njnz l\n")
     assert r.exit_code == 0 and not warnings_of(r)
+
+
+# -- MASM/TASM listings paste as printed (README) -------------------------------------------
+def test_masm_hex_and_anonymous_labels():
+    from sim.timing import loop
+
+    assert loop.from_masm("@@: add eax, 0FFh") == "1986: add eax, 0x0FF"
+    assert loop.from_masm("jnz @B") == "jnz 1986b" and loop.from_masm("jmp @f") == "jmp 1986f"
+    # only numeric tokens: registers and symbols ending in h stay as they are, and strings too
+    for same in ("mov al, bh", "mov eax, abh", "call x1h", '.ascii "0FFh"'):
+        assert loop.from_masm(same) == same
+    masm = "@@:  add eax, 0FFh   ; a listing's comment\n     and ebx, 0ffffh\n     dec ecx\n     jnz @b\n"
+    gnu = "l: add eax, 0xff\n and ebx, 0xffff\n dec ecx\n jnz l\n"
+    a, = loop.time_body(masm, ["pentium2-233"], iterations=20)
+    b, = loop.time_body(gnu, ["pentium2-233"], iterations=20)
+    assert loop.parse_body(masm).loop
+    assert a.per_iteration == b.per_iteration

@@ -136,6 +136,30 @@ def strip_comment(line: str, syntax: str) -> str:
     return line.rstrip()
 
 
+_STRING = re.compile(r'"(?:[^"\\]|\\.)*"?|\'.\'?')
+_MASM_HEX = re.compile(r"(?<![\w.$@])([0-9][0-9A-Fa-f]*)[hH](?![\w.$@])")
+_MASM_ANON_LABEL = re.compile(r"^(\s*)@@\s*:")
+_MASM_ANON_REF = re.compile(r"(?<![\w.$@])@([bBfF])(?![\w.$@])")
+MASM_ANON = "1986"  # the GNU numeric local label that stands for MASM's @@ (1986b = @b, 1986f = @f)
+
+
+def from_masm(line: str) -> str:
+    """The era's MASM/TASM forms in GNU as terms, outside strings: hex numbers `0FFh` -> `0x0FF`
+    (numeric tokens only: they start with a digit, so a label `bh` or a register is untouched)
+    and anonymous labels `@@:`, `@b`, `@f` -> the numeric local label MASM_ANON (`1986:`, `1986b`, `1986f`)."""
+    line = _MASM_ANON_LABEL.sub(lambda m: f"{m.group(1)}{MASM_ANON}:", line)
+    out, last = [], 0
+    for m in _STRING.finditer(line):
+        out.append(line[last:m.start()])
+        out.append(m.group(0))
+        last = m.end()
+    out.append(line[last:])
+    for i in range(0, len(out), 2):  # the parts outside strings
+        part = _MASM_HEX.sub(lambda m: "0x" + m.group(1), out[i])
+        out[i] = _MASM_ANON_REF.sub(lambda m: MASM_ANON + m.group(1).lower(), part)
+    return "".join(out)
+
+
 def _syntax_of(text: str, syntax: str | None) -> tuple[str, list[str]]:
     """The body's syntax and a warning when a forced --syntax contradicts what the text says."""
     m = re.search(r"^\s*\.(intel|att)_syntax", text, re.MULTILINE)
@@ -159,6 +183,8 @@ def parse_body(text: str, name: str = "<stdin>", syntax: str | None = None, cpu:
     lines, labels, head, order, macros, nesting = [], set(), set(), [], [], []
     for number, raw in enumerate(text.splitlines(), 1):
         line = strip_comment(raw, syntax)
+        if syntax == "intel":
+            line = from_masm(line)
         rest = line
         while (m := _LABEL.match(rest)):
             if syntax == "intel" and m.group(1).lower() in _INTEL_RESERVED:
