@@ -219,7 +219,10 @@ def cpu_list(values) -> list[str]:
     from sim.cpus import presets
     from sim.cpus.machine import MachineKey
 
-    names = [n for v in values for n in _split_cpus(v)] or ["pentium2-233"]
+    names = [n for v in values for n in _split_cpus(v)]
+    if values and not names:  # `--cpu ,,,` or `--cpu ''`: a mistake, not a request for the default
+        raise ArgumentError(f"--cpu {','.join(values)!r}: names no CPU")
+    names = names or ["pentium2-233"]
     if "all" in names:
         return presets.available()
     for n in names:

@@ -13,7 +13,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from sim.guest import kernels as catalogue_mod
-from sim.errors import ArgumentError
+from sim.errors import ArgumentError, RetrosimError
 from sim.cli.app import (
     bounded, buffer_summary, choose_entry, console, cpu_choice, cpu_list, err_console, load_machine, main,
     memory_option, parse_args, resolve_machine, set_option, with_kernel_options, with_timing_options,
@@ -241,7 +241,8 @@ def _loop_explain_table(t) -> Table:
 @click.option("--offset", "offset", default=0, show_default=True, metavar="K",
               help="then K bytes further (0 <= K < N): --align 16 --offset 3 starts the body 19 bytes past a "
                    "64-byte boundary")
-@click.option("--timeline", "timeline", default=3, show_default=True, help="iterations shown in the timeline")
+@click.option("--timeline", "timeline", default=3, show_default=True, callback=bounded(0, 1000),
+              help="iterations shown in the timeline")
 @click.option("--brief", is_flag=True, help="only the table of cycles per iteration")
 @click.option("--assembler", type=click.Choice(["gnu", "zig"]), help="assembler back end (default: GNU as)")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
@@ -251,16 +252,16 @@ def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset
     from sim.timing import loop
     from sim.reports import views
 
-    if source == "-":
-        text, name = sys.stdin.read(), "<stdin>"
-    else:
-        path = Path(source)
-        if not path.is_file():
-            raise ArgumentError(f"{source}: no such file")
-        text, name = path.read_text(errors="replace"), source
+    text, name = loop.read_body(source, sys.stdin.buffer)
     loop.placement(align, offset)
     if memory:
         load_dram(memory)
+    try:  # a forced --syntax that contradicts the body: said before the assembler's complaints
+        syntax_warnings = loop.parse_body(text, name, syntax).warnings
+    except RetrosimError:
+        syntax_warnings = []  # refused below, with the CPU named
+    for warning in syntax_warnings:
+        click.echo(f"retrosim: warning: {warning}", err=True)
     labels = []
     for cpu in cpu_list(cpus):  # --set applies to every CPU, as `time --set` does to its one
         label, set_memory, _ = resolve_machine(cpu, sets)
@@ -269,10 +270,15 @@ def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset
     timings, not_timed = loop.time_body_where_possible(text, list(dict.fromkeys(labels)), name, syntax, iterations,
                                                        loop.parse_regs(regs), assembler, timeline, memory, align,
                                                        offset)
+    warnings = list(dict.fromkeys(w for t in timings for w in t.warnings))
+    for warning in warnings:
+        click.echo(f"retrosim: warning: {warning}", err=True)
+    warnings = syntax_warnings + warnings
     if as_json:
         click.echo(json.dumps({"source": name, "registers": {k: f"{v:#010x}" for k, v in loop.parse_regs(regs).items()},
                                "placement": _placement(timings, align, offset),
                                "not_timed": not_timed,
+                               "warnings": warnings,
                                "results": [{"cpu": t.cpu, "memory": t.memory,
                                             "cycles_per_iteration": t.cycles_per_iteration,
                                             "uops_per_iteration": t.uops_per_iteration,
@@ -286,10 +292,11 @@ def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset
         for t in timings:
             if hasattr(t.result.model, "explain_cells"):  # a family with columns of its own (P5)
                 for part in views.explain_tables(t.result, console.width):
+                    part.title = f"{escape(t.cpu)}: {part.title}"  # several CPUs: each table names its own
                     console.print(part)
             else:
                 console.print(_loop_explain_table(t))
-            text_tl = views.timeline_text(t.result)
+            text_tl = views.timeline_text(t.result, columns=console.width)
             if text_tl:
                 console.print(f"[bold]timeline[/] on {escape(t.cpu)}: {timeline} iterations from the middle of the measured pass")
                 console.print(text_tl, markup=False, highlight=False, soft_wrap=True)

@@ -47,6 +47,12 @@ _FXSR = frozenset({"fxsave", "fxrstor"})
 _NO_EXTENSION = frozenset({"pause"})  # REP NOP: a NOP before the Pentium 4 (module docstring)
 _SSE2_GROUPS = frozenset({"sse2", "sse3", "ssse3", "sse41", "sse42", "sse4a"})
 _SSE3_X87 = frozenset({"fisttp"})  # an x87 opcode (DB /1, DD /1, DF /1) that came with SSE3
+# SSE2 instructions whose names look like MMX or SSE ones (Intel SDM vol. 1, "SSE2 64-bit and
+# 128-bit SIMD integer instructions"): PADDQ/PSUBQ/PMULUDQ also take MMX registers, but only on
+# SSE2 processors. For assembler messages, where only the mnemonic is known.
+_SSE2_NAMES = frozenset("paddq psubq pmuludq pshufd pshufhw pshuflw pslldq psrldq punpcklqdq punpckhqdq "
+                        "movdqa movdqu movq2dq movdq2q maskmovdqu movntdq movnti movntpd lfence mfence "
+                        "clflush".split())
 
 # System instructions that capstone does not put in its 'privilege' group but that a user-mode
 # kernel may not run: port I/O (IOPL 0 under every OS of the period), software interrupts and
@@ -110,7 +116,7 @@ def mnemonic_extension(name: str) -> str | None:
         return "3dnow"
     if name in _FXSR:
         return "fxsr"
-    if name in _SSE3_X87 or name == "movnti":
+    if name in _SSE3_X87 or name in _SSE2_NAMES or (name.endswith("pd") and name not in _3DNOW_NAMES):
         return "sse2"
     if name in _SSE_MMX or name.endswith(("ps", "ss")) or name in ("ldmxcsr", "stmxcsr"):
         return "sse"
@@ -140,6 +146,13 @@ def why_missing(cpu: GuestCpu, ext: str) -> str:
     return f"{cpu.name} {_WHY[ext]}"
 
 
+def system_refusal(where: str, text: str, cpu: GuestCpu | None) -> IsaError:
+    """The refusal of a privileged or system instruction (`text`) on `cpu`."""
+    on = f" on {cpu.name}" if cpu is not None else ""
+    return IsaError(f"{where}: {text} is a privileged or system instruction; a user-mode kernel cannot "
+                    f"execute it{on} (it faults at CPL 3), so it has no timing")
+
+
 def check_record(rec: InsnRecord, cpu: GuestCpu, where) -> None:
     """Raise IsaError if `rec` may not run on `cpu` (a system instruction or a missing extension).
     `where`: the location for the message, or a callable making it (only called on an error)."""
@@ -148,8 +161,7 @@ def check_record(rec: InsnRecord, cpu: GuestCpu, where) -> None:
     where = where() if callable(where) else where
     text = f"{rec.mnemonic} {rec.op_str}".strip()
     if is_system(rec):
-        raise IsaError(f"{where}: {text} is a privileged or system instruction; a user-mode kernel cannot "
-                       f"execute it on {cpu.name} (it faults at CPL 3), so it has no timing")
+        raise system_refusal(where, text, cpu)
     ext = record_extension(rec)
     if ext is not None and ext not in cpu.extensions:
         raise IsaError(f"{where}: {rec.mnemonic} is not available on {cpu.name} ({why_missing(cpu, ext)})")

@@ -60,6 +60,11 @@ NULL_LIMIT = 0x10000          # accesses below 64 KB are null-pointer bugs, not 
 MAX_DATA_PAGES = 4096         # 16 MB of demand-zero data at most
 MAX_INSTRUCTIONS = 5_000_000  # per pass: a body that needs more never reaches its back-edge
 DEFAULT_ITERATIONS = 100
+MAX_BODY_BYTES = 1 << 20      # a loop body is instructions only: 1 MB is far beyond any
+MAX_ITERATIONS = 100_000      # -n: a loop of that many iterations traces in seconds
+# A block is repeated, not looped: its wrapper holds -n + 1 copies, and assembling and decoding
+# 20,000 one-instruction copies takes about 15 s (GNU as): 40,000 instructions is the most a wrapper may hold.
+MAX_BLOCK_INSTRUCTIONS = 40_000
 # Placement of the body's first instruction: ALIGN_SPAN bytes is the largest block any modelled
 # front end cuts code into (32-byte L1I lines and P5/K6 fetch, 16-byte P6 fetch blocks), so the
 # body's offset from an ALIGN_SPAN boundary decides everything alignment can change. The default
@@ -74,7 +79,25 @@ _COND = re.compile(r"^(j(?!mp)[a-z]+|loop[a-z]*|jn?e?cxz)$")
 _JUMP = re.compile(r"^(j[a-z]+|loop[a-z]*|call[lw]?|ljmp|lcall)$")
 _REGISTERS = {p + r for r in ("ax", "bx", "cx", "dx", "si", "di", "bp", "sp") for p in ("e", "")}
 _REP_PREFIXES = {"rep", "repe", "repz", "repne", "repnz"}
+_PREFIXES = _REP_PREFIXES | {"lock", "data16", "addr16", "data32", "addr32", "cs", "ds", "es", "fs", "gs", "ss"}
+# Directives a body may not hold: the harness places it in .text, in 32-bit code, and ends it itself.
+_PLACEMENT_DIRECTIVES = {".data": "a section directive", ".bss": "a section directive", ".section": "a section directive",
+                         ".text": "a section directive", ".previous": "a section directive",
+                         ".pushsection": "a section directive", ".popsection": "a section directive",
+                         ".subsection": "a section directive", ".org": "an .org",
+                         ".end": ".end", ".code16": "16-bit code", ".code16gcc": "16-bit code", ".code64": "64-bit code"}
+# Intel-syntax names GNU as reads as registers or operand keywords, never as a label
+_INTEL_RESERVED = ({p + r for r in ("ax", "bx", "cx", "dx", "si", "di", "bp", "sp") for p in ("e", "")}
+                   | {r + x for r in "abcd" for x in "lh"} | {"cs", "ds", "es", "fs", "gs", "ss", "st"}
+                   | {f"{k}{i}" for k in ("mm", "xmm", "cr", "dr", "tr") for i in range(8)}
+                   | {"byte", "word", "dword", "fword", "qword", "tbyte", "oword", "xmmword", "ptr", "offset",
+                      "short", "near", "far", "flat"})
+_OPENERS = (".rept", ".irp", ".irpc", ".macro", ".if")
+_CLOSERS = {".endr": (".rept", ".irp", ".irpc"), ".endm": (".macro",), ".endif": (".if",)}
 _LEAVES = {"ret", "retl", "retn", "retf", "iret", "iretd", "int", "int3", "into", "hlt", "sysenter", "syscall"}
+# those that are system instructions (sim/guest/isa.py): refused as such, as `retrosim time` does
+_SYSTEM_LEAVES = {"retf", "iret", "iretd", "int", "int1", "int3", "into", "hlt", "sysenter", "sysexit", "syscall",
+                  "sysret", "ljmp", "lcall"}
 
 
 @dataclass
@@ -88,47 +111,119 @@ class Body:
     head_labels: set[str]          # labels on the first instruction
     instructions: int              # static instruction count
     loop: bool                     # ends with a conditional jump to its first instruction
+    macros: list[tuple[int, str]] = field(default_factory=list)  # .macro ... .endm, assembled once before the body
+    warnings: list[str] = field(default_factory=list)  # one line each, for stderr
 
 
 def strip_comment(line: str, syntax: str) -> str:
-    """Remove `//`, `#` and (Intel) `;` comments. In GNU as `;` separates statements, so a MASM
-    listing's `; comment` would be assembled as code without this."""
-    cut = [line.find(m) for m in ("//", "#") + ((";",) if syntax == "intel" else ()) if m in line]
-    return (line[:min(cut)] if cut else line).rstrip()
+    """Remove `//`, `#` and (Intel) `;` comments, but not inside a string ("a#b") or a character
+    constant ('#', GNU as's '#). In GNU as `;` separates statements, so a MASM listing's
+    `; comment` would be assembled as code without this."""
+    marks = ("//", "#") + ((";",) if syntax == "intel" else ())
+    i = 0
+    while i < len(line):
+        ch = line[i]
+        if ch == '"':
+            m = re.compile(r'"(?:[^"\\]|\\.)*"?').match(line, i)
+            i = m.end()
+            continue
+        if ch == "'":
+            i += 3 if line[i + 2:i + 3] == "'" else 2
+            continue
+        if line.startswith(marks, i):
+            return line[:i].rstrip()
+        i += 1
+    return line.rstrip()
 
 
-def _syntax_of(text: str, syntax: str | None) -> str:
+_STRING = re.compile(r'"(?:[^"\\]|\\.)*"?|\'.\'?')
+_MASM_HEX = re.compile(r"(?<![\w.$@])([0-9][0-9A-Fa-f]*)[hH](?![\w.$@])")
+_MASM_ANON_LABEL = re.compile(r"^(\s*)@@\s*:")
+_MASM_ANON_REF = re.compile(r"(?<![\w.$@])@([bBfF])(?![\w.$@])")
+MASM_ANON = "1986"  # the GNU numeric local label that stands for MASM's @@ (1986b = @b, 1986f = @f)
+
+
+def from_masm(line: str) -> str:
+    """The era's MASM/TASM forms in GNU as terms, outside strings: hex numbers `0FFh` -> `0x0FF`
+    (numeric tokens only: they start with a digit, so a label `bh` or a register is untouched)
+    and anonymous labels `@@:`, `@b`, `@f` -> the numeric local label MASM_ANON (`1986:`, `1986b`, `1986f`)."""
+    line = _MASM_ANON_LABEL.sub(lambda m: f"{m.group(1)}{MASM_ANON}:", line)
+    out, last = [], 0
+    for m in _STRING.finditer(line):
+        out.append(line[last:m.start()])
+        out.append(m.group(0))
+        last = m.end()
+    out.append(line[last:])
+    for i in range(0, len(out), 2):  # the parts outside strings
+        part = _MASM_HEX.sub(lambda m: "0x" + m.group(1), out[i])
+        out[i] = _MASM_ANON_REF.sub(lambda m: MASM_ANON + m.group(1).lower(), part)
+    return "".join(out)
+
+
+def _syntax_of(text: str, syntax: str | None) -> tuple[str, list[str]]:
+    """The body's syntax and a warning when a forced --syntax contradicts what the text says."""
+    m = re.search(r"^\s*\.(intel|att)_syntax", text, re.MULTILINE)
+    detected = m.group(1) if m else asm.detect_syntax(text.encode())
     if syntax:
         if syntax not in asm.SYNTAXES:
             raise ArgumentError(f"--syntax {syntax}: choose intel or att")
-        return syntax
-    m = re.search(r"^\s*\.(intel|att)_syntax", text, re.MULTILINE)
-    if m:
-        return m.group(1)
-    return asm.detect_syntax(text.encode()) or "intel"
+        if detected and detected != syntax:
+            names = {"intel": "Intel", "att": "AT&T"}
+            return syntax, [f"--syntax {syntax}: the body looks like {names[detected]} syntax; it is read as "
+                            f"{names[syntax]} (operand order {'destination first' if syntax == 'intel' else 'source first'})"]
+        return syntax, []
+    return detected or "intel", []
 
 
-def parse_body(text: str, name: str = "<stdin>", syntax: str | None = None) -> Body:
-    syntax = _syntax_of(text, syntax)
-    lines, labels, head, order = [], set(), set(), []
+def parse_body(text: str, name: str = "<stdin>", syntax: str | None = None, cpu: GuestCpu | None = None) -> Body:
+    """Split the body into lines and find its shape. `cpu` names the CPU in the refusal of a system
+    instruction (as `retrosim time` words it). Macro definitions are kept apart (assembled once,
+    before the body, which a block repeats)."""
+    syntax, warnings = _syntax_of(text, syntax)
+    lines, labels, head, order, macros, nesting = [], set(), set(), [], [], []
     for number, raw in enumerate(text.splitlines(), 1):
         line = strip_comment(raw, syntax)
+        if syntax == "intel":
+            line = from_masm(line)
         rest = line
         while (m := _LABEL.match(rest)):
+            if syntax == "intel" and m.group(1).lower() in _INTEL_RESERVED:
+                raise RetrosimError(f"{name}:{number}: '{m.group(1)}' is a register or operand keyword in Intel "
+                                    "syntax and cannot be a label: rename it")
             labels.add(m.group(1))
             if not order:
                 head.add(m.group(1))
             rest = rest[m.end():]
         rest = rest.strip()
-        if rest and not rest.startswith("."):
+        word = rest.split(None, 1)[0].lower() if rest else ""
+        if word in _PLACEMENT_DIRECTIVES:
+            raise RetrosimError(f"{name}:{number}: '{rest}': {_PLACEMENT_DIRECTIVES[word]} cannot be part of a loop "
+                                "body (the harness places it in 32-bit .text and ends it itself)")
+        if word.startswith(_OPENERS):
+            nesting.append((number, word))
+        elif word in _CLOSERS or word.startswith(".else"):
+            if word in _CLOSERS and (not nesting or not nesting[-1][1].startswith(_CLOSERS[word])):
+                raise RetrosimError(f"{name}:{number}: '{word}' closes nothing")
+            if word in _CLOSERS:
+                opened = nesting.pop()
+                if opened[1] == ".macro" and not nesting:  # a definition ends: assembled once, before the body
+                    macros.append((number, line))
+                    continue
+        in_macro = any(w == ".macro" for _, w in nesting)
+        if rest and not rest.startswith(".") and not in_macro:
             order.append((number, rest))
         if line.strip():
-            lines.append((number, line))
+            (macros if in_macro else lines).append((number, line))
+    if nesting:
+        number, word = nesting[-1]
+        raise RetrosimError(f"{name}:{number}: '{word}' is never closed in the body")
     if not order:
         raise RetrosimError(f"{name}: no instructions in the body")
     for number, insn in order:  # static check: every jump target must be a label of the body
         words = insn.replace(",", " ").split()
         op = words[0].lower()
+        if op in _SYSTEM_LEAVES:
+            raise isa.system_refusal(f"{name}:{number}", " ".join(insn.split()), cpu)
         if op in _LEAVES:
             raise RetrosimError(f"{name}:{number}: '{insn}' leaves the body (a loop body cannot return or trap)")
         if _JUMP.match(op) and len(words) == 2 and words[1].lower() not in _REGISTERS and re.fullmatch(r"[A-Za-z_.$][\w.$@]*|\d+[bf]", words[1]):
@@ -142,14 +237,25 @@ def parse_body(text: str, name: str = "<stdin>", syntax: str | None = None) -> B
     # a conditional jump back to the first instruction (or an unconditional one: the harness stops
     # by counting iterations, so an endless loop is fine) makes the body a loop
     loop = bool(_COND.match(last[0].lower()) or last[0].lower() in ("jmp", "jmpl")) and target in head
-    return Body(name, syntax, lines, labels, head, len(order), loop)
+    return Body(name, syntax, lines, labels, head, len(order), loop, macros, warnings)
 
 
 def _rename(line: str, labels: set[str], suffix: str) -> str:
-    """Give a repeated copy its own labels (numeric local labels need no renaming)."""
-    for lab in sorted((x for x in labels if not x.isdigit()), key=len, reverse=True):
-        line = re.sub(rf"(?<![\w.$@]){re.escape(lab)}(?![\w.$@])", lab + suffix, line)
-    return line
+    """Give a repeated copy its own labels (numeric local labels need no renaming): in label
+    definitions and operands, never in the mnemonic or its prefixes (a label may be called `add`)."""
+    named = [x for x in labels if not x.isdigit()]
+    if not named:
+        return line
+    run = _LABEL_RUN.match(line).end()
+    head, rest = line[:run], line[run:]
+    prefixes = "" if rest.lstrip().startswith(".") else r"(?:(?:" + "|".join(sorted(_PREFIXES)) + r")\s+)*"
+    words = re.match(r"\s*" + prefixes + r"\S*", rest, re.IGNORECASE)
+    mnemonic, operands = rest[:words.end()], rest[words.end():]
+    for lab in sorted(named, key=len, reverse=True):
+        pattern = rf"(?<![\w.$@%]){re.escape(lab)}(?![\w.$@])"
+        head = re.sub(pattern, lab + suffix, head)
+        operands = re.sub(pattern, lab + suffix, operands)
+    return head + mnemonic + operands
 
 
 def placement(align: int = DEFAULT_ALIGN, offset: int = 0) -> int:
@@ -170,6 +276,8 @@ def wrapper_source(body: Body, copies: int, pad: int = 0) -> tuple[str, list[int
     add = lambda text, n=0: out.append((text, n))  # noqa: E731
     add(".intel_syntax noprefix" if body.syntax == "intel" else ".att_syntax prefix")
     add(".text")
+    for n, line in body.macros:
+        add(line, n)
     add(f".balign {ALIGN_SPAN}")
     if pad:
         add(f".fill {pad}, 1, 0xcc")
@@ -237,13 +345,46 @@ def _truncate(trace: Trace, n: int) -> Trace:
     return trace.head(n)
 
 
-def _user_line(body: Body, lines: list[int], message: str, generated: Path) -> str:
+def _user_line(body: Body, lines: list[int], message: str, generated: Path, wrapper: str | None = None) -> str:
+    """An assembler message about the generated file, on the user's line (or naming `wrapper`)."""
     m = re.match(rf"^{re.escape(str(generated))}:(\d+): (.*)$", message)
     if not m:
+        if wrapper and re.match(rf"^{re.escape(str(generated))}: {re.escape(str(generated))} has ", message):
+            # a limit on the file as a whole: the wrapper's, not the user's file's
+            return message.replace(f"{generated}: {generated}", wrapper)
         return message.replace(str(generated), body.name)
     k = int(m.group(1)) - 1
-    n = lines[k] if 0 <= k < len(lines) else 0
-    return f"{body.name}:{n}: {m.group(2)}" if n else f"{body.name}: {m.group(2)}"
+    # a harness line (a label of ours) that fails was broken by the user line before it (an open
+    # string or expression): the message names that line and none of the harness's names
+    n = next((lines[j] for j in range(min(k, len(lines) - 1), -1, -1) if lines[j]), 0)
+    text = re.sub(r"`?'?retrosim_\w+:?'?`?", "the next line the harness adds", m.group(2)) if not lines[k] else m.group(2)
+    return f"{body.name}:{n}: {text}" if n else f"{body.name}: {text}"
+
+
+def read_body(source: str, stdin) -> tuple[str, str]:
+    """The body's text and its name for messages, from FILE or - (standard input, binary): at most
+    MAX_BODY_BYTES, UTF-8 (a bad byte is refused with its offset)."""
+    if source == "-":
+        data, name = stdin.read(MAX_BODY_BYTES + 1), "<stdin>"
+    else:
+        path, name = Path(source), source
+        if path.is_dir():
+            raise ArgumentError(f"{source}: is a directory, not a file with a loop body")
+        if not path.exists():
+            raise ArgumentError(f"{source}: no such file")
+        if not path.is_file():
+            raise ArgumentError(f"{source}: not a regular file")
+        try:
+            with path.open("rb") as f:
+                data = f.read(MAX_BODY_BYTES + 1)
+        except OSError as e:
+            raise ArgumentError(f"{source}: cannot be read ({e.strerror})") from None
+    if len(data) > MAX_BODY_BYTES:
+        raise ArgumentError(f"{name}: more than {MAX_BODY_BYTES >> 20} MB; a loop body is instructions only")
+    try:
+        return data.decode("utf-8"), name
+    except UnicodeDecodeError as e:
+        raise ArgumentError(f"{name}: byte {e.start} ({data[e.start]:#04x}) is not UTF-8 text") from None
 
 
 def parse_regs(items) -> dict[str, int]:
@@ -254,10 +395,46 @@ def parse_regs(items) -> dict[str, int]:
         if name not in REG_DEFAULTS or not value.strip():
             raise ArgumentError(f"--reg {item}: expected R=V with R one of {', '.join(REG_DEFAULTS)}")
         try:
-            regs[name] = int(value, 0) & 0xFFFFFFFF
+            number = int(value, 0)
         except ValueError:
             raise ArgumentError(f"--reg {item}: '{value}' is not an integer") from None
+        if not -(1 << 31) <= number < 1 << 32:
+            raise ArgumentError(f"--reg {item}: {name} holds 32 bits (from -0x80000000 to 0xFFFFFFFF)")
+        regs[name] = number & 0xFFFFFFFF
     return regs
+
+
+def check_iterations(body: Body, iterations: int) -> None:
+    """Refuse an iteration count outside what the harness can do in bounded time and memory."""
+    if not 4 <= iterations <= MAX_ITERATIONS:
+        raise ArgumentError(f"--iterations {iterations}: must be from 4 to {MAX_ITERATIONS:,}")
+    size = sum(len(line) + 1 for _, line in body.lines) * (1 if body.loop else iterations + 1)
+    if size > asm.MAX_SOURCE_BYTES:
+        raise ArgumentError(f"--iterations {iterations}: the wrapper generated around {body.name} would have "
+                            f"{size:,} bytes, more than the {asm.MAX_SOURCE_BYTES >> 20} MB a source may have")
+    total = (iterations + 1) * body.instructions
+    if not body.loop and total > MAX_BLOCK_INSTRUCTIONS:
+        most = MAX_BLOCK_INSTRUCTIONS // body.instructions - 1
+        raise ArgumentError(f"--iterations {iterations}: {body.name} is a block (no back-edge), so it is repeated "
+                            f"{iterations + 1:,} times, {total:,} instructions to assemble; the limit is "
+                            f"{MAX_BLOCK_INSTRUCTIONS:,}: use -n {most} or less (at least 4), or end the body with "
+                            "a jump back to its first instruction")
+
+
+def _assemble(body: Body, copies: int, pad: int, assembler: str | None, cpu: GuestCpu | None) -> Machine:
+    """The body's wrapper (`copies` copies of a block), assembled and loaded. Messages name the
+    user's lines; a limit the wrapper exceeds names the wrapper, not the user's file."""
+    text, lines = wrapper_source(body, copies, pad)
+    with tempfile.TemporaryDirectory(prefix="retrosim-loop-") as tmp:
+        path = Path(tmp) / "loop.S"
+        path.write_text(text)
+        wrapper = f"the wrapper generated around {body.name}" + (f" ({copies:,} copies)" if copies > 1 else "")
+        try:
+            return Machine.from_source(path, assembler=assembler, cpu=cpu)
+        except AssemblerError as e:
+            raise AssemblerError(_user_line(body, lines, str(e), path, wrapper)) from None
+        except RetrosimError as e:
+            raise RetrosimError(_user_line(body, lines, str(e), path, wrapper)) from None
 
 
 def run_body(body: Body, iterations: int = DEFAULT_ITERATIONS, regs: dict[str, int] | None = None,
@@ -265,21 +442,13 @@ def run_body(body: Body, iterations: int = DEFAULT_ITERATIONS, regs: dict[str, i
              offset: int = 0) -> LoopRun:
     """Assemble the body in its wrapper (for `cpu`'s instruction set, if given; placed as
     :func:`placement` says) and trace the warm and the measured pass."""
-    if iterations < 4:
-        raise ArgumentError(f"--iterations must be at least 4, got {iterations}")
+    check_iterations(body, iterations)
     regs = regs or dict(REG_DEFAULTS)
     n1, n2 = iterations // 2, iterations
     pad = placement(align, offset)
-    text, lines = wrapper_source(body, n2 + 1, pad)
-    with tempfile.TemporaryDirectory(prefix="retrosim-loop-") as tmp:
-        path = Path(tmp) / "loop.S"
-        path.write_text(text)
-        try:
-            machine = Machine.from_source(path, assembler=assembler, cpu=cpu)
-        except AssemblerError as e:
-            raise AssemblerError(_user_line(body, lines, str(e), path)) from None
-        except RetrosimError as e:
-            raise RetrosimError(str(e).replace(str(path), body.name)) from None
+    # a block is first assembled once: its errors are then the user's lines, once each
+    for copies in ((n2 + 1,) if body.loop else (1, n2 + 1)):
+        machine = _assemble(body, copies, pad, assembler, cpu)
     machine.image.path = Path(body.name)
     _DemandZero(machine)
     starts = [machine.symbol(f"retrosim_iter_{j}") for j in range(1 if body.loop else n2 + 1)]
@@ -310,9 +479,14 @@ def _pass(machine: Machine, body: Body, regs: dict[str, int], starts: list[int],
                           control_word_pcs=machine.control_word_pcs())
     tracer.attach()
     pc = starts[0]
+    # Run no further than the iterations still needed can take (from the instructions per iteration
+    # seen so far), so a body that touches a new page per iteration maps only the pages `iterations`
+    # iterations touch, not a whole trace buffer's worth; before the first iteration completes, the
+    # budget grows fourfold per segment.
+    budget = 1024
     try:
         while True:
-            tracer.limit(min(tracer.icap, MAX_INSTRUCTIONS - tracer.recorded))
+            tracer.limit(min(tracer.icap, budget, MAX_INSTRUCTIONS - tracer.recorded))
             machine._fault = machine._interrupt = None
             try:
                 uc.emu_start(pc, exit_pc)
@@ -326,6 +500,12 @@ def _pass(machine: Machine, body: Body, regs: dict[str, int], starts: list[int],
             marks = _marks(trace.pc, starts, body.loop, rep_first)
             if len(marks) > iterations:
                 break
+            done = len(marks) - 1  # complete iterations so far
+            if done >= 1:
+                per = (marks[-1] - marks[0]) / done
+                budget = int((iterations + 1 - done) * per) + 16
+            else:
+                budget *= 4
             outside = np.flatnonzero((trace.pc < lo) | (trace.pc >= exit_pc))
             if outside.size:
                 k = int(outside[0])
@@ -397,6 +577,7 @@ class LoopTiming:
     result: TimingResult = field(repr=False)  # for views.explain_rows / timeline_rows
     address: int = 0                 # where the body's first instruction was placed
     alignment: int = 0               # the largest power of two (up to ALIGN_SPAN) dividing it
+    warnings: list[str] = field(default_factory=list)  # about the body's run (one line each)
 
     @property
     def cycles_per_iteration(self) -> float:
@@ -416,7 +597,8 @@ def time_run(run: LoopRun, cpu: str, memory: str | None = None, timeline_iterati
     calls = [core_run.segment(k) for k in range(len(run.cuts))]
     per = {k: round(v / run.measured, 4) for k, v in calls[-1].items()}
     result = TimingResult(cpu, model.dram.name, "loop", Path(run.body.name), 1, calls, model, core_run, run.trace)
-    return LoopTiming(cpu, model.dram.name, run.measured, per, result, run.address, run.alignment)
+    return LoopTiming(cpu, model.dram.name, run.measured, per, result, run.address, run.alignment,
+                      x87_warnings(run))
 
 
 def _run_model(model, run: LoopRun, timeline: tuple[int, int]):
@@ -428,6 +610,23 @@ def _run_model(model, run: LoopRun, timeline: tuple[int, int]):
     session = session_type(model, decoder, list(run.cuts), timeline, run.cuts[1])
     session.feed(run.trace, run.next_pc)
     return session.finish()
+
+
+def x87_warnings(run: LoopRun) -> list[str]:
+    """A warning when the body leaves the x87 stack deeper or shallower after each iteration: the
+    eight-register stack then overflows (or underflows) within a few iterations on real hardware, a
+    stack fault (Intel SDM vol. 1, "x87 FPU stack overflow or underflow": #IS, NaN results when
+    masked), so the timing describes no real run. Unicorn does not fault, so the trace cannot tell."""
+    window = run.trace.pc[run.cuts[1]:run.cuts[2]]
+    pcs, counts = np.unique(window, return_counts=True)
+    records, _ = Decoder(run.machine.image.fetch).decode_trace(pcs)
+    delta = {rec.pc: rec.fpu_stack_delta for rec in records}
+    net = sum(int(delta.get(int(pc), 0)) * int(n) for pc, n in zip(pcs, counts)) / run.measured
+    if not net:
+        return []
+    what = f"pushes {net:g} more x87 register(s) than it pops" if net > 0 else f"pops {-net:g} more x87 register(s) than it pushes"
+    return [f"{run.body.name}: each iteration {what}: the 8-register x87 stack {'overflows' if net > 0 else 'underflows'} "
+            "within 8 iterations on real hardware (a stack fault), so this timing describes no real run"]
 
 
 # What an instruction-set extension is called in "not timed (no MMX): ..." (sim/guest/isa.py names).
@@ -462,14 +661,17 @@ def time_body_where_possible(text: str, cpus: list[str], name: str = "<stdin>", 
     `skip` false and one CPU unable), the first refusal is the error."""
     from sim.cpus import presets, split_label
 
-    body = parse_body(text, name, syntax)
     placement(align, offset)  # a bad --align / --offset fails before any emulation
+    if not cpus:
+        raise ArgumentError("no CPU to time the body on")
     bases = {}
     for c in cpus:  # an unknown preset fails before any emulation
         base, _ = split_label(c)
         if base not in presets.available():
             raise ArgumentError(f"unknown CPU preset '{base}' (choose one of: {', '.join(presets.available())})")
         bases[c] = base
+    targets = {c: GuestCpu.from_preset(presets.load(bases[c])) for c in cpus}  # each preset read once
+    body = parse_body(text, name, syntax, targets[cpus[0]])
 
     def isa_key(c):
         t = targets[c]
@@ -478,7 +680,6 @@ def time_body_where_possible(text: str, cpus: list[str], name: str = "<stdin>", 
     # one emulation per instruction set: the body assembles for each CPU's own (MMX, 3DNow!, SSE)
     # and runs on the Unicorn CPU model that has it; an assembler that refuses an instruction for
     # one of them is kept as that set's answer
-    targets = {c: GuestCpu.from_preset(presets.load(bases[c])) for c in cpus}  # each preset read once
     runs: dict[tuple, LoopRun | RetrosimError] = {}
     for c in cpus:
         key = isa_key(c)
@@ -490,20 +691,37 @@ def time_body_where_possible(text: str, cpus: list[str], name: str = "<stdin>", 
     done = [r for r in runs.values() if isinstance(r, LoopRun)]
     if not done:
         raise next(iter(runs.values()))
-    needed = required_extensions(done[0])
-    out, missing = [], {}
+    records = {id(r): Decoder(r.machine.image.fetch).decode_trace(np.unique(r.trace.pc))[0] for r in done}
+    for run in done:  # a system instruction has no timing on any CPU (as `retrosim time` refuses it)
+        for rec in records[id(run)]:
+            if isa.is_system(rec):
+                raise isa.system_refusal(_where(run, rec.pc), f"{rec.mnemonic} {rec.op_str}".strip(), targets[cpus[0]])
+    out, missing, refusals = [], {}, []
     for c in cpus:
-        lacks = sorted(needed - targets[c].extensions, key=isa.EXTENSIONS.index)
         run = runs[isa_key(c)]
-        if lacks and isinstance(run, LoopRun) and not skip:
-            # assembled (an assembler may accept more than the CPU has), but the CPU lacks it
-            records, _ = Decoder(run.machine.image.fetch).decode_trace(np.unique(run.trace.pc))
-            for rec in records:
-                isa.check_record(rec, targets[c], lambda rec=rec: f"{body.name}: '{rec.mnemonic} {rec.op_str}'".strip())
-        if lacks and skip:
+        if not isinstance(run, LoopRun):
+            refusals.append(run)
+            lacks = sorted(required_extensions(done[0]) - targets[c].extensions, key=isa.EXTENSIONS.index)
+            if skip and lacks:  # the assembler refused what the body needs for this CPU
+                missing.setdefault(", ".join(EXTENSION_NAMES[x] for x in lacks), []).append(c)
+                continue
+            raise run  # refused for another reason than an extension the body uses
+        try:  # assembled (an assembler may accept more than the CPU has): the CPU must have it all
+            for rec in records[id(run)]:
+                isa.check_record(rec, targets[c], lambda rec=rec, run=run: _where(run, rec.pc))
+        except isa.IsaError as e:
+            if not skip:
+                raise
+            refusals.append(e)
+            lacks = sorted(required_extensions(run) - targets[c].extensions, key=isa.EXTENSIONS.index)
             missing.setdefault(", ".join(EXTENSION_NAMES[x] for x in lacks), []).append(c)
             continue
-        if not isinstance(run, LoopRun):
-            raise run  # refused for another reason than an extension the body uses
         out.append(time_run(run, c, memory, timeline_iterations=timeline_iterations))
+    if not out:  # no CPU could run it: the refusal `retrosim time` gives on the first one
+        raise refusals[0]
     return out, missing
+
+
+def _where(run: LoopRun, pc: int) -> str:
+    """Where an instruction of the body is, as `retrosim time` says it (`file: pc ADDRESS (entry+k)`)."""
+    return f"{run.body.name}: pc {pc:#010x} (body+{pc - run.address:#x})"
