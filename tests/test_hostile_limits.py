@@ -116,3 +116,16 @@ def test_a_p5_l1_slower_than_the_board_cache_is_refused():
     # the P5 core charges a miss its time beyond the L1 hit: stall_memory went negative (-2090)
     line = fails("time", *Z32, "--cpu", "pentium-133", "--set", "l1d.latency_cycles=1000")
     assert "l1d.latency_cycles = 1000 exceeds the" in line
+
+
+# -- a streamed run is bounded by RETROSIM_TRACE_MB like a held trace ------------------------------
+ENDLESS = "1:  add eax, 1\n    mov [esp-8], eax\n    jmp 1b\n"
+
+
+def test_an_endless_streamed_kernel_stops_at_the_trace_limit(write_kernel):
+    src = write_kernel(ENDLESS, "endless.S", "f")
+    start = time.monotonic()
+    line = fails("time", src, "--entry", "f", "--budget", "0", "--cpu", "pentium2-233",
+                 env={"RETROSIM_TRACE_MB": "8"})
+    assert time.monotonic() - start < 60
+    assert "the streamed trace passed 8 MB" in line and "RETROSIM_TRACE_MB=8" in line
