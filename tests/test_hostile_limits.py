@@ -129,3 +129,31 @@ def test_an_endless_streamed_kernel_stops_at_the_trace_limit(write_kernel):
                  env={"RETROSIM_TRACE_MB": "8"})
     assert time.monotonic() - start < 60
     assert "the streamed trace passed 8 MB" in line and "RETROSIM_TRACE_MB=8" in line
+
+
+# -- scene files -----------------------------------------------------------------------------------
+SCENE = """[scene]
+name = "s"
+{KIND}width = 32
+height = 24
+[geometry]
+generator = "random"
+seed = 3
+triangles = 4
+depth_complexity = {DEPTH}
+[run]
+variants = ["z32"]
+cpus = ["k6-233"]
+"""
+
+
+@pytest.mark.parametrize("kind,depth,words", [
+    ('kind = ["zbuffer"]\n', "1.5", "s.toml:3: scene.kind: unknown kind"),
+    ("kind = {}\n", "1.5", "s.toml:3: scene.kind: unknown kind"),
+    ("", "1.7e308", "geometry.depth_complexity: must be > 0 and at most 65535"),
+    ("", "65536", "geometry.depth_complexity: must be > 0 and at most 65535"),
+])
+def test_scene_kind_and_depth_complexity_are_one_line(tmp_path, kind, depth, words):
+    path = tmp_path / "s.toml"
+    path.write_text(SCENE.replace("{KIND}", kind).replace("{DEPTH}", depth))
+    assert words in fails("report", path, "--out", tmp_path / "r")
