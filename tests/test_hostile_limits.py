@@ -157,3 +157,60 @@ def test_scene_kind_and_depth_complexity_are_one_line(tmp_path, kind, depth, wor
     path = tmp_path / "s.toml"
     path.write_text(SCENE.replace("{KIND}", kind).replace("{DEPTH}", depth))
     assert words in fails("report", path, "--out", tmp_path / "r")
+
+
+SNAP = """[scene]
+name = "s"
+kind = "snap"
+[workloads]
+names = ["screen", "tiny"]
+vertices = 64
+seed = 1
+[run]
+variants = ["trick-24", "trick-64"]
+cpus = ["pentium-133"]
+[[claims]]
+text = "only 24-bit is right"
+expect = "only-exact"
+variants = ["trick-24", "trick-64"]
+workloads = []
+"""
+
+
+def test_a_snap_claim_over_no_workload_is_refused(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text(SNAP)
+    line = fails("report", path, "--out", tmp_path / "r")
+    assert "s.toml:15: claims[0].workloads: must not be empty" in line
+
+
+TEXTURE = """[scene]
+kind = "texture"
+name = "s"
+width = {SIDE}
+height = {SIDE}
+[geometry]
+generator = "grid"
+seed = 1997
+columns = 1
+rows = 1
+[run]
+variants = ["a"]
+cpus = ["pentium-133"]
+timing_stride = {STRIDE}
+"""
+
+
+@pytest.mark.parametrize("side,stride,words", [
+    (480, 9223372036854775807, "run.timing_stride: must be <= 480 (the frame's height"),
+    (64, 64, "run.timing_stride = 64 times 2 of the frame's"),
+])
+def test_a_texture_stride_that_times_a_handful_of_spans_is_refused(tmp_path, side, stride, words):
+    path = tmp_path / "s.toml"
+    path.write_text(TEXTURE.replace("{SIDE}", str(side)).replace("{STRIDE}", str(stride)))
+    start = time.monotonic()
+    r = CliRunner().invoke(main, ["report", str(path), "--out", str(tmp_path / "r")])
+    assert time.monotonic() - start < 30
+    # found once the frame's spans are known (after the progress line): the error is the last line
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert words in r.stderr.strip().splitlines()[-1], r.stderr

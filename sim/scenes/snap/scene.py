@@ -171,6 +171,8 @@ def load(path: Path, text: str, doc: dict) -> SnapScene:
         ccpus = v.typed(c, "cpus", "strlist", "claims", i, f, default=())
         families = v.typed(c, "families", "strlist", "claims", i, f, default=())
         works = v.typed(c, "workloads", "strlist", "claims", i, f, default=tuple(names))
+        if not works:  # a claim over no workload would be "reproduced" by any variant
+            v.fail(f"{f}.workloads", "must not be empty (leave it out to check every workload)", "claims", "workloads", i)
         if expect not in TIMED + NUMERIC:
             v.fail(f"{f}.expect", f"unknown expectation '{expect}' (known: {', '.join(TIMED + NUMERIC)})",
                    "claims", "expect", i)
