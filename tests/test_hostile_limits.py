@@ -214,3 +214,16 @@ def test_a_texture_stride_that_times_a_handful_of_spans_is_refused(tmp_path, sid
     # found once the frame's spans are known (after the progress line): the error is the last line
     assert r.exit_code == 2 and "Traceback" not in r.output, r.output
     assert words in r.stderr.strip().splitlines()[-1], r.stderr
+
+
+# -- report tables at 80 columns never break a machine label mid-word --------------------------------
+def test_report_labels_wrap_between_words_at_80_columns(tmp_path):
+    r = CliRunner().invoke(main, ["report", "zbuffer-small", "--cpu", "k6-233", "--set",
+                                  "write_allocate.mode=page+sector only", "--out", str(tmp_path / "r")],
+                           env={"COLUMNS": "80"}, catch_exceptions=False)
+    assert r.exit_code == 0, r.output
+    words = "k6-233 {write_allocate.mode=page+sector only} sdram-pc66".split()
+    table = r.stdout
+    assert all(max(map(len, line.split("\n"))) <= 80 for line in table.splitlines())
+    for word in words:  # every word of the label whole, on one line
+        assert any(word in line.split() for line in table.splitlines()), (word, table)

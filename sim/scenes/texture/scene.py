@@ -58,7 +58,7 @@ from sim.cpus.machine import MachineKey
 from sim.cpus.families import FAMILIES, order as family_order
 from sim.errors import RetrosimError
 from sim.guest.kernels import kernels_root
-from sim.reports.render import FORMATS, md_table, render_html, write_payloads
+from sim.reports.render import FORMATS, add_label_column, console_label, md_table, render_html, write_payloads
 from sim.scenes.schema import CpuChoice, Validator, show
 from sim.scenes.texture import frame as F
 
@@ -815,12 +815,12 @@ def summary_tables(result: TextureResult) -> list:
 
     t = Table(title=f"{escape(result.scene.name)}: cycles per pixel", title_justify="left", box=box.SIMPLE_HEAD,
               pad_edge=False)
-    t.add_column("CPU (memory)", overflow="fold")
+    add_label_column(t, "CPU (memory)", [console_label(m.label, m.memory) for m in map(MachineKey.parse, _ordered_keys(result))])
     for v in result.scene.variants:
         t.add_column(v, justify="right", no_wrap=True, min_width=6)
     for key in _ordered_keys(result):
         machine = MachineKey.parse(key)
-        t.add_row(escape(f"{machine.label} {machine.memory}"), *[f"{result.cycles_per_pixel(v, key):.2f}" for v in result.scene.variants])
+        t.add_row(escape(console_label(machine.label, machine.memory)), *[f"{result.cycles_per_pixel(v, key):.2f}" for v in result.scene.variants])
     t.add_section()
     t.add_row("wrong texel", *[f"{result.accuracy[v]['wrong_texel_share']:.1%}" for v in result.scene.variants])
     out = [t]
