@@ -9,7 +9,7 @@ from rich.table import Table
 
 from sim.errors import ArgumentError, RetrosimError
 from sim.cli.app import (
-    REPORTS_DIR, SCENES_DIR, console, cpu_choice, err_console, main, one_line, resolve_machine, say,
+    REPORTS_DIR, SCENES_DIR, bounded, console, cpu_choice, err_console, main, one_line, resolve_machine, say,
 )
 
 
@@ -93,8 +93,11 @@ def _run_scenes(scenes, cpus, on_result=None, jobs: int | None = None) -> tuple[
 PARTIAL_DIR = REPORTS_DIR.parent / "build" / "reports"
 
 
-_JOBS_OPTION = click.option("--jobs", "-j", type=int, default=None,
-                            help="worker processes (default: every core); results are the same for any N")
+MAX_JOBS = 64  # forked workers each hold a timing model and their share of the results: beyond the
+               # cores they only cost memory
+_JOBS_OPTION = click.option("--jobs", "-j", type=int, default=None, callback=bounded(1, MAX_JOBS),
+                            help=f"worker processes, 1 to {MAX_JOBS} (default: every core); results are the "
+                                 "same for any N")
 
 
 def _with_sets(chosen, cpus, sets) -> list[str]:
@@ -128,6 +131,12 @@ def report_cmd(scenes, cpus, sets, out, jobs):
     from sim.output import check_output_dir
     from sim.scenes.registry import summary_tables, write_reports
 
+    paths = _scene_paths(scenes)  # scenes and --set checked before any folder is made
+    if sets:
+        from sim.scenes.registry import load_scene
+
+        paths = [load_scene(p) for p in paths]
+        cpus = _with_sets(paths, cpus, sets)
     if out is None:
         # reports/ holds the committed reports, which CI compares with fresh ones: a run with other
         # CPUs would silently replace them with different content
@@ -137,12 +146,6 @@ def report_cmd(scenes, cpus, sets, out, jobs):
                 f"{REPORTS_DIR}/; choose a directory with --out)")
             out.mkdir(parents=True, exist_ok=True)
     check_output_dir(out, "--out")  # before the work: a read-only or impossible folder fails at once
-    paths = _scene_paths(scenes)
-    if sets:
-        from sim.scenes.registry import load_scene
-
-        paths = [load_scene(p) for p in paths]
-        cpus = _with_sets(paths, cpus, sets)
 
     def write(result):  # each scene's reports as soon as it finishes: a later failure keeps them
         say(f"wrote {', '.join(str(p) for p in write_reports(result, out))}")

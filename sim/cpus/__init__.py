@@ -1,4 +1,21 @@
-"""CPU families: presets, instruction tables and timing models behind one factory."""
+"""CPU families: presets, instruction tables and timing models behind one factory.
+
+Overrides (``--set KEY=VALUE``, machine labels, scene ``[[run.machine]] set = {...}``) replace a
+preset field or a model estimate (:func:`overridable` lists them). Every value is checked before
+any work against a finite, plausible range, so no cycle count in the cores can overflow (every
+input is bounded) and no run is slowed without end by an absurd figure (:data:`RANGES`):
+
+- ``clock.core_mhz`` 1..2000 MHz; ``clock.fsb_mhz`` 1..200 MHz; core/bus ratio 1..16 in steps
+  of 1/4 (so a bus clock is a whole number of quarter core clocks), and the bus no faster than
+  the memory preset is rated for;
+- ``LEVEL.size_kb`` 1..65536 KB; ``LEVEL.ways`` 1..64; ``LEVEL.line_bytes`` 8..256, a power of
+  two (the cache geometry itself must still be one: a power-of-two number of sets, one line
+  size for every level); ``LEVEL.latency_cycles`` 1..1000 core clocks; ``LEVEL.speed_ratio``
+  (cache clock / core clock) 1/8..1;
+- ``memory.overhead_bus_clocks`` 0..1000 bus clocks;
+- ``estimates.NAME``: the family machine table's stated plausible range
+  (``[estimates.NAME] range``, with its ``range_reason``).
+"""
 
 from __future__ import annotations
 
@@ -63,9 +80,37 @@ def overridable(cpu: str) -> dict[str, float]:
 CHOICES = {"write_allocate.mode": ("full", "page+sector only", "none"), "l2.present": (True, False)}
 
 
+# Plausible range of each numeric preset field an override may set (see the module docstring):
+# field key, or LEVEL-less leaf for a cache level's field -> (low, high, what it is). Wide enough
+# for any machine of the era and beyond (every shipped preset, scene and sweep lies inside), narrow
+# enough that a cycle count stays far below 2^63: 1000-clock latencies x 16 x 1000 bus clocks of
+# overhead x the trace limit's instructions.
+RANGES = {
+    "clock.core_mhz": (1, 2000, "core clock in MHz"),
+    "clock.fsb_mhz": (1, 200, "front-side bus clock in MHz"),
+    "memory.overhead_bus_clocks": (0, 1000, "board overhead of a memory access in bus clocks"),
+    "size_kb": (1, 65536, "cache size in KB"),
+    "ways": (1, 64, "associativity"),
+    "line_bytes": (8, 256, "line size in bytes, a power of two"),
+    "latency_cycles": (1, 1000, "load-to-use latency in core clocks"),
+    "speed_ratio": (0.125, 1, "cache clock / core clock"),
+}
+MAX_BUS_RATIO = 16  # core clock / bus clock (the era's multipliers were 1.5 to 5)
+
+
+def value_range(cpu: str, key: str) -> tuple[float, float, str] | None:
+    """(low, high, what) an override of `key` must lie in (None for a CHOICES key)."""
+    if key.startswith("estimates."):
+        family = presets.load(cpu).family
+        est = families.family(family).estimates[key.split(".", 1)[1]]
+        return est.low, est.high, f"the plausible range in {family}_machine.toml [estimates.{est.name}]"
+    return RANGES.get(key) or RANGES.get(key.rsplit(".", 1)[-1])
+
+
 def _check_value(cpu: str, key: str, value, old) -> float | str | bool:
     """One override value: a finite number >= 0, whole where the field is whole, >= 1 for a latency,
-    a count or a size (a zero there is no machine); or one of CHOICES[key]."""
+    a count or a size (a zero there is no machine), inside the field's plausible range
+    (:func:`value_range`); or one of CHOICES[key]."""
     where = f"CPU preset '{cpu}': override {key}"
     if key in CHOICES:
         if value not in CHOICES[key] or type(value) is not type(CHOICES[key][0]):
@@ -81,7 +126,28 @@ def _check_value(cpu: str, key: str, value, old) -> float | str | bool:
     leaf = key.rsplit(".", 1)[-1]
     if value == 0 and not leaf.startswith(("overhead", "partial", "static", "mispredict")):
         raise RetrosimError(f"{where}: must be > 0, got {value}")
+    bounds = value_range(cpu, key)
+    if bounds is not None:
+        low, high, what = bounds
+        if not low <= value <= high:
+            raise RetrosimError(f"{where}: must be between {format_value(low)} and {format_value(high)} "
+                                f"({what}), got {format_value(value)}")
+        if key.endswith(".line_bytes") and int(value) & (int(value) - 1):
+            raise RetrosimError(f"{where}: must be a power of two ({what}), got {format_value(value)}")
     return int(value) if isinstance(old, int) else float(value)
+
+
+def _check_clocks(cpu: str, raw: dict) -> None:
+    """The core/bus ratio of an overridden preset: 1..MAX_BUS_RATIO in steps of 1/4 (checked before any
+    work: a bus clock of a millionth of the core's would make every memory access last for ever)."""
+    from fractions import Fraction
+
+    core, fsb = raw["clock"]["core_mhz"], raw["clock"]["fsb_mhz"]
+    ratio = Fraction(str(core)) / Fraction(str(fsb))
+    if not 1 <= ratio <= MAX_BUS_RATIO:
+        raise RetrosimError(f"CPU preset '{cpu}': override clock: core {format_value(core)} MHz / bus "
+                            f"{format_value(fsb)} MHz = {float(ratio):.4g} is outside 1..{MAX_BUS_RATIO} "
+                            "(core clocks per bus clock)")
 
 
 # -- machine labels: a preset with overrides, as one string --------------------------------------
@@ -95,7 +161,7 @@ _FORBIDDEN = set(":{},=")
 def format_value(value) -> str:
     if isinstance(value, bool):
         return "true" if value else "false"
-    if isinstance(value, float) and value == int(value):
+    if isinstance(value, float) and math.isfinite(value) and value == int(value):
         return str(int(value)) if abs(value) < 1e15 else repr(value)
     return str(value)
 
@@ -190,6 +256,8 @@ def _apply(cpu: str, overrides: dict):
         for part in path:
             section = section[part]
         section[leaf] = value
+    if any(k.startswith("clock.") for k in overrides):
+        _check_clocks(cpu, raw)
     return presets.from_raw(raw, cpu, f"CPU preset '{cpu}' (overridden)"), estimates
 
 

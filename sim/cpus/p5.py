@@ -259,6 +259,12 @@ class P5Model(FamilyModel):
         P[core.P_HIST_BITS] = m["history_bits"]
         board = self.preset.raw.get("l2", {}).get("latency_bus_clocks", bus["board_cache_latency_bus_clocks"])
         l1 = int(self.preset.l1d.latency_cycles or 1)
+        # the core charges a miss its time beyond the L1 hit: an L1 slower than the level below
+        # would make that negative (fewer cycles for a miss than for a hit)
+        below = min(core_clocks(board, self.ratio), self.dram.lead_off)
+        if l1 > below:
+            raise ValueError(f"l1d.latency_cycles = {l1} exceeds the {below} core clocks of a board-cache "
+                             "or memory access at this bus ratio")
         P[core.P_L2_LAT] = core_clocks(board, self.ratio) - l1
         P[core.P_L2_BUSY] = core_clocks(self.estimates["board_cache_line_bus_clocks"], self.ratio)
         P[core.P_DRAM_LAT] = self.dram.lead_off - l1

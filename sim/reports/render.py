@@ -137,3 +137,17 @@ def render_html(markdown: str, png: bytes | None) -> str:
     flush()
     return ("<!DOCTYPE html><html><head><meta charset='utf-8'><title>retrosim report</title>"
             f"<style>{_CSS}</style></head><body>" + "\n".join(body) + "</body></html>\n")
+
+
+def console_label(label: str, memory: str) -> str:
+    """A machine label as a console table shows it: with a space before its overrides and after each
+    comma, so that a narrow terminal wraps it between words ("k6-233 {write_allocate.mode=page+sector
+    only} sdram-pc66") instead of folding a word in two. Files keep the exact label."""
+    return (label.replace("{", " {", 1).replace(",", ", ") + " " + memory).strip()
+
+
+def add_label_column(table, header: str, labels: list[str]) -> None:
+    """The machine column of a console table: at least as wide as its longest word (up to 40 characters,
+    what 80 columns leave beside the numbers), wrapped between words."""
+    longest = max((len(word) for text in labels for word in text.split()), default=0)
+    table.add_column(header, overflow="fold", min_width=min(max(longest, len(header)), 40))

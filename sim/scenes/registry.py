@@ -32,7 +32,7 @@ def load_scene(path: str | Path):
     path = Path(path)
     text, doc = read_scene(path)
     kind = doc["scene"].get("kind", DEFAULT_KIND) if isinstance(doc.get("scene"), dict) else DEFAULT_KIND
-    if kind not in KINDS:
+    if not isinstance(kind, str) or kind not in KINDS:
         Validator(path, text).fail("scene.kind", f"unknown kind {show(kind)} (known: {', '.join(KINDS)})",
                                    "scene", "kind")
     return KINDS[kind].load(path, text, doc)

@@ -114,12 +114,18 @@ def emulate_and_time(source: str | Path, entry: str, setup, model, cpu, repeat: 
     session = model.session(Decoder(machine.image.fetch), [1 << 62] * repeat, stat_first=0 if repeat == 1 else 1 << 62,
                             check=(lambda records: check(machine, records)) if check else None)
     consumer = _Consumer(session, repeat)
+    limit = _StreamLimit()
     consumer.start()
+
+    def on_chunk(chunk):
+        limit.add(chunk)
+        # the emulating thread also finds each chunk's static instructions (it has time to spare)
+        consumer.put(("chunk", (chunk, session.prepare(chunk))))
+
     try:
         for k in range(repeat):
-            # the emulating thread also finds each chunk's static instructions (it has time to spare)
-            machine.call(entry, *args, budget=budget, trace=True,
-                         on_chunk=lambda chunk: consumer.put(("chunk", (chunk, session.prepare(chunk)))))
+            limit.reset()
+            machine.call(entry, *args, budget=budget, trace=True, on_chunk=on_chunk)
             consumer.put(("call_end", k))
             if progress is not None:
                 progress(k + 1, repeat)
@@ -133,6 +139,33 @@ def emulate_and_time(source: str | Path, entry: str, setup, model, cpu, repeat: 
     if consumer.error is not None:
         raise consumer.error
     return machine, consumer.run_result
+
+
+class _StreamLimit:
+    """RETROSIM_TRACE_MB bounds a streamed call as it bounds a held trace (sim/guest/trace.py): a
+    streamed trace is dropped chunk by chunk, so memory never runs out, but without this an endless
+    kernel under --budget 0 would run until killed. Counted as the bytes the call's trace would
+    hold, so a call streams exactly as far as it could be held."""
+
+    def __init__(self):
+        from sim.guest.trace import trace_limit_bytes
+
+        self.limit = trace_limit_bytes()
+        self.reset()
+
+    def reset(self) -> None:
+        self.bytes = self.instructions = 0
+
+    def add(self, chunk) -> None:
+        from sim.errors import LimitError
+        from sim.guest.trace import TRACE_LIMIT_ENV
+
+        self.instructions += len(chunk.pc)
+        self.bytes += 4 * len(chunk.pc) + 10 * len(chunk.mem_addr) + 6 * len(chunk.cw_at)
+        if self.bytes > self.limit:
+            mb = self.limit >> 20
+            raise LimitError(f"the streamed trace passed {mb:,} MB after {self.instructions:,} instructions of one "
+                             f"call (limit {TRACE_LIMIT_ENV}={mb}; raise it, or lower --budget or --repeat)")
 
 
 def _abandon(consumer: _Consumer) -> None:

@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from sim.cpus.machine import MachineKey
-from sim.reports.render import FORMATS, md_table, render_html, timings_csv, write_payloads
+from sim.reports.render import FORMATS, add_label_column, console_label, md_table, render_html, timings_csv, write_payloads
 from sim.scenes.kind import BASELINE_COUNTERS, Timing
 from sim.scenes.schema import CpuChoice, Validator, show
 from sim.scenes.snap import workload as snap
@@ -171,6 +171,8 @@ def load(path: Path, text: str, doc: dict) -> SnapScene:
         ccpus = v.typed(c, "cpus", "strlist", "claims", i, f, default=())
         families = v.typed(c, "families", "strlist", "claims", i, f, default=())
         works = v.typed(c, "workloads", "strlist", "claims", i, f, default=tuple(names))
+        if not works:  # a claim over no workload would be "reproduced" by any variant
+            v.fail(f"{f}.workloads", "must not be empty (leave it out to check every workload)", "claims", "workloads", i)
         if expect not in TIMED + NUMERIC:
             v.fail(f"{f}.expect", f"unknown expectation '{expect}' (known: {', '.join(TIMED + NUMERIC)})",
                    "claims", "expect", i)
@@ -544,12 +546,12 @@ def summary_tables(result: SnapResult) -> list:
         s = r.scene
         t = Table(title=f"{escape(s.name)}: cycles per vertex", title_justify="left", box=box.SIMPLE_HEAD,
                   pad_edge=False)
-        t.add_column("CPU (memory)", overflow="fold")
+        add_label_column(t, "CPU (memory)", [console_label(m.label, m.memory) for m in map(MachineKey.parse, r.cpu_keys)])
         for v in s.variants:
             t.add_column(v, justify="right", no_wrap=True)
         for key in r.cpu_keys:
             machine = MachineKey.parse(key)
-            t.add_row(escape(f"{machine.label} {machine.memory}"), *[f"{r.cycles_per_vertex(v, key):.2f}" for v in s.variants])
+            t.add_row(escape(console_label(machine.label, machine.memory)), *[f"{r.cycles_per_vertex(v, key):.2f}" for v in s.variants])
         in_range = [w for w in s.workloads if w in snap.IN_RANGE]
         if in_range:
             t.add_section()

@@ -58,7 +58,7 @@ from sim.cpus.machine import MachineKey
 from sim.cpus.families import FAMILIES, order as family_order
 from sim.errors import RetrosimError
 from sim.guest.kernels import kernels_root
-from sim.reports.render import FORMATS, md_table, render_html, write_payloads
+from sim.reports.render import FORMATS, add_label_column, console_label, md_table, render_html, write_payloads
 from sim.scenes.schema import CpuChoice, Validator, show
 from sim.scenes.texture import frame as F
 
@@ -219,6 +219,9 @@ def load(path: Path, text: str, doc: dict) -> TextureScene:
     cpus = v.typed(ru, "cpus", "strlist", "run")
     stride = v.typed(ru, "timing_stride", "int", "run", default=1)
     v.at_least(stride, 1, "run.timing_stride", "run", "timing_stride")
+    # the grid covers the screen, so a frame has at least one span per row: a larger stride could
+    # time a single span (run_scene also checks MIN_TIMED_SPANS once the spans are known)
+    v.at_most(stride, height, "run.timing_stride", "run", "timing_stride", " (the frame's height: at least one span per row)")
     for key, items in (("variants", variants), ("cpus", cpus)):
         if not items:
             v.fail(f"run.{key}", "must not be empty", "run", key)
@@ -424,8 +427,18 @@ def measure_probes(cpu: str, memory: str, first_span: F.SpanParams) -> dict:
     return out
 
 
+MIN_TIMED_SPANS = 100  # the timed subset stands for the frame's span lengths (the article frame times 660)
+
+
 def timed_spans(scene: TextureScene, params: F.SpanParams) -> F.SpanParams:
-    """The spans the timing draws: every timing_stride-th span of the frame."""
+    """The spans the timing draws: every timing_stride-th span of the frame, at least
+    MIN_TIMED_SPANS of them (or every span of a smaller frame)."""
+    timed = -(-len(params) // scene.timing_stride)
+    if timed < min(MIN_TIMED_SPANS, len(params)):
+        most = max(1, len(params) // MIN_TIMED_SPANS)
+        raise RetrosimError(f"{scene.path}: run.timing_stride = {scene.timing_stride} times {timed} of the frame's "
+                            f"{len(params):,} spans; at most {most} keeps {MIN_TIMED_SPANS} or more timed, so that "
+                            "they have the frame's distribution of span lengths")
     return params.select(np.arange(len(params)) % scene.timing_stride == 0)
 
 
@@ -802,12 +815,12 @@ def summary_tables(result: TextureResult) -> list:
 
     t = Table(title=f"{escape(result.scene.name)}: cycles per pixel", title_justify="left", box=box.SIMPLE_HEAD,
               pad_edge=False)
-    t.add_column("CPU (memory)", overflow="fold")
+    add_label_column(t, "CPU (memory)", [console_label(m.label, m.memory) for m in map(MachineKey.parse, _ordered_keys(result))])
     for v in result.scene.variants:
         t.add_column(v, justify="right", no_wrap=True, min_width=6)
     for key in _ordered_keys(result):
         machine = MachineKey.parse(key)
-        t.add_row(escape(f"{machine.label} {machine.memory}"), *[f"{result.cycles_per_pixel(v, key):.2f}" for v in result.scene.variants])
+        t.add_row(escape(console_label(machine.label, machine.memory)), *[f"{result.cycles_per_pixel(v, key):.2f}" for v in result.scene.variants])
     t.add_section()
     t.add_row("wrong texel", *[f"{result.accuracy[v]['wrong_texel_share']:.1%}" for v in result.scene.variants])
     out = [t]

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from sim.cpus.machine import MachineKey
-from sim.reports.render import FAMILY_MARKERS, FORMATS, finish_rows, md_table, png_bytes, render_html, row_offset, timings_csv, write_payloads
+from sim.reports.render import FAMILY_MARKERS, FORMATS, add_label_column, console_label, finish_rows, md_table, png_bytes, render_html, row_offset, timings_csv, write_payloads
 from sim.scenes.zbuffer.frames import VARIANT_LABELS
 
 if TYPE_CHECKING:
@@ -232,7 +232,7 @@ def summary_tables(r: SceneResult) -> list:
     t = Table(title=f"{escape(r.scene.name)}: cycles per pixel, last frame", title_justify="left",
               box=box.SIMPLE_HEAD, pad_edge=False)
     # a machine with overrides has a long label: it folds, the numbers keep their width
-    t.add_column("CPU (memory)", overflow="fold")
+    add_label_column(t, "CPU (memory)", [console_label(m.label, m.memory) for m in map(MachineKey.parse, r.cpu_keys)])
     for v in r.scene.variants:
         t.add_column(v, justify="right", no_wrap=True, min_width=max(len(v), 6))
     for key in r.cpu_keys:
@@ -243,7 +243,7 @@ def summary_tables(r: SceneResult) -> list:
             except KeyError:
                 cells.append("-")
         machine = MachineKey.parse(key)
-        t.add_row(escape(f"{machine.label} {machine.memory}"), *cells)
+        t.add_row(escape(console_label(machine.label, machine.memory)), *cells)
     if any(r.accuracy[v].visibility for v in r.scene.variants):
         t.add_section()
         t.add_row("wrong visibility", *[_share(r.accuracy[v].visibility) for v in r.scene.variants])

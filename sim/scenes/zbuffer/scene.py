@@ -385,9 +385,11 @@ def load(path: Path, text: str, doc: dict) -> Scene:
     if vals.get("pairs") is not None:
         v.at_least(vals["pairs"], 1, "geometry.pairs", "geometry", "pairs")
         v.at_most(vals["pairs"], max_tri // 2, "geometry.pairs", "geometry", "pairs")
-    if vals.get("depth_complexity") is not None and not vals["depth_complexity"] > 0:
-        v.fail("geometry.depth_complexity", f"must be > 0, got {vals['depth_complexity']}", "geometry",
-               "depth_complexity")
+    if vals.get("depth_complexity") is not None and not 0 < vals["depth_complexity"] <= max_tri:
+        # a pixel is drawn at most once per triangle: beyond that the target is unreachable (and
+        # near the float maximum the generator's area arithmetic overflows)
+        v.fail("geometry.depth_complexity", f"must be > 0 and at most {max_tri} (a pixel is drawn at most once "
+               f"per triangle), got {vals['depth_complexity']}", "geometry", "depth_complexity")
     if gen == "coplanar_far" and vals.get("separation") is not None:
         lo, hi = vals.get("z_range") or (0.85, 0.95)
         if not 0 < vals["separation"] < hi - lo:
