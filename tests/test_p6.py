@@ -1,6 +1,8 @@
 """P6 model micro-benchmarks with known answers. Each expectation names its source; a test fails
 if the model stops charging what the sources say."""
 
+import math
+
 import numpy as np
 import pytest
 
@@ -117,15 +119,25 @@ def test_l1_miss_l2_hit_costs_the_l2_latency(cpu):
     assert p.l2.latency_cycles - 0.5 <= per_load <= p.l2.latency_cycles + 1
 
 
-def test_l2_miss_costs_l2_plus_dram_lead_off():
+def test_l2_miss_sends_the_bus_request_after_the_tag_check():
+    # p6_machine.toml [caches.l2_miss_path] (Intel patent US 5,345,576): the tag RAM's miss signal
+    # starts the front-side bus request, so an L2 miss costs less than the L2's data latency plus the
+    # memory lead-off: L1 + the tag check (backside clocks / the L2's speed) + the lead-off.
     cpu = "pentium2-233"
-    model = make_model(cpu)
-    size = 4 * presets.load(cpu).l2.size_bytes
+    p, model = presets.load(cpu), make_model(cpu)
+    size = 4 * p.l2.size_bytes
     r = time_kernel(KERNELS / "micro" / "memory.S", "chase", chase_setup(size), cpu=cpu, repeat=1)
     loads = r.last["l1d_loads"]
     assert r.last["l2_misses"] >= 0.9 * loads
-    expected = presets.load(cpu).l2.latency_cycles + model.dram.lead_off
-    assert expected - 0.5 <= r.last["cycles"] / loads <= expected + 2
+    per_load = r.last["cycles"] / loads
+    detect = math.ceil(model.estimates["l2_miss_detect_bsb_clocks"] / p.l2.speed_ratio)
+    expected = p.l1d.latency_cycles + detect + model.dram.lead_off
+    assert expected - 0.5 <= per_load <= expected + 2
+    assert per_load < p.l2.latency_cycles + model.dram.lead_off - 10
+    # a slower tag answer delays every miss by the difference
+    slow = time_kernel(KERNELS / "micro" / "memory.S", "chase", chase_setup(size), repeat=1,
+                       cpu=make_model(cpu, overrides={"estimates.l2_miss_detect_bsb_clocks": 4}))
+    assert 3 <= slow.last["cycles"] / loads - per_load <= 5
     # SDRAM's shorter lead-off makes the same chase faster than EDO
     fast = time_kernel(KERNELS / "micro" / "memory.S", "chase", chase_setup(size), cpu=cpu, memory="sdram-pc100",
                        repeat=1)

@@ -83,6 +83,8 @@ class P6Model(FamilyModel):
             P[core.P_HAS_L2] = 1
             P[core.P_L2_LAT] = int(p.l2.latency_cycles)
             P[core.P_L2_BUS] = math.ceil(self.estimates["l2_bus_full_speed"] / p.l2.speed_ratio)
+            # backside-bus clocks from the L2 request to the tag RAM's miss signal, in core clocks
+            P[core.P_L2_MISS_DETECT] = math.ceil(self.estimates["l2_miss_detect_bsb_clocks"] / p.l2.speed_ratio)
         P[core.P_DRAM_LAT] = self.dram.lead_off
         P[core.P_DRAM_LINE] = self.dram.line_busy
         P[core.P_DRAM_WB] = self.dram.writeback_busy

@@ -70,7 +70,7 @@ from sim.cpus.shared_core import FW, WINDOW, book_port, btb_alloc, queued_store,
 # parameter vector indices (the counter, per-instruction and timeline schemas are the contract's)
 (P_ROB, P_RS, P_RENAME, P_RETIRE, P_QUEUE, P_FETCH_BLOCK, P_L1_LAT, P_L2_LAT, P_DRAM_LAT, P_DRAM_LINE,
  P_DRAM_WB, P_MSHR, P_SB, P_MISPREDICT, P_TAKEN_BUBBLE, P_BTB_SETS, P_BTB_WAYS, P_HIST_BITS, P_PARTIAL_EXTRA,
- P_FWD_FAIL, P_LCP, P_STATIC_REDIRECT, P_HAS_L2, P_L2_BUS, P_RSB, P_MSROM_RATE, P_EXIT_ADDR, P_FWD_LAT) = range(28)
+ P_FWD_FAIL, P_LCP, P_STATIC_REDIRECT, P_HAS_L2, P_L2_BUS, P_RSB, P_MSROM_RATE, P_EXIT_ADDR, P_FWD_LAT, P_L2_MISS_DETECT) = range(29)
 NPARAMS = 32
 
 # Loop-carried scalar state: kept in an int64 vector between calls, so a trace can be timed in
@@ -1016,7 +1016,9 @@ def _miss_latency(r, lvl, levels, start, P, mshr, bus_free, l2bus_free, ctr):
     else:
         if has_l2:
             ctr[C_L2_MISSES] += 1
-        t2 = t + (P[P_L2_LAT] - P[P_L1_LAT] if has_l2 else 0)
+        # the bus request goes out when the L2's tag lookup reports the miss, not after the L2's
+        # data latency (p6_machine.toml [caches.l2_miss_path])
+        t2 = t + (P[P_L2_MISS_DETECT] if has_l2 else 0)
         b = max(t2, bus_free)
         fills = memory_fills(r)
         wbs = memory_writebacks(r)
