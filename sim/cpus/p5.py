@@ -323,7 +323,8 @@ class P5Model(FamilyModel):
              f"({s['l1d_store_misses']:,} miss, no allocation: {s['bus_writes']:,} bus writes)"),
             ("L2 (board)", f"{s['l2_accesses']:,}", f"{s['l2_misses']:,} miss"),
             ("DRAM", f"{s['dram_fills']:,}", f"line fills, {s['dram_writebacks']:,} writebacks, "
-                                             f"{s['dram_bus_cycles']:,} bus-busy core cycles"),
+                                             f"{s['dram_bus_cycles']:,} bus-busy core cycles; fills on an open DRAM page "
+                                             f"{s.get('dram_page_hits', 0):,}, page misses {s.get('dram_page_misses', 0):,}"),
             ("L1I misses", f"{s['l1i_misses']:,}", ""),
             ("stall cycles", "", "  ".join(f"{k[6:].replace('_', ' ')} {v:,}" for k, v in stalls) or "none"),
         ]

@@ -21,9 +21,17 @@ memory, so it is not in the memory presets: the caller (the CPU model, from the 
 It may be fractional (a measured latency rarely falls on whole bus clocks); the sum times the
 core/bus ratio is rounded up as every other cost.
 
-Writebacks. The presets give read-burst timings only; a line writeback is a 4-transfer burst write,
-and we charge it the same x-y-y-y as a fill (``writeback_estimated``). SDRAM writes have no CAS
-latency, so this overstates an SDRAM writeback's lead-off by a clock or two.
+Page mode (issue 24). A preset's ``[pages]`` table (:class:`PageModel`) gives its chipset's page
+policy, the open pages it tracks (one per bank) and their size, and what a page hit saves against
+a page miss. The data side's cache walk (sim/memory/hierarchy.py) keeps the open row of each bank
+as machine state and marks each line fill and writeback that finds its row open; the cores charge
+those at the open-page lead-off and bus time (``LineCosts.*_hit``). The calibrated lead-off is the
+page-miss cost (a pointer chase misses every time), so chase latencies do not move.
+
+Writebacks. A line writeback is a 4-transfer burst write: the read burst less the preset's
+``write_saving_bus_clocks`` (SDRAM: a WRITE takes its data with the command, no CAS latency;
+EDO/FPM: 0, an estimate), and less the page-hit saving when its row is open. A transfer's bus time
+never falls below the three trailing transfers and one clock for the first.
 
 Open rows. :func:`row_access` is a simple open-page model: one open row per bank; a line fill costs
 ``row_hit`` / ``row_closed`` / ``row_conflict`` lead-off clocks instead of the burst's first figure,
