@@ -38,7 +38,8 @@ C_NAMES = ("cycles", "instructions", "uops", "decode_groups", "decoder0", "decod
            "stall_partial_register", "stall_partial_flags", "stall_dependency", "stall_port", "stall_mispredict",
            "stall_memory", "stall_store_forward", "branches", "mispredicts", "l1d_loads", "l1d_load_misses",
            "l1d_stores", "l1d_store_misses", "l2_accesses", "l2_misses", "dram_fills", "dram_writebacks",
-           "dram_bus_cycles", "l1i_misses", "lcp_stalls", "store_forwards", "stall_fetch")
+           "dram_bus_cycles", "l1i_misses", "lcp_stalls", "store_forwards", "stall_fetch", "dram_page_hits",
+           "dram_page_misses")
 NC = len(C_NAMES)
 # numba needs plain integer globals, not a dict
 C_CYCLES = 0
@@ -80,6 +81,8 @@ C_L1I_MISSES = 35
 C_LCP_STALLS = 36
 C_STORE_FORWARDS = 37
 C_STALL_FETCH = 38
+C_DRAM_PAGE_HITS = 39    # line fills whose DRAM row was open
+C_DRAM_PAGE_MISSES = 40  # the other line fills
 
 # per-static-instruction columns (for explain)
 S_NAMES = ("executions", "uops", "decoder0", "decoder1", "decoder2", "msrom", "issue_to_retire", "stall_dependency",
@@ -143,6 +146,10 @@ class DramCost:
     lead_off: int        # from the request leaving the CPU to the critical chunk (core clocks)
     line_busy: int       # front-side bus busy per 32-byte line fill (core clocks)
     writeback_busy: int  # front-side bus busy per line writeback (core clocks)
+    # the same three when the DRAM row is open (a page hit): equal to the above without a page model
+    lead_off_hit: int = 0
+    line_busy_hit: int = 0
+    writeback_busy_hit: int = 0
 
 
 def dram_cost(memory: DramTiming, preset: CpuPreset) -> DramCost:
@@ -154,7 +161,8 @@ def dram_cost(memory: DramTiming, preset: CpuPreset) -> DramCost:
         costs = line_costs(memory, preset.core_mhz, preset.fsb_mhz, dram_overhead(preset, memory.name))
     except ValueError as e:
         raise RetrosimError(f"{preset.name} with {memory.name}: {e}") from None
-    return DramCost(memory.name, costs.lead_off, costs.fill, costs.writeback)
+    return DramCost(memory.name, costs.lead_off, costs.fill, costs.writeback, costs.lead_off_hit,
+                    costs.fill_hit, costs.writeback_hit)
 
 
 def caches(preset: CpuPreset) -> tuple[Hierarchy, Hierarchy]:
@@ -193,6 +201,8 @@ class FamilyModel:
         self.table: InstructionTable = load_table(self.family)
         self.dram = dram_cost(memory, preset)
         self.dside, self.iside = caches(preset)
+        if memory.pages is not None:  # the chipset's open DRAM pages, tracked by the data side's walk
+            self.dside.set_dram_pages(memory.pages.page_bytes, memory.pages.open_pages)
 
     def reset(self) -> None:
         """Cold caches: each run starts from reset."""

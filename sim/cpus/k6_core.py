@@ -46,14 +46,17 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.memory.hierarchy import S_FILLS, S_WRITEBACKS, memory_fills, memory_writebacks, served_level, service
+from sim.memory.hierarchy import (
+    S_FILLS, S_WRITEBACKS, memory_fill_page_hits, memory_fills, memory_writebacks, served_level, service,
+)
 from sim.memory.replay import LOG_OFF, LOGGED_HIT, logged_service, replayed_hit
 from sim.cpus.lowering import (
     BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, LOAD, NREGS, OCC_SCALE, R_ELEMENT, R_KIND,
     R_START, REG_ST0, REP_NONE, STA,
 )
 from sim.cpus.contract import (
-    C_BRANCHES, C_DECODE_GROUPS, C_DECODER0, C_DRAM_BUS_CYCLES, C_DRAM_FILLS, C_DRAM_WRITEBACKS,
+    C_BRANCHES, C_DECODE_GROUPS, C_DECODER0, C_DRAM_BUS_CYCLES, C_DRAM_FILLS, C_DRAM_PAGE_HITS,
+    C_DRAM_PAGE_MISSES, C_DRAM_WRITEBACKS,
     C_INSTRUCTIONS, C_L1D_LOAD_MISSES, C_L1D_LOADS, C_L1D_STORE_MISSES, C_L1D_STORES, C_L1I_MISSES,
     C_L2_ACCESSES, C_L2_MISSES, C_LCP_STALLS, C_MISPREDICTS, C_MSROM_UOPS, C_NAMES as SHARED_C_NAMES, C_PORT0,
     C_STALL_DECODE, C_STALL_DEPENDENCY, C_STALL_FETCH, C_STALL_MEMORY, C_STALL_MISPREDICT,
@@ -63,7 +66,7 @@ from sim.cpus.contract import (
     S_STALL_DECODE, S_STALL_DEPENDENCY, S_STALL_MEMORY, S_STALL_MISPREDICT, S_STALL_PARTIAL, S_STALL_PORT,
     S_STALL_STORE_FORWARD, S_STALL_WINDOW, S_UOPS, T_NAMES,
 )
-from sim.cpus.shared_core import FW, WINDOW, btb_alloc, queued_store, remember_store
+from sim.cpus.shared_core import FW, WINDOW, btb_alloc, dram_busy, dram_lead_off, queued_store, remember_store
 from sim.cpus.shared_core import book_port as _shared_book_port
 from sim.memory.cache import HOT
 
@@ -72,8 +75,8 @@ __all__ = ["C_NAMES", "S_NAMES", "T_NAMES", "CAUSES", "NC", "NS", "NT", "simulat
 # parameter vector indices
 (P_QUADS, P_L1_LAT, P_ONDIE, P_L2_LAT, P_L2_BUS, P_BOARD_LEVEL, P_BOARD_LAT, P_BOARD_BUSY, P_DRAM_LAT,
  P_DRAM_LINE, P_DRAM_WB, P_BUS_WRITE, P_SQ, P_MISPREDICT, P_BTC, P_BTC_MISS, P_BHT, P_HIST_BITS, P_RSB,
- P_PARTIAL, P_IMISS, P_EXIT_ADDR) = range(22)
-NPARAMS = 24
+ P_PARTIAL, P_IMISS, P_EXIT_ADDR, P_DRAM_LAT_HIT, P_DRAM_LINE_HIT, P_DRAM_WB_HIT) = range(25)
+NPARAMS = 25
 
 # K6 execution resources behind the issue slots (u_unit of a lowered op)
 U_NONE, U_FPU, U_MMX_MUL, U_MMX_SHIFT, U_3DNOW, U_HOLD = range(6)
@@ -182,8 +185,9 @@ def _k6_miss(r, lvl, start, P, bus, wb1, wb2, counters, cs):
     fills = memory_fills(r)
     wbs = memory_writebacks(r)
     s = max(t, bus[0])
-    busy = fills * P[P_DRAM_LINE] + wbs * P[P_DRAM_WB]
-    done = s + P[P_DRAM_LAT] if fills > 0 else s
+    dram = dram_busy(r, P[P_DRAM_LINE], P[P_DRAM_LINE_HIT], P[P_DRAM_WB], P[P_DRAM_WB_HIT])
+    busy = dram
+    done = s + dram_lead_off(r, P[P_DRAM_LAT], P[P_DRAM_LAT_HIT]) if fills > 0 else s
     if board > 0:
         busy += board_wb * P[P_BOARD_BUSY]
         c_acc = C_L2_ACCESSES if board == 1 else C_L3_ACCESSES
@@ -196,7 +200,9 @@ def _k6_miss(r, lvl, start, P, bus, wb1, wb2, counters, cs):
     bus[0] = s + busy
     counters[cs, C_DRAM_FILLS] += fills
     counters[cs, C_DRAM_WRITEBACKS] += wbs
-    counters[cs, C_DRAM_BUS_CYCLES] += fills * P[P_DRAM_LINE] + wbs * P[P_DRAM_WB]
+    counters[cs, C_DRAM_BUS_CYCLES] += dram
+    counters[cs, C_DRAM_PAGE_HITS] += memory_fill_page_hits(r)
+    counters[cs, C_DRAM_PAGE_MISSES] += fills - memory_fill_page_hits(r)
     return max(0, done - start)
 
 
@@ -393,7 +399,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                             w = _k6_miss(r, max(lvl, 1), t, P, bus, wb1, wb2, counters, cs)
                         else:  # a write not allocated: one write on the front-side bus
                             b = max(t, bus[0])
-                            extra = memory_fills(r) * P[P_DRAM_LINE] + memory_writebacks(r) * P[P_DRAM_WB]
+                            extra = dram_busy(r, P[P_DRAM_LINE], P[P_DRAM_LINE_HIT], P[P_DRAM_WB], P[P_DRAM_WB_HIT])
                             bus[0] = b + P[P_BUS_WRITE] + extra + wb1 * P[P_BOARD_BUSY]
                             w = b + P[P_BUS_WRITE] - t
                             counters[cs, C_BUS_WRITES] += 1
@@ -653,7 +659,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                         commit += _k6_miss(r, max(lvl, 1), commit, P, bus, wb1, wb2, counters, cs)
                     else:  # not allocated: one write on the front-side bus
                         s = max(commit, bus[0])
-                        extra = memory_fills(r) * P[P_DRAM_LINE] + memory_writebacks(r) * P[P_DRAM_WB]
+                        extra = dram_busy(r, P[P_DRAM_LINE], P[P_DRAM_LINE_HIT], P[P_DRAM_WB], P[P_DRAM_WB_HIT])
                         bus[0] = s + P[P_BUS_WRITE] + extra + wb1 * P[P_BOARD_BUSY]
                         commit = s + P[P_BUS_WRITE]
                         counters[cs, C_BUS_WRITES] += 1

@@ -47,8 +47,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.memory.hierarchy import memory_fills, memory_writebacks, served_level, service
+from sim.memory.hierarchy import memory_fill_page_hits, memory_fills, memory_writebacks, served_level, service
 from sim.cpus.lowering import BR_COND, BR_NONE, BR_RET, REG_ST0
+from sim.cpus.shared_core import dram_busy, dram_lead_off
 from sim.cpus.shared_core import btb_alloc  # shared BTB victim choice (LRU by last use)
 
 # parameter vector indices
@@ -57,7 +58,8 @@ from sim.cpus.shared_core import btb_alloc  # shared BTB victim choice (LRU by l
  P_IMMDISP_MODE, P_PFX_V, P_SAME_DWORD, P_FST_EARLY) = range(22)
 P_PAIR_CLOCKS = 22   # 3 x 3 clocks of a pair by the memory kinds of its U and V instructions (MK_*)
 P_PFX_SHADOW = 31    # 1: a multi-clock instruction hides later prefix decode clocks (P54C, AF97 sec. 13)
-NPARAMS = 32
+P_DRAM_LAT_HIT, P_DRAM_LINE_HIT, P_DRAM_WB_HIT = 32, 33, 34  # the DRAM costs on an open page
+NPARAMS = 35
 # memory kinds of a pairable integer instruction (AF97-PAIR sec. 10.4's table)
 MK_PLAIN, MK_READ_MODIFY, MK_RMW = range(3)
 
@@ -82,13 +84,16 @@ C_NAMES = ("cycles", "instructions", "uops", "pairs", "u_pipe", "v_pipe", "alone
            "stall_fpu", "stall_memory", "stall_misaligned", "stall_bank", "stall_write_buffer", "stall_fetch",
            "stall_mispredict", "branches", "mispredicts", "l1d_loads", "l1d_load_misses",
            "l1d_stores", "l1d_store_misses", "l2_accesses", "l2_misses", "dram_fills", "dram_writebacks",
-           "dram_bus_cycles", "l1i_misses", "bus_writes") + tuple("alone_" + str(k) for k in range(NR))
+           "dram_bus_cycles", "l1i_misses", "bus_writes") + tuple("alone_" + str(k) for k in range(NR)) + (
+           "dram_page_hits", "dram_page_misses")
 NC = len(C_NAMES)
 (C_CYCLES, C_INSTRUCTIONS, C_UOPS, C_PAIRS, C_U, C_V, C_ALONE, C_AGI, C_PREFIX, C_FPU, C_MEMORY, C_MISALIGNED,
  C_BANK, C_WB, C_FETCH, C_MISPREDICT, C_BRANCHES, C_MISPREDICTS, C_L1D_LOADS, C_L1D_LOAD_MISSES,
  C_L1D_STORES, C_L1D_STORE_MISSES, C_L2_ACCESSES, C_L2_MISSES, C_DRAM_FILLS, C_DRAM_WRITEBACKS, C_DRAM_BUS,
  C_L1I_MISSES, C_BUS_WRITES) = range(29)
 C_REASON0 = 29
+C_DRAM_PAGE_HITS = C_REASON0 + NR
+C_DRAM_PAGE_MISSES = C_DRAM_PAGE_HITS + 1
 
 S_NAMES = ("executions", "u_pipe", "v_pipe", "paired_u", "group_cycles", "stall_agi", "stall_prefix", "stall_fpu",
            "stall_memory", "stall_misaligned", "stall_bank", "stall_write_buffer", "stall_mispredict", "mispredicts",
@@ -163,12 +168,13 @@ def _load_miss(r, lvl, now, P, bus_free, ctr):
     else:
         ctr[C_L2_MISSES] += 1
         fills = memory_fills(r)
-        wbs = memory_writebacks(r)
-        busy = fills * P[P_DRAM_LINE] + wbs * P[P_DRAM_WB]
+        busy = dram_busy(r, P[P_DRAM_LINE], P[P_DRAM_LINE_HIT], P[P_DRAM_WB], P[P_DRAM_WB_HIT])
         ctr[C_DRAM_FILLS] += fills
-        ctr[C_DRAM_WRITEBACKS] += wbs
+        ctr[C_DRAM_WRITEBACKS] += memory_writebacks(r)
         ctr[C_DRAM_BUS] += busy
-        done = b + P[P_DRAM_LAT]
+        ctr[C_DRAM_PAGE_HITS] += memory_fill_page_hits(r)
+        ctr[C_DRAM_PAGE_MISSES] += fills - memory_fill_page_hits(r)
+        done = b + dram_lead_off(r, P[P_DRAM_LAT], P[P_DRAM_LAT_HIT])
         bus_free = b + busy
     return done - now, bus_free
 

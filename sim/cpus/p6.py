@@ -88,6 +88,9 @@ class P6Model(FamilyModel):
         P[core.P_DRAM_LAT] = self.dram.lead_off
         P[core.P_DRAM_LINE] = self.dram.line_busy
         P[core.P_DRAM_WB] = self.dram.writeback_busy
+        P[core.P_DRAM_LAT_HIT] = self.dram.lead_off_hit
+        P[core.P_DRAM_LINE_HIT] = self.dram.line_busy_hit
+        P[core.P_DRAM_WB_HIT] = self.dram.writeback_busy_hit
         P[core.P_MSHR] = m["caches"]["l2_bus"]["concurrent_accesses"]
         P[core.P_SB] = m["store"]["store_buffer_entries"]
         P[core.P_MISPREDICT] = self.estimates["mispredict_restart"]

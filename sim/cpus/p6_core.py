@@ -45,8 +45,8 @@ from numba import njit
 from sim.memory.cache import LOAD as CACHE_LOAD
 from sim.memory.cache import LRU, STORE as CACHE_STORE
 from sim.memory.hierarchy import (
-    CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS, CFG_WRITE_BACK, memory_fills,
-    memory_writebacks, served_level, service,
+    CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS, CFG_WRITE_BACK, memory_fill_page_hits,
+    memory_fills, memory_writeback_page_hits, memory_writebacks, served_level, service,
 )
 from sim.memory.replay import LOG_OFF, LOG_RECORD, LOG_REPLAY, logged_service, record_hit, replayed_hit
 from sim.cpus.lowering import (
@@ -60,6 +60,7 @@ from sim.cpus.contract import (
     C_STALL_MISPREDICT, C_STALL_MEMORY, C_STALL_STORE_FORWARD, C_BRANCHES, C_MISPREDICTS, C_L1D_LOADS,
     C_L1D_LOAD_MISSES, C_L1D_STORES, C_L1D_STORE_MISSES, C_L2_ACCESSES, C_L2_MISSES, C_DRAM_FILLS,
     C_DRAM_WRITEBACKS, C_DRAM_BUS_CYCLES, C_L1I_MISSES, C_LCP_STALLS, C_STORE_FORWARDS, C_STALL_FETCH,
+    C_DRAM_PAGE_HITS, C_DRAM_PAGE_MISSES,
     S_NAMES, NS, S_EXECUTIONS, S_UOPS, S_DECODER0, S_DECODER1, S_DECODER2, S_MSROM, S_ISSUE_TO_RETIRE,
     S_STALL_DEPENDENCY, S_STALL_PORT, S_STALL_DECODE, S_STALL_PARTIAL, S_STALL_MEMORY, S_STALL_MISPREDICT,
     S_MISPREDICTS, S_PORT0, S_PORT1, S_PORT2, S_PORT3, S_PORT4, S_DECODE_TO_RETIRE, S_STALL_STORE_FORWARD,
@@ -70,7 +71,8 @@ from sim.cpus.shared_core import FW, WINDOW, book_port, btb_alloc, queued_store,
 # parameter vector indices (the counter, per-instruction and timeline schemas are the contract's)
 (P_ROB, P_RS, P_RENAME, P_RETIRE, P_QUEUE, P_FETCH_BLOCK, P_L1_LAT, P_L2_LAT, P_DRAM_LAT, P_DRAM_LINE,
  P_DRAM_WB, P_MSHR, P_SB, P_MISPREDICT, P_TAKEN_BUBBLE, P_BTB_SETS, P_BTB_WAYS, P_HIST_BITS, P_PARTIAL_EXTRA,
- P_FWD_FAIL, P_LCP, P_STATIC_REDIRECT, P_HAS_L2, P_L2_BUS, P_RSB, P_MSROM_RATE, P_EXIT_ADDR, P_FWD_LAT, P_L2_MISS_DETECT) = range(29)
+ P_FWD_FAIL, P_LCP, P_STATIC_REDIRECT, P_HAS_L2, P_L2_BUS, P_RSB, P_MSROM_RATE, P_EXIT_ADDR, P_FWD_LAT,
+ P_L2_MISS_DETECT, P_DRAM_LAT_HIT, P_DRAM_LINE_HIT, P_DRAM_WB_HIT) = range(32)
 NPARAMS = 32
 
 # Loop-carried scalar state: kept in an int64 vector between calls, so a trace can be timed in
@@ -1022,11 +1024,17 @@ def _miss_latency(r, lvl, levels, start, P, mshr, bus_free, l2bus_free, ctr):
         b = max(t2, bus_free)
         fills = memory_fills(r)
         wbs = memory_writebacks(r)
-        busy = fills * P[P_DRAM_LINE] + wbs * P[P_DRAM_WB]
+        fh = memory_fill_page_hits(r)
+        wh = memory_writeback_page_hits(r)
+        busy = ((fills - fh) * P[P_DRAM_LINE] + fh * P[P_DRAM_LINE_HIT]
+                + (wbs - wh) * P[P_DRAM_WB] + wh * P[P_DRAM_WB_HIT])
         bus_free = b + busy
         ctr[C_DRAM_FILLS] += fills
         ctr[C_DRAM_WRITEBACKS] += wbs
         ctr[C_DRAM_BUS_CYCLES] += busy
-        done = b + P[P_DRAM_LAT] if fills > 0 else t2
+        ctr[C_DRAM_PAGE_HITS] += fh
+        ctr[C_DRAM_PAGE_MISSES] += fills - fh
+        # the critical chunk comes on the open-page lead-off only if every line it waits for hit
+        done = (b + (P[P_DRAM_LAT_HIT] if fh == fills else P[P_DRAM_LAT])) if fills > 0 else t2
         mshr[k] = b + busy
     return max(0, done - start), bus_free, l2bus_free

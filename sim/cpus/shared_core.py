@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from numba import njit
 
+from sim.memory.hierarchy import memory_fill_page_hits, memory_fills, memory_writeback_page_hits, memory_writebacks
+
 WINDOW = 8192  # port reservation ring: no in-flight uop dispatches more than this far from another
 FW = 16  # recent stores remembered for forwarding (more than either family's store queue holds)
 
@@ -64,3 +66,19 @@ def btb_alloc(tag, stamp, s, ways, pc, now):
     tag[s, victim] = pc
     stamp[s, victim] = now
     return victim
+
+
+@njit(cache=True, nogil=True, inline="always")
+def dram_busy(r, line, line_hit, wb, wb_hit):
+    """Front-side bus clocks of the memory traffic of one packed hierarchy result ``r``: each line
+    fill and writeback at its page-miss cost (``line``, ``wb``) or, when its DRAM row was open,
+    its page-hit cost (``line_hit``, ``wb_hit``)."""
+    fills, wbs = memory_fills(r), memory_writebacks(r)
+    fh, wh = memory_fill_page_hits(r), memory_writeback_page_hits(r)
+    return (fills - fh) * line + fh * line_hit + (wbs - wh) * wb + wh * wb_hit
+
+
+@njit(cache=True, nogil=True, inline="always")
+def dram_lead_off(r, miss, hit):
+    """Lead-off of an access's line fills: the open-page figure only if every line it waits for hit."""
+    return hit if memory_fill_page_hits(r) == memory_fills(r) else miss

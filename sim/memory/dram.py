@@ -21,9 +21,17 @@ memory, so it is not in the memory presets: the caller (the CPU model, from the 
 It may be fractional (a measured latency rarely falls on whole bus clocks); the sum times the
 core/bus ratio is rounded up as every other cost.
 
-Writebacks. The presets give read-burst timings only; a line writeback is a 4-transfer burst write,
-and we charge it the same x-y-y-y as a fill (``writeback_estimated``). SDRAM writes have no CAS
-latency, so this overstates an SDRAM writeback's lead-off by a clock or two.
+Page mode (issue 24). A preset's ``[pages]`` table (:class:`PageModel`) gives its chipset's page
+policy, the open pages it tracks (one per bank) and their size, and what a page hit saves against
+a page miss. The data side's cache walk (sim/memory/hierarchy.py) keeps the open row of each bank
+as machine state and marks each line fill and writeback that finds its row open; the cores charge
+those at the open-page lead-off and bus time (``LineCosts.*_hit``). The calibrated lead-off is the
+page-miss cost (a pointer chase misses every time), so chase latencies do not move.
+
+Writebacks. A line writeback is a 4-transfer burst write: the read burst less the preset's
+``write_saving_bus_clocks`` (SDRAM: a WRITE takes its data with the command, no CAS latency;
+EDO/FPM: 0, an estimate), and less the page-hit saving when its row is open. A transfer's bus time
+never falls below the three trailing transfers and one clock for the first.
 
 Open rows. :func:`row_access` is a simple open-page model: one open row per bank; a line fill costs
 ``row_hit`` / ``row_closed`` / ``row_conflict`` lead-off clocks instead of the burst's first figure,
@@ -73,6 +81,7 @@ class DramTiming:
     row_closed: int | None = None
     row_conflict: int | None = None
     writeback_estimated: bool = True
+    pages: "PageModel | None" = None
 
     @property
     def first_access_bus_clocks(self) -> int:
@@ -89,7 +98,14 @@ class DramTiming:
 
     @property
     def line_writeback_bus_clocks(self) -> int:
-        return sum(self.burst)  # estimate: see the module docstring
+        """A line writeback on a page miss: the read burst less the write's saving (SDRAM: a WRITE
+        takes its data with the command, no CAS latency; see :class:`PageModel`)."""
+        return self.bus_busy(self.pages.write_saving_bus_clocks if self.pages else 0)
+
+    def bus_busy(self, saving: int) -> int:
+        """Bus clocks of a line transfer whose lead-off is ``saving`` clocks shorter than the
+        read burst's: never below the three trailing transfers and one clock for the first."""
+        return max(sum(self.burst) - saving, self.burst_bus_clocks + 1)
 
     @property
     def has_rows(self) -> bool:
@@ -97,6 +113,63 @@ class DramTiming:
 
     def describe(self) -> str:
         return f"{self.name} ({self.kind}, {'-'.join(map(str, self.burst))} at {self.bus_mhz:g} MHz)"
+
+
+@dataclass(frozen=True)
+class PageModel:
+    """A chipset's page-mode behaviour (a memory preset's ``[pages]`` table): ``open_pages`` banks
+    with one open row of ``page_bytes`` each (policy "open": a row stays open after an access until
+    another row of its bank is needed); a line transfer whose row is open saves
+    ``hit_saving_bus_clocks`` of the lead-off against a page miss (SDRAM: tRP + tRCD, the precharge
+    and activate a hit skips; EDO/FPM: RAS precharge and RAS access against the CAS-only page-mode
+    access). A write saves ``write_saving_bus_clocks`` more (SDRAM: the CAS latency).
+
+    Calibration. The CPU presets' ``overhead_bus_clocks`` were calibrated on a pointer chase, which
+    on an open-page chipset is a page miss every time, so the burst's lead-off (with that overhead)
+    stays the page-miss cost and a page hit is cheaper by the saving: the chase latency is
+    unchanged by construction."""
+
+    chipset: str
+    policy: str
+    open_pages: int
+    page_bytes: int
+    hit_saving_bus_clocks: int
+    write_saving_bus_clocks: int
+    source: str
+    estimated: tuple[str, ...] = ()
+
+
+def _page_model(d: dict, where: str, first_transfer: int) -> PageModel | None:
+    t = d.get("pages")
+    if t is None:
+        return None
+    if not isinstance(t, dict):
+        raise ValueError(f"{where}: [pages] must be a table")
+
+    def need(field, kind):
+        if field not in t:
+            raise ValueError(f"{where}: [pages] is missing {field!r}")
+        v = t[field]
+        if not isinstance(v, kind) or isinstance(v, bool):
+            raise ValueError(f"{where}: [pages] {field} = {v!r} is not a {kind.__name__}")
+        return v
+
+    policy = need("policy", str)
+    if policy not in ("open", "closed"):
+        raise ValueError(f"{where}: [pages] policy must be 'open' or 'closed', got {policy!r}")
+    n, size = need("open_pages", int), need("page_bytes", int)
+    for what, v in (("open_pages", n), ("page_bytes", size)):
+        if v <= 0 or v & (v - 1):
+            raise ValueError(f"{where}: [pages] {what} must be a power of two, got {v}")
+    hit, wr = need("hit_saving_bus_clocks", int), need("write_saving_bus_clocks", int)
+    if hit < 0 or wr < 0:
+        raise ValueError(f"{where}: [pages] savings must be >= 0, got {hit} on a hit, {wr} on a write")
+    est = t.get("estimated", [])
+    if not isinstance(est, list) or not all(isinstance(x, str) for x in est):
+        raise ValueError(f"{where}: [pages] estimated must be a list of field names")
+    if policy == "closed":
+        hit = 0  # every access opens its row and closes it again
+    return PageModel(need("chipset", str), policy, n, size, hit, wr, need("source", str), tuple(est))
 
 
 def available_memory_presets() -> list[str]:
@@ -130,7 +203,8 @@ def load_memory_preset(name: str) -> DramTiming:
     if any(r is not None for r in rows) and not all(isinstance(r, int) for r in rows):
         raise ValueError(f"{where}: row_open_hit/closed/conflict_bus_clocks must be given together")
     return DramTiming(name=need("name"), kind=need("type"), bus_mhz=float(need("bus_mhz")), burst=burst,
-                      source=need("source"), row_hit=rows[0], row_closed=rows[1], row_conflict=rows[2])
+                      source=need("source"), row_hit=rows[0], row_closed=rows[1], row_conflict=rows[2],
+                      pages=_page_model(d, where, burst[0]))
 
 
 def bus_ratio(core_mhz: float, fsb_mhz: float) -> Fraction:
@@ -163,6 +237,10 @@ class LineCosts:
     writeback: int
     overhead_bus_clocks: Fraction = Fraction(0)
     lead_off: int = 0  # core clocks from the request to the critical chunk: ceil((overhead + first) x ratio)
+    # the same on an open DRAM page (equal to the above without a page model)
+    fill_hit: int = 0
+    writeback_hit: int = 0
+    lead_off_hit: int = 0
 
 
 def exact(value: float | int | Fraction, what: str = "overhead_bus_clocks") -> Fraction:
@@ -187,7 +265,16 @@ def line_costs(timing: DramTiming, core_mhz: float, fsb_mhz: float,
     over = exact(overhead_bus_clocks)
     fill, wb = timing.line_fill_bus_clocks, timing.line_writeback_bus_clocks
     lead = core_clocks(over + timing.first_access_bus_clocks, ratio)
-    return LineCosts(timing.name, ratio, fill, wb, core_clocks(fill, ratio), core_clocks(wb, ratio), over, lead)
+    pages = timing.pages
+    save = pages.hit_saving_bus_clocks if pages else 0
+    write_save = pages.write_saving_bus_clocks if pages else 0
+    lead_hit = over + timing.first_access_bus_clocks - save
+    if lead_hit < 1:
+        raise ValueError(f"memory preset {timing.name}: a page hit's lead-off ({over} + "
+                         f"{timing.first_access_bus_clocks} - {save} bus clocks) must be at least 1")
+    return LineCosts(timing.name, ratio, fill, wb, core_clocks(fill, ratio), core_clocks(wb, ratio), over, lead,
+                     core_clocks(timing.bus_busy(save), ratio), core_clocks(timing.bus_busy(save + write_save), ratio),
+                     core_clocks(lead_hit, ratio))
 
 
 def line_costs_for_cpu(cpu_preset: dict, memory: str | None = None) -> LineCosts:

@@ -43,9 +43,13 @@ from sim.memory.cache import (
 MAX_LEVELS = 3
 POLICIES_FILE = Path(__file__).with_name("policies.toml")
 
-# Columns of the per-level config array.
-CFG_OFFSET_BITS, CFG_WRITE_ALLOCATE, CFG_WRITE_BACK, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS = range(7)
-NCFG = 7
+# Columns of the per-level config array. The last two are the DRAM's page geometry (the same in
+# every row; level 0's is read): log2 of the page (row) size in bytes, and the number of open pages
+# the chipset tracks minus one (a power of two; 0 with no page model: every page is a miss). Part of
+# the config so that a replay log (keyed on the config) is never reused across memories.
+(CFG_OFFSET_BITS, CFG_WRITE_ALLOCATE, CFG_WRITE_BACK, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS,
+ CFG_PAGE_SHIFT, CFG_PAGE_MASK) = range(9)
+NCFG = 9
 
 # Columns of the counts array [levels + 1, NSTATS]; the last row is memory. A request of kind k
 # (LOAD/STORE/WRITEBACK = 0/1/2) is counted in column 2k, and its hit in column 2k + 1. For memory,
@@ -55,16 +59,24 @@ NCFG = 7
 NSTATS = 13
 
 # Packed result of service(): the level that supplied the data (levels = memory) in bits 0-7, then
-# 8-bit counts of the memory traffic the access caused.
+# 8-bit counts of the memory traffic the access caused, the lines touched (2 bits: 1 or 2), and
+# 3-bit counts of the line fills and line writebacks that hit an open DRAM page. All below bit 40
+# (the replay log keeps its own fields above).
 SERVED_MASK = 0xFF
 MEM_FILL_SHIFT, MEM_WRITEBACK_SHIFT, MEM_PARTIAL_SHIFT, LINES_SHIFT = 8, 16, 24, 32
+FILL_PAGE_HIT_SHIFT, WB_PAGE_HIT_SHIFT = 34, 37
 
 # The walk's work array: [0] the LRU clock (a request counter), [1 + level] the page of the level's
 # last line fill (for the K6 "page+sector" write-allocate rule; -1 = none), then a stack of pending
 # requests (at most two pushed per request and level: a few entries deep).
 FILL_PAGE_BASE = 1
 STACK_BASE = FILL_PAGE_BASE + MAX_LEVELS
-WORK_SIZE = 32
+# After the stack: the row open in each DRAM bank (-1 = closed), MAX_OPEN_PAGES of them. This is
+# machine state (open pages survive from one call, and one chunk, to the next), kept here because
+# the walk is the only place that sees the address of each request that reaches memory.
+MAX_OPEN_PAGES = 16
+OPEN_PAGE_BASE = 32
+WORK_SIZE = OPEN_PAGE_BASE + MAX_OPEN_PAGES
 
 # Rows of the miss-classification shadow array [levels, 4, distinct lines].
 SH_SEEN, SH_IN, SH_PREV, SH_NEXT = range(4)
@@ -97,7 +109,32 @@ def memory_partial_writes(result):
 
 @njit(cache=True, nogil=True, inline="always")
 def lines_touched(result):
-    return (result >> LINES_SHIFT) & 0xFF
+    return (result >> LINES_SHIFT) & 0x3
+
+
+@njit(cache=True, nogil=True, inline="always")
+def memory_fill_page_hits(result):
+    """Line fills of the access whose DRAM row was open (the rest were page misses)."""
+    return (result >> FILL_PAGE_HIT_SHIFT) & 0x7
+
+
+@njit(cache=True, nogil=True, inline="always")
+def memory_writeback_page_hits(result):
+    return (result >> WB_PAGE_HIT_SHIFT) & 0x7
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _page_access(config, work, addr):
+    """Open ``addr``'s DRAM row in its bank; 1 if it was already open (a page hit), else 0. Address
+    map (an assumption, see sim/memory/dram.py): the bits above the page offset pick the bank."""
+    shift = config[0, CFG_PAGE_SHIFT]
+    if shift == 0:
+        return 0
+    row = addr >> shift
+    slot = OPEN_PAGE_BASE + (row & config[0, CFG_PAGE_MASK])
+    hit = 1 if work[slot] == row else 0
+    work[slot] = row
+    return hit
 
 
 @njit(**HOT)
@@ -191,7 +228,9 @@ def _step(tags, stamps, dirty, config, work, stats, sp):
     addr, level, kind, primary = e >> 8, (e >> 4) & 0xF, (e >> 1) & 0x7, e & 1
     stats[level, 2 * kind] += 1
     code = -1  # memory
-    if level < config.shape[0]:  # (one exit only: see cache.lookup)
+    if level == config.shape[0]:
+        code = -2 if _page_access(config, work, addr) else -1  # -2: memory, an open page
+    else:  # (one exit only: see cache.lookup)
         now = work[0]
         work[0] = now + 1
         code = lookup(tags, stamps, dirty, config[level, CFG_ROW0], config[level, CFG_SETS],
@@ -217,7 +256,7 @@ def _step(tags, stamps, dirty, config, work, stats, sp):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _account(result, e, nlevels):
+def _account(result, e, code, nlevels):
     """Fold one performed request into the packed result: deepest primary level, memory traffic."""
     level, kind = (e >> 4) & 0xF, (e >> 1) & 0x7
     if e & 1 and level > (result & SERVED_MASK):
@@ -225,6 +264,8 @@ def _account(result, e, nlevels):
     if level == nlevels:
         result += 1 << (MEM_FILL_SHIFT if kind == LOAD else
                         MEM_WRITEBACK_SHIFT if kind == WRITEBACK else MEM_PARTIAL_SHIFT)
+        if code == -2 and kind != STORE:
+            result += 1 << (FILL_PAGE_HIT_SHIFT if kind == LOAD else WB_PAGE_HIT_SHIFT)
     return result
 
 
@@ -252,7 +293,7 @@ def service(tags, stamps, dirty, config, work, stats, addr, size, is_write):
         sp = _push(work, STACK_BASE, line << ob, 0, kind, 1)
         while sp > STACK_BASE:
             sp, e, code = _step(tags, stamps, dirty, config, work, stats, sp)
-            r = _account(r, e, nlevels)
+            r = _account(r, e, code, nlevels)
         served = max(served, r & SERVED_MASK)
         traffic += r & ~SERVED_MASK
     return served | traffic | ((last - first + 1) << LINES_SHIFT)
@@ -462,7 +503,7 @@ class Hierarchy:
         for g in geometries:
             view = np.s_[row0:row0 + g.sets, :g.ways]
             states.append(CacheState(g, (self.tags[view], self.stamps[view], self.dirty[view])))
-            config.append([g.offset_bits, g.allocate_id, g.write_back, g.replacement_id, row0, g.sets, g.ways])
+            config.append([g.offset_bits, g.allocate_id, g.write_back, g.replacement_id, row0, g.sets, g.ways, 0, 0])
             row0 += g.sets
         self.states = tuple(states)
         self.config = np.array(config, dtype=np.int64)
@@ -488,6 +529,17 @@ class Hierarchy:
         self.dirty.fill(0)
         self.work.fill(0)
         self.work[FILL_PAGE_BASE:FILL_PAGE_BASE + MAX_LEVELS] = -1
+        self.work[OPEN_PAGE_BASE:] = -1
+
+    def set_dram_pages(self, page_bytes: int, open_pages: int) -> None:
+        """Track open DRAM pages below the last level: ``open_pages`` banks (one open row each) of
+        ``page_bytes``-byte rows, both powers of two (see :class:`sim.memory.dram.PageModel`).
+        Without this call every memory request is a page miss."""
+        for what, n, top in (("page_bytes", page_bytes, 1 << 30), ("open_pages", open_pages, MAX_OPEN_PAGES)):
+            if not 0 < n <= top or n & (n - 1):
+                raise ValueError(f"{what} must be a power of two up to {top}, got {n}")
+        self.config[:, CFG_PAGE_SHIFT] = page_bytes.bit_length() - 1
+        self.config[:, CFG_PAGE_MASK] = open_pages - 1
 
     def run(self, trace, *, classify: bool = False, cold: bool = True) -> HierarchyStats:
         """Simulate ``trace`` (anything with ``mem_addr``/``mem_size``/``mem_write`` arrays, e.g. a
@@ -582,5 +634,5 @@ def family_policies() -> dict:
 __all__ = [
     "Hierarchy", "HierarchyStats", "LevelStats", "MemoryStats", "service", "simulate",
     "simulate_classified", "served_level", "memory_fills", "memory_writebacks",
-    "memory_partial_writes", "lines_touched", "NSTATS", "family_policies",
+    "memory_partial_writes", "lines_touched", "memory_fill_page_hits", "memory_writeback_page_hits", "NSTATS", "family_policies",
 ]

@@ -92,7 +92,8 @@ def summary_table(result: TimingResult) -> Table:
     if s.get("l3_accesses") or getattr(getattr(result.model, "preset", None), "board_cache", None):
         t.add_row("L3 (board)", f"{s.get('l3_accesses', 0):,}", f"{s.get('l3_misses', 0):,} miss")
     t.add_row("DRAM", f"{s['dram_fills']:,}", f"line fills, {s['dram_writebacks']:,} writebacks, "
-                                             f"{s['dram_cycles']:,} bus-busy core cycles")
+                                             f"{s['dram_cycles']:,} bus-busy core cycles; fills on an open DRAM page "
+                                             f"{s.get('dram_page_hits', 0):,}, page misses {s.get('dram_page_misses', 0):,}")
     t.add_row("L1I misses", f"{s['l1i_misses']:,}", "")
     return t
 
