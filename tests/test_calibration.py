@@ -42,9 +42,10 @@ def measured() -> dict:
         return tomllib.load(f)
 
 
-def row(kind: str, preset: str, fit: str | None = None) -> dict:
-    rows = [r for r in measured()[kind] if r["preset"] == preset and (fit is None or r.get("fit") == fit)]
-    assert len(rows) == 1, (kind, preset, fit)
+def row(kind: str, preset: str, fit: str | None = None, memory: str | None = None) -> dict:
+    rows = [r for r in measured()[kind] if r["preset"] == preset and (fit is None or r.get("fit") == fit)
+            and (memory is None or r.get("memory_preset") == memory)]
+    assert len(rows) == 1, (kind, preset, fit, memory)
     return rows[0]
 
 
@@ -110,12 +111,13 @@ def test_chase_reproduces_the_measured_board(chase, preset):
 
 # The K6-266 on the VIA VP2 board with EDO: STREAM copy 54.7 MB/s. Timed on the K6-233 preset with
 # EDO: the copy is bound by the 66 MHz bus and the DRAM, not the core clock, so the 233/266 MHz
-# difference is inside the 20 % tolerance. Every line fill is still charged as a random access
-# (no page-mode hits, writebacks at the read burst's cost) until the page-mode DRAM model lands.
-@pytest.mark.xfail(strict=False, reason="needs page-mode DRAM (EDO page hits, SDRAM row hits, cheaper writebacks), "
-                                        "built separately for issue 24 part 1")
+# difference is inside the 20 % tolerance. With page-mode DRAM (issue 24) the model gives about
+# 37 MB/s: the copy is still too slow, by a cause not found yet (write buffers' drain to the bus,
+# the board cache's write policy and the VP2's EDO timings are unmodelled or estimated).
+@pytest.mark.xfail(strict=True, reason="the modelled STREAM copy (about 37 MB/s) is a third slower than the "
+                                       "measured board (54.7 MB/s): cause not found (issue 24)")
 def test_stream_copy_reproduces_the_measured_k6_board(copy):
-    r = row("bandwidth", "k6-233")
+    r = row("bandwidth", "k6-233", memory="edo")
     model = copy_mb_s(copy, "k6-233", "edo")
     assert abs(model - r["copy_mb_s"]) <= 0.20 * r["copy_mb_s"], (model, r["copy_mb_s"])
 
