@@ -31,9 +31,31 @@ as its reports count them), and `error` (empty, or the one-line reason the point
 failed point does not stop the sweep). Points whose id already has a row in the output are not
 recomputed (failed ones are with --retry-failed), so an interrupted sweep resumes where it stopped.
 
+A point's id (the `point` column) is the JSON of everything in the spec that determines its
+counters: the scene (by name: two scene files of one name are refused) and variant, or the kernel
+(source:entry) with its `args` and `repeat`; the CPU label, the memory and the overrides. Values
+that name one machine twice (a grid's `128` and `128.0`, a CPU listed twice, a [[point]] equal to a
+grid point) are refused, as are non-finite numbers. Resuming merges only into a table this module
+wrote: an unreadable or altered Parquet file (or a CSV without its Parquet file) is refused with
+how to start over, never merged. One sweep at a time writes an output: it holds `BASE.lock` (an
+flock, released if the process dies) and a second sweep into the same output is refused.
+
+Limits: a sweep runs at most MAX_POINTS (10,000) points, counted before any is built, unless
+`--max-points N` (load_spec's max_points) raises the limit; a kernel's `repeat` is at most
+MAX_REPEAT (10,000), as `retrosim time --repeat`. The command prints the number of points and
+kernel calls before it starts. A `--scheduler` is `tcp://HOST:PORT` (IPv6 in brackets); it must
+answer Dask's identity request within CONNECT_TIMEOUT (10 s). A sweep with failed points exits 2
+(the command prints the first errors); plots are drawn only from points that succeeded.
+
 Work is grouped by emulation (a scene's variant, or a kernel call): one task times one emulation on
-every machine of its points, so a trace is emulated once per group, not per point. A scene's
-variant is emulated by its kind (sim.scenes.kind.SceneKind.sweep_emulation), as its reports time it.
+every machine of its points, so a trace is emulated once per group, not per point. A kernel is
+assembled and emulated once per instruction set among its points' CPUs (sim.guest.cpu.GuestCpu:
+extensions, assembler names, Unicorn model), as `retrosim time` builds it per preset, so MMX, 3DNow!
+and SSE kernels sweep on the CPUs that have them. A scene's variant is emulated by its kind
+(sim.scenes.kind.SceneKind.sweep_emulation), as its reports time it.
+
+The report (`BASE.md`) holds the findings, the plots (legends name the scene or kernel call, the
+variant and the other swept parameters) and a Markdown table of every point's result or error.
 """
 
 from __future__ import annotations
