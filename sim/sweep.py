@@ -529,12 +529,27 @@ def _warm(spec: Spec) -> None:
 
 def run_sweep(spec: Spec, base: Path, scheduler: str = "local", jobs: int = 2,
               progress: Callable[[int, int], None] | None = None, plots: bool = True,
-              retry_failed: bool = False) -> SweepResult:
+              retry_failed: bool = False, lock: bool = True) -> SweepResult:
     """Run the spec's points not already in `base`.parquet (failed ones too with `retry_failed`);
     write the table after every group (so an interrupted sweep keeps what it finished), then the
-    plots and findings. The output is locked meanwhile (:func:`output_lock`)."""
+    plots and findings. The output is locked meanwhile (:func:`output_lock`), unless the caller
+    holds the lock already (`lock=False`)."""
+    if not lock:
+        return _run_sweep(spec, base, scheduler, jobs, progress, plots, retry_failed)
     with output_lock(base):
         return _run_sweep(spec, base, scheduler, jobs, progress, plots, retry_failed)
+
+
+def preflight(base: Path, scheduler: str) -> None:
+    """The checks of a sweep's inputs that need no work, so a command can report them before it
+    starts its progress display: the output files, the existing table, the scheduler's answer."""
+    for suffix in (".parquet", ".csv", ".md"):
+        check_output_file(base.with_suffix(suffix), "--out")
+    read_rows(base)
+    where = check_scheduler(scheduler)
+    if where is not None:
+        _reach(scheduler, *where)
+        _ask_identity(scheduler)
 
 
 def _run_sweep(spec, base, scheduler, jobs, progress, plots, retry_failed) -> SweepResult:

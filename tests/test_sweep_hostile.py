@@ -39,8 +39,8 @@ def fails(*args) -> str:
     assert r.exit_code == 2, (r.exit_code, r.output, r.exception)
     assert isinstance(r.exception, SystemExit), r.exception
     assert "Traceback" not in r.output
-    lines = [ln for ln in r.stderr.strip().splitlines() if ln.startswith("retrosim: error: ")]
-    assert len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    lines = [ln for ln in r.stderr.strip().splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("retrosim: error: "), r.stderr
     return lines[0]
 
 

@@ -242,19 +242,30 @@ def sweep_cmd(spec, out, scheduler, retry_failed, max_points, jobs):
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from sim.parallel import check_jobs
-    from sim.sweep import MAX_POINTS, check_scheduler, load_spec, run_sweep
+    from sim.sweep import MAX_POINTS, check_scheduler, load_spec, output_lock, preflight, run_sweep
 
     check_scheduler(scheduler)
     parsed = load_spec(spec, max_points or MAX_POINTS)
     base = out or spec.with_suffix("")
     calls = sum(g["repeat"] * len(g["points"]) for g in parsed.groups if g["kind"] == "kernel")
-    say(f"{len(parsed.points):,} point(s) in {len(parsed.groups):,} emulation group(s)"
-        + (f", {calls:,} kernel call(s) timed" if calls else ""))
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=err_console) as bar:
-        task = bar.add_task(f"sweep {spec.name}", total=None)
-        result = run_sweep(parsed, base, scheduler, check_jobs(jobs), retry_failed=retry_failed,
-                           progress=lambda n, total: bar.update(task, completed=n, total=total))
+    started = []
+
+    def progress(n, total):
+        if not started:  # once the output is locked and read: how much is left to run
+            started.append(True)
+            bar.console.print(f"{total:,} of {len(parsed.points):,} point(s) to run in {len(parsed.groups):,} "
+                              "emulation group(s)" + (f" (the spec's kernel points time {calls:,} call(s))" if calls
+                                                      else ""), markup=False, highlight=False, soft_wrap=True)
+        bar.update(task, completed=n, total=total)
+
+    jobs = check_jobs(jobs)
+    with output_lock(base):  # held from the checks to the last write: a second sweep here is refused
+        preflight(base, scheduler)  # bad output or scheduler: one line, before any progress display
+        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                      console=err_console) as bar:
+            task = bar.add_task(f"sweep {spec.name}", total=None)
+            result = run_sweep(parsed, base, scheduler, jobs, retry_failed=retry_failed,
+                               progress=progress, lock=False)
     for path in result.files:
         err_console.print(f"wrote {path}")
     console.print(f"{len(result.rows)} point(s): {result.computed} computed now, "
