@@ -31,30 +31,63 @@ as its reports count them), and `error` (empty, or the one-line reason the point
 failed point does not stop the sweep). Points whose id already has a row in the output are not
 recomputed (failed ones are with --retry-failed), so an interrupted sweep resumes where it stopped.
 
+A point's id (the `point` column) is the JSON of everything in the spec that determines its
+counters: the scene (by name: two scene files of one name are refused) and variant, or the kernel
+(source:entry) with its `args` and `repeat`; the CPU label, the memory and the overrides. Values
+that name one machine twice (a grid's `128` and `128.0`, a CPU listed twice, a [[point]] equal to a
+grid point) are refused, as are non-finite numbers. Resuming merges only into a table this module
+wrote: an unreadable or altered Parquet file (or a CSV without its Parquet file) is refused with
+how to start over, never merged. One sweep at a time writes an output: it holds `BASE.lock` (an
+flock, released if the process dies) and a second sweep into the same output is refused.
+
+Limits: a sweep runs at most MAX_POINTS (10,000) points, counted before any is built, unless
+`--max-points N` (load_spec's max_points) raises the limit; a kernel's `repeat` is at most
+MAX_REPEAT (10,000), as `retrosim time --repeat`. The command prints the number of points and
+kernel calls before it starts. A `--scheduler` is `tcp://HOST:PORT` (IPv6 in brackets); it must
+answer Dask's identity request within CONNECT_TIMEOUT (10 s). A sweep with failed points exits 2
+(the command prints the first errors); plots are drawn only from points that succeeded.
+
 Work is grouped by emulation (a scene's variant, or a kernel call): one task times one emulation on
-every machine of its points, so a trace is emulated once per group, not per point. A scene's
-variant is emulated by its kind (sim.scenes.kind.SceneKind.sweep_emulation), as its reports time it.
+every machine of its points, so a trace is emulated once per group, not per point. A kernel is
+assembled and emulated once per instruction set among its points' CPUs (sim.guest.cpu.GuestCpu:
+extensions, assembler names, Unicorn model), as `retrosim time` builds it per preset, so MMX, 3DNow!
+and SSE kernels sweep on the CPUs that have them. A scene's variant is emulated by its kind
+(sim.scenes.kind.SceneKind.sweep_emulation), as its reports time it.
+
+The report (`BASE.md`) holds the findings, the plots (legends name the scene or kernel call, the
+variant and the other swept parameters) and a Markdown table of every point's result or error.
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import fcntl
 import io
+import os
+import re
+import stat
 import itertools
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 from sim.cpus.machine import MachineKey
-from sim.errors import RetrosimError
+from sim.errors import OutputError, RetrosimError
+from sim.output import check_output_dir, check_output_file, file_mode
 from sim.reports.render import atomic_write
 from sim.tomlfile import read_toml
 
 _SWEEP_KEYS = {"description", "scenes", "kernels", "variants", "cpus", "memories", "compare"}
+MAX_POINTS = 10_000      # points a sweep runs unless --max-points raises it (10,000 kernel points of
+                         # ~1 s each keep two cores busy for hours; a 10^6 grid is a typo more often than a plan)
+MAX_REPEAT = 10_000      # a kernel's calls per point, as `retrosim time --repeat` (every call's trace is kept)
 _KERNEL_KEYS = {"source", "entry", "args", "repeat"}
 SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
 FIXED = ["point", "scene", "kernel", "variant", "cpu", "machine", "memory"]  # first columns, in order
+CALL = ["args", "repeat"]  # a kernel call's arguments and calls: after FIXED, in tables with kernel points
 
 
 class SweepError(RetrosimError):
@@ -81,13 +114,28 @@ def _text(value) -> str:
     return format_value(value)
 
 
-def load_spec(path: str | Path) -> Spec:
+def load_spec(path: str | Path, max_points: int = MAX_POINTS) -> Spec:
+    """The spec at `path`, checked: one SweepError naming the file and field for anything wrong,
+    including more than `max_points` points (counted before any is built)."""
     from sim.cpus import memory_presets, presets
 
     path = Path(path)
 
     def fail(field: str, message: str):
         raise SweepError(f"{path}: {field}: {message}")
+
+    def finite(field: str, value):
+        if isinstance(value, float) and not math.isfinite(value):
+            fail(field, f"{value!r} is not a finite number")
+
+    def too_many(n: int, qualifier: str = "") -> str:
+        return (f"{qualifier}{n:,} points to run, more than the limit of {max_points:,} (each point is one timing "
+                "run); shrink the grid, or raise the limit with --max-points N")
+
+    def unique(field: str, values: list[str]):
+        for j, v in enumerate(values):
+            if v in values[:j]:
+                fail(f"{field}[{j}]", f"'{v}' is listed twice; list each once")
 
     _, doc = read_toml(path, "sweep spec", SweepError)
     for key in doc:
@@ -112,6 +160,10 @@ def load_spec(path: str | Path) -> Spec:
 
     scenes, variants_wanted = strlist("scenes"), strlist("variants")
     cpus, memories = strlist("cpus", True), strlist("memories")
+    unique("sweep.cpus", cpus)
+    unique("sweep.memories", memories)
+    unique("sweep.scenes", scenes)
+    unique("sweep.variants", variants_wanted)
     for i, cpu in enumerate(cpus):
         if MachineKey(cpu).preset not in presets.available():
             fail(f"sweep.cpus[{i}]", f"unknown CPU preset '{cpu}' (known: {', '.join(presets.available())})")
@@ -136,13 +188,27 @@ def load_spec(path: str | Path) -> Spec:
         if not isinstance(values, list) or not values or any(isinstance(x, (dict, list)) for x in values):
             fail(f"grid.{key}", f"expected a non-empty array of values, got {values!r} (quote dotted keys: "
                                 '"l2.size_kb" = [...])')
-    sets = [dict(zip(grid, combo)) for combo in itertools.product(*grid.values())] if grid else []
+        seen = {}
+        for j, x in enumerate(values):
+            finite(f"grid.{key}[{j}]", x)
+            if _text(x) in seen:  # 128 and 128.0 are one machine: a second row would repeat its id
+                fail(f"grid.{key}[{j}]", f"value {x!r} repeats {seen[_text(x)]!r}; list each value once")
+            seen[_text(x)] = x
     listed = doc.get("point", [])
     if not isinstance(listed, list):
         fail("point", "expected [[point]] tables")
+    n_sets = (math.prod(len(v) for v in grid.values()) if grid else 0) + len(listed)
+    n_subjects = len(kernels) + len(scenes)  # a scene's variants are counted once it is loaded
+    if n_subjects * len(cpus) * max(len(memories), 1) * max(n_sets, 1) > max_points:  # before building them
+        fail("sweep", too_many(n_subjects * len(cpus) * max(len(memories), 1) * max(n_sets, 1), "at least "))
+    sets = [dict(zip(grid, combo)) for combo in itertools.product(*grid.values())] if grid else []
     for i, p in enumerate(listed):
         if not isinstance(p, dict) or set(p) != {"set"} or not isinstance(p["set"], dict):
             fail(f"point[{i}]", "expected exactly one key, set = { override = value, ... }")
+        for key, x in p["set"].items():
+            if isinstance(x, (dict, list)):
+                fail(f"point[{i}].set.{key}", f"expected a value, got {x!r}")
+            finite(f"point[{i}].set.{key}", x)
         sets.append(dict(p["set"]))
     sets = sets or [{}]
     keys = list(dict.fromkeys(k for s in sets for k in s))
@@ -167,12 +233,23 @@ def load_spec(path: str | Path) -> Spec:
         if extra or "source" not in k or "entry" not in k:
             fail(f"sweep.kernels[{i}]", "expected keys source, entry, args, repeat (source and entry required)")
         repeat = k.get("repeat", 2)
-        if not isinstance(repeat, int) or isinstance(repeat, bool) or repeat < 1:
-            fail(f"sweep.kernels[{i}].repeat", f"expected an integer >= 1, got {repeat!r}")
-        subjects.append({"kind": "kernel", "what": str(k["source"]), "name": f"{k['source']}:{k['entry']}",
-                         "variant": "", "entry": str(k["entry"]), "args": str(k.get("args", "")), "repeat": repeat})
+        if not isinstance(repeat, int) or isinstance(repeat, bool) or not 1 <= repeat <= MAX_REPEAT:
+            fail(f"sweep.kernels[{i}].repeat", f"expected an integer from 1 to {MAX_REPEAT:,} (as `retrosim time "
+                                               f"--repeat`), got {repeat!r}")
+        for key in ("source", "entry", "args"):
+            if key in k and not isinstance(k[key], str):
+                fail(f"sweep.kernels[{i}].{key}", f"expected a string, got {k[key]!r}")
+        subjects.append({"kind": "kernel", "what": k["source"], "name": f"{k['source']}:{k['entry']}",
+                         "variant": "", "entry": k["entry"], "args": k.get("args", ""), "repeat": repeat})
+    named = {}
+    for sub in subjects:  # two scene files of one name would share their points' ids
+        if sub["kind"] == "scene" and named.setdefault(sub["name"], sub["what"]) != sub["what"]:
+            fail("sweep.scenes", f"scenes {named[sub['name']]} and {sub['what']} are both named '{sub['name']}'")
+    n_points = len(subjects) * len(cpus) * max(len(memories), 1) * len(sets)
+    if n_points > max_points:
+        fail("sweep", too_many(n_points))
 
-    groups = []
+    groups, ids = [], set()
     for sub in subjects:
         pts = []
         for cpu in cpus:
@@ -182,7 +259,12 @@ def load_spec(path: str | Path) -> Spec:
                               "kernel": sub["name"] if sub["kind"] == "kernel" else "",
                               "variant": sub["variant"], "cpu": cpu, "memory": memory or "",
                               **{f"set.{k}": _text(s[k]) if k in s else "" for k in keys}}
+                    if sub["kind"] == "kernel":  # the call's arguments and count determine its counters too
+                        coords.update(args=sub["args"], repeat=str(sub["repeat"]))
                     point = json.dumps(coords, sort_keys=True)
+                    if point in ids:  # a [[point]] equal to a grid point, or one kernel call listed twice
+                        fail("point" if listed else "sweep.kernels", f"the point {point} is listed twice")
+                    ids.add(point)
                     pts.append({"point": point, "coords": coords, "cpu": cpu, "memory": memory, "set": s})
         groups.append({**sub, "points": pts})
     axes = {"cpu": cpus, "memory": memories}
@@ -193,8 +275,9 @@ def load_spec(path: str | Path) -> Spec:
 
 # -- one group's work (runs on a Dask worker or in this process) ----------------------------------
 
-def _emulation(group: dict):
-    """(emulation, pixels or None) of a group: a scene variant's frames or a kernel's calls."""
+def _emulation(group: dict, isa_cpu=None):
+    """(emulation, pixels or None) of a group: a scene variant's frames or a kernel's calls, the
+    kernel assembled and emulated for `isa_cpu`'s instruction set (a sim.guest.cpu.GuestCpu)."""
     if group["kind"] == "scene":
         from sim.scenes.registry import kind_of, load_scene
 
@@ -206,28 +289,55 @@ def _emulation(group: dict):
 
     args = group["args"]
     return emulate(kernels.resolve(group["what"]), group["entry"], lambda m: parse_args(args, m)[0],
-                   repeat=group["repeat"]), None
+                   repeat=group["repeat"], isa_cpu=isa_cpu), None
+
+
+def _instruction_set(cpu: str):
+    """(key, GuestCpu) of a point's CPU: points whose CPUs share the key (extensions, assembler
+    names, Unicorn model) share one emulation of a kernel, as `retrosim time` builds it per preset."""
+    from sim.cpus import presets
+    from sim.guest.cpu import GuestCpu
+
+    guest = GuestCpu.from_preset(presets.load(MachineKey(cpu).preset))
+    return (guest.extensions, guest.gnu_march, guest.zig_mcpu, guest.emulator_cpu), guest
+
+
+def _error(e: Exception) -> str:
+    return str(e) if isinstance(e, RetrosimError) else f"{type(e).__name__}: {e}"
 
 
 def run_group(group: dict) -> list[dict]:
-    """Rows of one group's points; a point that fails gets a row with its error."""
+    """Rows of one group's points; a point that fails gets a row with its error. A kernel is
+    emulated once per instruction set among the points' CPUs (MMX, 3DNow!, SSE kernels assemble
+    only for CPUs that have them); a scene's variant once (its kind builds it for every CPU)."""
     from sim.cpus import machine_label, make_model
     from sim.timing.kernel import time_emulation
 
+    emulations: dict = {}  # instruction-set key (None for a scene) -> (emulation, pixels) or the error
+
+    def emulation_for(p):
+        key, guest = (None, None)
+        if group["kind"] == "kernel":
+            key, guest = _instruction_set(p["cpu"])
+        if key not in emulations:
+            try:
+                emulations[key] = _emulation(group, guest)
+            except Exception as e:  # every point of this instruction set fails the same way
+                emulations[key] = e
+        if isinstance(emulations[key], Exception):
+            raise emulations[key]
+        return emulations[key]
+
     rows = []
-    try:
-        emulation, pixels = _emulation(group)
-    except Exception as e:  # every point of the group fails the same way
-        return [_row(p, None, None, f"{type(e).__name__}: {e}" if not isinstance(e, RetrosimError) else str(e))
-                for p in group["points"]]
     for p in group["points"]:
         try:
+            emulation, pixels = emulation_for(p)
             label = machine_label(p["cpu"], p["set"])
             model = make_model(label, p["memory"])
             counters = time_emulation(emulation, model).last
             rows.append(_row(p, {"machine": label, "memory": model.dram.name, "pixels": pixels}, counters, ""))
         except Exception as e:  # recorded, the sweep goes on
-            rows.append(_row(p, None, None, str(e) if isinstance(e, RetrosimError) else f"{type(e).__name__}: {e}"))
+            rows.append(_row(p, None, None, _error(e)))
     return rows
 
 
@@ -246,19 +356,80 @@ def _row(point: dict, info: dict | None, counters: dict | None, error: str) -> d
 
 def _columns(rows: list[dict]) -> list[str]:
     seen = list(dict.fromkeys(k for r in rows for k in r))
+    call = [c for c in CALL if c in seen]
     sets = [c for c in seen if c.startswith("set.")]
-    rest = [c for c in seen if c not in FIXED and not c.startswith("set.") and c not in ("error", "pixels",
-                                                                                         "cycles_per_pixel")]
-    return FIXED + sets + ["error", "pixels", "cycles_per_pixel"] + rest
+    rest = [c for c in seen if c not in FIXED and c not in CALL and not c.startswith("set.")
+            and c not in ("error", "pixels", "cycles_per_pixel")]
+    return FIXED + call + sets + ["error", "pixels", "cycles_per_pixel"] + rest
+
+
+def _is_text(column: str) -> bool:
+    return column in FIXED or column in CALL or column.startswith("set.") or column == "error"
+
+
+MAX_TABLE_BYTES = 1 << 30  # a sweep's table: 10,000 points of ~100 counters are a few MB
+
+
+class DamagedOutput(RetrosimError):
+    """A sweep's existing output cannot be resumed from."""
 
 
 def read_rows(base: Path) -> list[dict]:
-    path = base.with_suffix(".parquet")
-    if not path.is_file():
+    """The rows of `base`.parquet, the table a resumed sweep merges into: none if there is no
+    output yet. Anything that is not a table this module wrote (unreadable, wrong or missing
+    columns, repeated points, a CSV without its Parquet file) is refused, never merged: the
+    message says how to start over."""
+    path, csv_path = base.with_suffix(".parquet"), base.with_suffix(".csv")
+
+    def damaged(problem: str):
+        raise DamagedOutput(f"{path}: {problem}; not resuming from it: delete {path.name} and {csv_path.name} to start "
+                            "the sweep over, or choose another --out")
+
+    if not os.path.lexists(path):
+        if os.path.lexists(csv_path):  # the Parquet file is the table; its CSV copy alone cannot be merged
+            raise DamagedOutput(f"{csv_path}: a sweep table without its {path.name}; not overwriting it: delete "
+                                f"{csv_path.name} to start the sweep over, or choose another --out")
         return []
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        damaged(f"cannot read it: {e.strerror or e}")
+    if not stat.S_ISREG(st.st_mode):
+        damaged("not a regular file (a device, pipe or folder)")
+    if st.st_size > MAX_TABLE_BYTES:
+        damaged(f"{st.st_size:,} bytes, more than the {MAX_TABLE_BYTES >> 20} MB a sweep table may have")
+    import pyarrow as pa
     import pyarrow.parquet as pq
 
-    return pq.read_table(path).to_pylist()
+    try:
+        table = pq.read_table(path)
+    except (pa.ArrowException, OSError, ValueError) as e:
+        damaged(f"not a readable Parquet table ({one_line_of(e)})")
+    for col in FIXED + ["error"]:
+        if col not in table.schema.names:
+            damaged(f"no column '{col}'")
+    for f in table.schema:
+        want = "string" if _is_text(f.name) else "double" if f.name == "cycles_per_pixel" else "int64"
+        if str(f.type) != want:
+            damaged(f"column '{f.name}' holds {f.type}, not {want}")
+    rows = table.to_pylist()
+    seen = set()
+    for i, r in enumerate(rows):
+        try:
+            coords = json.loads(r["point"])
+        except (TypeError, ValueError):
+            damaged(f"row {i}: point {r['point']!r} is not a point id")
+        if not isinstance(coords, dict) or any(r.get(k) != v for k, v in coords.items() if k != "memory"):
+            damaged(f"row {i}: point {r['point']!r} does not match the row's coordinates")
+        if r["point"] in seen:
+            damaged(f"row {i}: point {r['point']!r} appears twice")
+        seen.add(r["point"])
+    return rows
+
+
+def one_line_of(e: Exception) -> str:
+    text = " ".join(str(e).split())
+    return text[:200] + ("..." if len(text) > 200 else "")
 
 
 def write_rows(base: Path, rows: list[dict]) -> list[Path]:
@@ -266,7 +437,7 @@ def write_rows(base: Path, rows: list[dict]) -> list[Path]:
     import pyarrow.parquet as pq
 
     cols = _columns(rows)
-    text = {c for c in cols if c in FIXED or c.startswith("set.") or c == "error"}
+    text = {c for c in cols if _is_text(c)}
     schema = pa.schema([(c, pa.string() if c in text else pa.float64() if c == "cycles_per_pixel" else pa.int64())
                         for c in cols])
     table = pa.Table.from_pylist([{c: r.get(c, "" if c in text else None) for c in cols} for r in rows], schema=schema)
@@ -283,6 +454,53 @@ def write_rows(base: Path, rows: list[dict]) -> list[Path]:
 
 
 # -- running ---------------------------------------------------------------------------------------
+
+class SweepLocked(RetrosimError):
+    """Another sweep is writing the same output."""
+
+
+@contextlib.contextmanager
+def output_lock(base: Path) -> Iterator[Path]:
+    """Hold `base`.lock (an flock: released by the kernel if this process dies, so a crash leaves no
+    stale lock) while a sweep reads, merges and writes `base`.parquet/.csv: two sweeps into one
+    output would otherwise each merge into what they read first, and the second's write would drop
+    the first's rows. A second sweep is refused at once. The lock file is removed on release; a
+    process that locked a file just removed retries on the new one."""
+    path = base.parent / f"{base.name}.lock"
+    check_output_dir(path.parent, "--out")
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, file_mode())
+        except OSError as e:
+            raise OutputError(f"{path}: cannot create the sweep's lock file: {e.strerror or e}") from None
+        try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                raise OutputError(f"{path}: the sweep's lock file is not a regular file (a device, pipe or folder)")
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                holder = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
+                raise SweepLocked(f"{path}: another sweep{f' (process {holder})' if holder.isdigit() else ''} is "
+                                  f"writing {base}.parquet; wait for it to finish, or choose another --out") from None
+            try:
+                same = os.stat(path, follow_symlinks=False).st_ino == os.fstat(fd).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                break
+        except BaseException:
+            os.close(fd)
+            raise
+        os.close(fd)  # the holder removed it between our open and our lock: take the new one
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        yield path
+    finally:
+        with contextlib.suppress(OSError):
+            os.unlink(path)
+        os.close(fd)
+
 
 @dataclass
 class SweepResult:
@@ -311,10 +529,32 @@ def _warm(spec: Spec) -> None:
 
 def run_sweep(spec: Spec, base: Path, scheduler: str = "local", jobs: int = 2,
               progress: Callable[[int, int], None] | None = None, plots: bool = True,
-              retry_failed: bool = False) -> SweepResult:
+              retry_failed: bool = False, lock: bool = True) -> SweepResult:
     """Run the spec's points not already in `base`.parquet (failed ones too with `retry_failed`);
     write the table after every group (so an interrupted sweep keeps what it finished), then the
-    plots and findings."""
+    plots and findings. The output is locked meanwhile (:func:`output_lock`), unless the caller
+    holds the lock already (`lock=False`)."""
+    if not lock:
+        return _run_sweep(spec, base, scheduler, jobs, progress, plots, retry_failed)
+    with output_lock(base):
+        return _run_sweep(spec, base, scheduler, jobs, progress, plots, retry_failed)
+
+
+def preflight(base: Path, scheduler: str) -> None:
+    """The checks of a sweep's inputs that need no work, so a command can report them before it
+    starts its progress display: the output files, the existing table, the scheduler's answer."""
+    for suffix in (".parquet", ".csv", ".md"):
+        check_output_file(base.with_suffix(suffix), "--out")
+    read_rows(base)
+    where = check_scheduler(scheduler)
+    if where is not None:
+        _reach(scheduler, *where)
+        _ask_identity(scheduler)
+
+
+def _run_sweep(spec, base, scheduler, jobs, progress, plots, retry_failed) -> SweepResult:
+    for suffix in (".parquet", ".csv", ".md"):  # before the work: a pipe or a read-only folder fails at once
+        check_output_file(base.with_suffix(suffix), "--out")
     done = {r["point"]: r for r in read_rows(base) if not (retry_failed and r.get("error"))}
     wanted = {p["point"] for p in spec.points}
     todo = []
@@ -345,9 +585,72 @@ def run_sweep(spec: Spec, base: Path, scheduler: str = "local", jobs: int = 2,
             _run_dask(spec, todo, scheduler, jobs, new, lambda: write_rows(base, finish()), lambda: say(len(new), total))
     rows = finish()
     files = write_rows(base, rows) if rows else []
-    if plots and rows:
+    if plots and any(not r.get("error") for r in rows):  # a sweep with no result draws no empty plot
         files += write_plots(spec, base, rows)
     return SweepResult(rows, len(new), sum(1 for r in rows if r.get("error")), files)
+
+
+CONNECT_TIMEOUT = 10.0  # seconds to reach a --scheduler address and hear Dask answer
+
+
+def check_scheduler(address: str) -> tuple[str, int] | None:
+    """(host, port) of a `tcp://HOST:PORT` scheduler address, None for 'local' and 'serial'; anything
+    else is refused with one line (Dask's own parser raises assorted exceptions on bad addresses)."""
+    if address in ("local", "serial"):
+        return None
+    fail = f"--scheduler '{address}'"
+    scheme, sep, rest = address.partition("://")
+    if not sep:
+        raise RetrosimError(f"{fail}: expected local, serial or tcp://HOST:PORT")
+    if scheme != "tcp":
+        why = {"tls": "TLS needs certificates, which retrosim does not pass to Dask",
+               "inproc": "an in-process address names no scheduler this command can reach",
+               "ucx": "UCX is not installed with retrosim"}.get(scheme, "not a transport retrosim supports")
+        raise RetrosimError(f"{fail}: {scheme}:// is not supported ({why}); use tcp://HOST:PORT")
+    m = re.fullmatch(r"(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9._-]+):([0-9]{1,5})/?", rest)
+    if not m:
+        raise RetrosimError(f"{fail}: expected tcp://HOST:PORT (an IPv6 host in brackets: tcp://[::1]:8786), "
+                            "with nothing after the port")
+    host, port = m.group(1).strip("[]"), int(m.group(2))
+    if not 1 <= port <= 65535:
+        raise RetrosimError(f"{fail}: port {port} is not between 1 and 65535")
+    return host, port
+
+
+def _reach(address: str, host: str, port: int) -> None:
+    """Connect once with a timeout, so an address where nothing listens fails at once with its name
+    (Dask's client retries for a long time)."""
+    import socket
+
+    try:
+        socket.create_connection((host, port), timeout=CONNECT_TIMEOUT).close()
+    except socket.timeout:
+        raise RetrosimError(f"--scheduler {address}: no answer within {CONNECT_TIMEOUT:g} s") from None
+    except OSError as e:
+        raise RetrosimError(f"--scheduler {address}: cannot connect: {e.strerror or e}") from None
+
+
+def _ask_identity(address: str) -> None:
+    """Ask the scheduler who it is, within CONNECT_TIMEOUT: a listener that is not Dask answers
+    garbage (Dask's handshake raises struct.error) or nothing (Dask's client would wait forever)."""
+    import asyncio
+
+    from distributed.core import rpc
+
+    async def identity():
+        async with rpc(address, timeout=CONNECT_TIMEOUT) as scheduler:
+            return await scheduler.identity()
+
+    try:
+        answer = asyncio.run(asyncio.wait_for(identity(), CONNECT_TIMEOUT))
+    except (asyncio.TimeoutError, TimeoutError):
+        raise RetrosimError(f"--scheduler {address}: no Dask scheduler answered there within "
+                            f"{CONNECT_TIMEOUT:g} s") from None
+    except Exception as e:  # struct.error, OSError, a closed comm, ...
+        raise RetrosimError(f"--scheduler {address}: no Dask scheduler answered there "
+                            f"({type(e).__name__}: {one_line_of(e)})") from None
+    if not isinstance(answer, dict) or answer.get("type") != "Scheduler":
+        raise RetrosimError(f"--scheduler {address}: no Dask scheduler answered there (it answered {answer!r:.80})")
 
 
 def _run_dask(spec, todo, scheduler, jobs, new, checkpoint, tick):
@@ -364,12 +667,15 @@ def _run_dask(spec, todo, scheduler, jobs, new, checkpoint, tick):
                                silence_logs=40)
         address = cluster
     else:
+        host, port = check_scheduler(scheduler)
+        _reach(scheduler, host, port)
         address = scheduler
     try:
-        try:
-            client = Client(address, timeout=30) if cluster is None else Client(cluster)
-        except OSError as e:
-            raise RetrosimError(f"--scheduler {scheduler}: cannot connect: {e}") from None
+        if cluster is not None:
+            client = Client(cluster)
+        else:
+            _ask_identity(scheduler)
+            client = Client(address, timeout=CONNECT_TIMEOUT)
         with client:
             futures = [client.submit(run_group, g, pure=False) for g in todo]
             for fut in as_completed(futures):
@@ -403,19 +709,24 @@ def write_plots(spec: Spec, base: Path, rows: list[dict]) -> list[Path]:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    ok = [r for r in rows if not r.get("error") and r["point"] in {p["point"] for p in spec.points}]
+    named = {p["point"] for p in spec.points}
+    mine = [r for r in rows if r["point"] in named]
+    ok = [r for r in mine if not r.get("error")]
     metric, ylabel = _metric(ok)
     files = []
     for axis, values in spec.axes.items():
         others = [a for a in spec.axes if a != axis]
         series: dict[tuple, dict] = {}
         for r in ok:
-            tag = (r["scene"] or r["kernel"], r["variant"], *(r[a] for a in others))
+            tag = (_subject(r), r["variant"], *(r[a] for a in others))
             series.setdefault(tag, {})[r[axis]] = r[metric]
+        if not series:
+            continue
         fig, ax = plt.subplots(figsize=(8, 5))
         xs = list(range(len(values)))
         for tag, ys in series.items():
-            label = " ".join(str(t) for t in tag[1:] if t) or str(tag[0])
+            # the legend names the scene or kernel call, then the variant and the other parameters
+            label = " ".join(str(t) for t in tag if t)
             ax.plot([x for x, v in zip(xs, values) if v in ys], [ys[v] for v in values if v in ys], marker="o",
                     label=label)
         ax.set_xticks(xs, values)
@@ -431,7 +742,7 @@ def write_plots(spec: Spec, base: Path, rows: list[dict]) -> list[Path]:
         path = base.parent / f"{base.name}-{axis.replace('set.', '').replace('.', '-')}.png"
         atomic_write(path, buf.getvalue())
         files.append(path)
-    md = findings_markdown(spec, base, ok, files)
+    md = findings_markdown(spec, base, ok, files, mine)
     path = base.with_suffix(".md")
     atomic_write(path, md.encode())
     return files + [path]
@@ -471,13 +782,57 @@ def findings(spec: Spec, rows: list[dict]) -> list[str]:
     return out
 
 
-def findings_markdown(spec: Spec, base: Path, rows: list[dict], plots: list[Path]) -> str:
+def _subject(row: dict) -> str:
+    """What a row times: the scene's name, or the kernel call (source:entry, with its arguments)."""
+    if row["scene"]:
+        return row["scene"]
+    args = row.get("args", "")
+    return f"{row['kernel']}({args})" if args else row["kernel"]
+
+
+def _cell(text: str) -> str:
+    return str(text).replace("|", "\\|").replace("\n", " ")
+
+
+def results_table(spec: Spec, rows: list[dict]) -> list[str]:
+    """The table's rows as Markdown, in spec order: what was timed, the swept coordinates, the
+    metric and the cycles (or the point's error)."""
+    metric, label = _metric([r for r in rows if not r.get("error")] or rows)
+    coords = ["variant", "cpu", "memory"] + (["repeat"] if any(r.get("repeat") for r in rows) else []) \
+        + [f"set.{k}" for k in spec.grid_keys]
+    coords = [c for c in coords if any(r.get(c) for r in rows)]
+    heads = ["scene or kernel"] + [c.replace("set.", "") for c in coords]
+    heads += [label] + (["cycles"] if metric != "cycles" else [])
+    failed = any(r.get("error") for r in rows)
+    heads += ["error"] if failed else []
+    out = ["| " + " | ".join(heads) + " |", "|" + "|".join("---" if i <= len(coords) else "---:"
+                                                          for i in range(len(heads) - failed)) + ("|---|" if failed else "|")]
+    order = {p["point"]: i for i, p in enumerate(spec.points)}
+    for r in sorted(rows, key=lambda r: order.get(r["point"], len(order))):
+        cells = [_subject(r)] + [r.get(c, "") for c in coords]
+        if r.get("error"):
+            cells += ["-"] + (["-"] if metric != "cycles" else []) + [r["error"]]
+        else:
+            cells += [f"{r[metric]:,.3f}" if metric == "cycles_per_pixel" else f"{r[metric]:,}"]
+            cells += [f"{r['cycles']:,}"] if metric != "cycles" else []
+            cells += [""] if failed else []
+        out.append("| " + " | ".join(_cell(c) for c in cells) + " |")
+    return out
+
+
+def findings_markdown(spec: Spec, base: Path, rows: list[dict], plots: list[Path],
+                      table_rows: list[dict] | None = None) -> str:
+    """`rows`: the points that succeeded (findings); `table_rows`: every point the spec names."""
+    table_rows = rows if table_rows is None else table_rows
     lines = [f"# Sweep {base.name}", "", f"Generated by `retrosim sweep {spec.path.name}` from `{base.name}.parquet` "
-             f"({len(rows)} points); do not edit.", ""]
+             f"({len(table_rows)} points"
+             + (f", {len(table_rows) - len(rows)} failed" if len(table_rows) > len(rows) else "")
+             + "); do not edit.", ""]
     if spec.description:
         lines += [spec.description.strip(), ""]
     found = findings(spec, rows)
     if found:
         lines += ["## Findings", ""] + [f"- {f}" for f in found] + [""]
     lines += [f"![{p.stem}]({p.name})" for p in plots] + [""]
+    lines += ["## Results", ""] + results_table(spec, table_rows) + [""]
     return "\n".join(lines)

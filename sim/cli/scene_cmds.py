@@ -237,24 +237,47 @@ def check_cmd(scenes, update, check_reports, jobs):
               help="'local' (an embedded Dask LocalCluster on 127.0.0.1), 'serial' (this process), or the "
                    "address of a running Dask scheduler (tcp://HOST:PORT)")
 @click.option("--retry-failed", is_flag=True, help="recompute points whose row in the output records an error")
+@click.option("--max-points", type=click.IntRange(1, 10**9), default=None, metavar="N",
+              help="run a sweep of more than 10,000 points (the default limit), up to N")
 @_JOBS_OPTION
-def sweep_cmd(spec, out, scheduler, retry_failed, jobs):
+def sweep_cmd(spec, out, scheduler, retry_failed, max_points, jobs):
     """Run a design-space sweep (scenes or kernels x CPUs x memories x overrides) into one table."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from sim.parallel import check_jobs
-    from sim.sweep import load_spec, run_sweep
+    from sim.sweep import MAX_POINTS, check_scheduler, load_spec, output_lock, preflight, run_sweep
 
-    if scheduler not in ("local", "serial") and not scheduler.startswith(("tcp://", "tls://", "inproc://")):
-        raise ArgumentError(f"--scheduler '{scheduler}': expected local, serial or tcp://HOST:PORT")
-    parsed = load_spec(spec)
+    check_scheduler(scheduler)
+    parsed = load_spec(spec, max_points or MAX_POINTS)
     base = out or spec.with_suffix("")
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                  console=err_console) as bar:
-        task = bar.add_task(f"sweep {spec.name}", total=None)
-        result = run_sweep(parsed, base, scheduler, check_jobs(jobs), retry_failed=retry_failed,
-                           progress=lambda n, total: bar.update(task, completed=n, total=total))
+    calls = sum(g["repeat"] * len(g["points"]) for g in parsed.groups if g["kind"] == "kernel")
+    started = []
+
+    def progress(n, total):
+        if not started:  # once the output is locked and read: how much is left to run
+            started.append(True)
+            bar.console.print(f"{total:,} of {len(parsed.points):,} point(s) to run in {len(parsed.groups):,} "
+                              "emulation group(s)" + (f" (the spec's kernel points time {calls:,} call(s))" if calls
+                                                      else ""), markup=False, highlight=False, soft_wrap=True)
+        bar.update(task, completed=n, total=total)
+
+    jobs = check_jobs(jobs)
+    with output_lock(base):  # held from the checks to the last write: a second sweep here is refused
+        preflight(base, scheduler)  # bad output or scheduler: one line, before any progress display
+        with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                      console=err_console) as bar:
+            task = bar.add_task(f"sweep {spec.name}", total=None)
+            result = run_sweep(parsed, base, scheduler, jobs, retry_failed=retry_failed,
+                               progress=progress, lock=False)
     for path in result.files:
         err_console.print(f"wrote {path}")
     console.print(f"{len(result.rows)} point(s): {result.computed} computed now, "
                   f"{len(result.rows) - result.computed} from {base.with_suffix('.parquet')}, {result.failed} failed")
+    if result.failed:  # the first few reasons here; every one is in the table's error column
+        errors = [r for r in result.rows if r.get("error")]
+        for r in errors[:3]:
+            where = " ".join(x for x in (r["scene"] or r["kernel"], r["variant"], r["cpu"], r["memory"],
+                                         *(f"{k[4:]}={v}" for k, v in r.items() if k.startswith("set.") and v)) if x)
+            say(f"failed: {where}: {one_line(r['error'])}")
+        raise RetrosimError(f"{result.failed} of {len(result.rows)} point(s) failed (the error column of "
+                            f"{base.with_suffix('.csv')} says why; rerun them with --retry-failed)")
