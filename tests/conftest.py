@@ -2,6 +2,7 @@ import functools
 from pathlib import Path
 
 import pytest
+from click.testing import CliRunner
 
 from sim.guest.emu import Machine
 
@@ -70,3 +71,22 @@ def write_kernel(tmp_path):
         return path
 
     return write
+
+
+def one_error_line(r) -> str:
+    """A CLI result that failed as bad input should: exit 2, no exception but SystemExit, no
+    traceback, and one stderr line starting "retrosim: error: ". Returns that line."""
+    assert r.exit_code == 2, (r.exit_code, r.output, r.exception)
+    assert isinstance(r.exception, SystemExit), r.exception
+    assert "Traceback" not in r.output
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1, r.stderr
+    assert lines[0].startswith("retrosim: error: "), lines[0]
+    return lines[0]
+
+
+def cli_fails(*args, env=None) -> str:
+    """Run the CLI in-process and require :func:`one_error_line` of it. Returns the line."""
+    from sim.cli import main
+
+    return one_error_line(CliRunner().invoke(main, [str(a) for a in args], env=env, catch_exceptions=True))

@@ -22,6 +22,7 @@ import pytest
 from click.testing import CliRunner
 
 from sim.guest import asm
+from conftest import cli_fails
 from sim.cli import main
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -37,16 +38,7 @@ def own_cache(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
 
 
-def fails(*args, env=None) -> str:
-    """Run the CLI in-process; assert exit 2, no exception but SystemExit, one stderr line. Returns it."""
-    r = CliRunner().invoke(main, [str(a) for a in args], env=env, catch_exceptions=True)
-    assert r.exit_code == 2, (r.exit_code, r.output, r.exception)
-    assert isinstance(r.exception, SystemExit), r.exception
-    assert "Traceback" not in r.output
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1, r.stderr
-    assert lines[0].startswith("retrosim: error: "), lines[0]
-    return lines[0]
+fails = cli_fails  # exit 2, one "retrosim: error:" line, no traceback (conftest)
 
 
 def succeeds(*args):

@@ -11,22 +11,14 @@ import time
 import pytest
 from click.testing import CliRunner
 
+from conftest import cli_fails
 from sim.cli import main
 from sim.cpus import RANGES, overridable, value_range
 
 Z32 = ["zbuffer/z32.S", "--entry", "z32_span", "--args", "buf:u32:8,buf:u16:8,8,1,1,1"]
 
 
-def fails(*args, env=None) -> str:
-    """Run the CLI in-process; assert exit 2, one stderr line and no traceback. Returns the line."""
-    r = CliRunner().invoke(main, [str(a) for a in args], env=env, catch_exceptions=True)
-    assert r.exit_code == 2, (r.exit_code, r.output, r.exception)
-    assert isinstance(r.exception, SystemExit), r.exception
-    assert "Traceback" not in r.output
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1, r.stderr
-    assert lines[0].startswith("retrosim: error: "), lines[0]
-    return lines[0]
+fails = cli_fails  # exit 2, one "retrosim: error:" line, no traceback (conftest)
 
 
 # -- --set: every numeric override has a finite, plausible range, checked before any work --------

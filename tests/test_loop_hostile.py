@@ -10,6 +10,7 @@ import time
 import pytest
 from click.testing import CliRunner
 
+from conftest import one_error_line
 from sim.cli import main
 
 
@@ -29,14 +30,9 @@ def run(args, stdin=None):
 def fails(args, stdin=None, seconds=60) -> str:
     """Exit 2, no exception but SystemExit, one stderr line, within `seconds`. Returns the line."""
     r = run(args, stdin)
-    assert r.exit_code == 2, (r.exit_code, r.output, r.exception)
-    assert isinstance(r.exception, SystemExit), r.exception
-    assert "Traceback" not in r.output
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1, r.stderr
-    assert lines[0].startswith("retrosim: error: "), lines[0]
+    line = one_error_line(r)
     assert r.seconds < seconds, r.seconds
-    return lines[0][len("retrosim: error: "):]
+    return line[len("retrosim: error: "):]
 
 
 def loop_fails(body: str, *args, **kw) -> str:
