@@ -35,7 +35,12 @@ A point's id (the `point` column) is the JSON of everything in the spec that det
 counters: the scene (by name: two scene files of one name are refused) and variant, or the kernel
 (source:entry) with its `args` and `repeat`; the CPU label, the memory and the overrides. Values
 that name one machine twice (a grid's `128` and `128.0`, a CPU listed twice, a [[point]] equal to a
-grid point) are refused, as are non-finite numbers. Resuming merges only into a table this module
+grid point) are refused, as are non-finite numbers. Beside the id, a row's `fingerprint` column holds
+a hash of the files' contents that determine its counters: the scene file's bytes, or the kernel
+source with its includes (as the assembler cache hashes them, sim.guest.asm.content_key), and the
+CPU and memory preset files. A stored point whose fingerprint differs from the current one (or a
+row without one, from a table written before fingerprints) is recomputed on resume, and the
+command says how many were; the id itself is unchanged, so older tables stay resumable. Resuming merges only into a table this module
 wrote: an unreadable or altered Parquet file (or a CSV without its Parquet file) is refused with
 how to start over, never merged. One sweep at a time writes an output: it holds `BASE.lock` (an
 flock, released if the process dies) and a second sweep into the same output is refused.
@@ -63,6 +68,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import fcntl
+import hashlib
 import io
 import os
 import re
@@ -88,6 +94,7 @@ _KERNEL_KEYS = {"source", "entry", "args", "repeat"}
 SCENES_DIR = Path(__file__).resolve().parent.parent / "scenes"
 FIXED = ["point", "scene", "kernel", "variant", "cpu", "machine", "memory"]  # first columns, in order
 CALL = ["args", "repeat"]  # a kernel call's arguments and calls: after FIXED, in tables with kernel points
+FINGERPRINT = "fingerprint"  # hash of the input files' contents (after CALL); absent in older tables
 
 
 class SweepError(RetrosimError):
@@ -112,6 +119,47 @@ def _text(value) -> str:
     from sim.cpus import format_value
 
     return format_value(value)
+
+
+def fingerprint(subject: dict, cpu: str, memory: str | None, cache: dict | None = None) -> str:
+    """Hash of the contents of the files that determine a point's counters besides its id: the
+    scene file (a scene), or the kernel source and the includes the assembler cache follows
+    (sim.guest.asm.content_key, a kernel); the CPU preset file; the memory preset file (the
+    preset's own when `memory` is None). "" when a file cannot be read: the point is then always
+    recomputed, and fails with that file's error. `cache`: per-file hashes shared between points."""
+    from sim.cpus import presets
+    from sim.memory.dram import MEMORY_PRESETS_DIR
+
+    cache = {} if cache is None else cache
+
+    def once(key: tuple, compute: Callable[[], str]) -> str:
+        if key not in cache:
+            try:
+                cache[key] = compute()
+            except (RetrosimError, OSError):
+                cache[key] = ""
+        return cache[key]
+
+    def file_hash(path: Path) -> str:  # a scene or preset file, already read and checked by its loader
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+
+    def kernel_hash(source: str) -> str:
+        from sim.guest import kernels
+        from sim.guest.asm import content_key, get_assembler
+
+        return content_key(kernels.resolve(source), get_assembler())
+
+    preset = MachineKey(cpu).preset
+    if subject["kind"] == "scene":
+        what = once(("scene", subject["what"]), lambda: file_hash(Path(subject["what"])))
+    else:
+        what = once(("kernel", subject["what"]), lambda: kernel_hash(subject["what"]))
+    cpu_hash = once(("cpu", preset), lambda: file_hash(presets.PRESETS / f"{preset}.toml"))
+    mem = memory or once(("default memory", preset), lambda: presets.load(preset).memory)
+    mem_hash = once(("memory", mem), lambda: file_hash(MEMORY_PRESETS_DIR / f"{mem}.toml")) if mem else ""
+    if not (what and cpu_hash and mem_hash):
+        return ""
+    return hashlib.sha256(f"{what} {cpu_hash} {mem_hash}".encode()).hexdigest()
 
 
 def load_spec(path: str | Path, max_points: int = MAX_POINTS) -> Spec:
@@ -249,7 +297,7 @@ def load_spec(path: str | Path, max_points: int = MAX_POINTS) -> Spec:
     if n_points > max_points:
         fail("sweep", too_many(n_points))
 
-    groups, ids = [], set()
+    groups, ids, files = [], set(), {}
     for sub in subjects:
         pts = []
         for cpu in cpus:
@@ -265,7 +313,8 @@ def load_spec(path: str | Path, max_points: int = MAX_POINTS) -> Spec:
                     if point in ids:  # a [[point]] equal to a grid point, or one kernel call listed twice
                         fail("point" if listed else "sweep.kernels", f"the point {point} is listed twice")
                     ids.add(point)
-                    pts.append({"point": point, "coords": coords, "cpu": cpu, "memory": memory, "set": s})
+                    pts.append({"point": point, "coords": coords, "cpu": cpu, "memory": memory, "set": s,
+                                "fingerprint": fingerprint(sub, cpu, memory, files)})
         groups.append({**sub, "points": pts})
     axes = {"cpu": cpus, "memory": memories}
     axes.update({f"set.{k}": list(dict.fromkeys(_text(s[k]) for s in sets if k in s)) for k in keys})
@@ -342,7 +391,8 @@ def run_group(group: dict) -> list[dict]:
 
 
 def _row(point: dict, info: dict | None, counters: dict | None, error: str) -> dict:
-    row = {"point": point["point"], **point["coords"], "machine": "", "error": error}
+    row = {"point": point["point"], **point["coords"], "machine": "", "error": error,
+           FINGERPRINT: point.get("fingerprint", "")}
     if info:
         row.update(machine=info["machine"], memory=info["memory"])
         if info["pixels"] is not None:
@@ -356,15 +406,15 @@ def _row(point: dict, info: dict | None, counters: dict | None, error: str) -> d
 
 def _columns(rows: list[dict]) -> list[str]:
     seen = list(dict.fromkeys(k for r in rows for k in r))
-    call = [c for c in CALL if c in seen]
+    call = [c for c in CALL + [FINGERPRINT] if c in seen]
     sets = [c for c in seen if c.startswith("set.")]
-    rest = [c for c in seen if c not in FIXED and c not in CALL and not c.startswith("set.")
+    rest = [c for c in seen if c not in FIXED and c not in CALL and c != FINGERPRINT and not c.startswith("set.")
             and c not in ("error", "pixels", "cycles_per_pixel")]
     return FIXED + call + sets + ["error", "pixels", "cycles_per_pixel"] + rest
 
 
 def _is_text(column: str) -> bool:
-    return column in FIXED or column in CALL or column.startswith("set.") or column == "error"
+    return column in FIXED or column in CALL or column.startswith("set.") or column in ("error", FINGERPRINT)
 
 
 MAX_TABLE_BYTES = 1 << 30  # a sweep's table: 10,000 points of ~100 counters are a few MB
@@ -508,6 +558,7 @@ class SweepResult:
     computed: int                    # points run now (the rest came from the output)
     failed: int
     files: list[Path] = field(default_factory=list)
+    changed: int = 0                 # of `computed`: points in the output recomputed because their input files changed
 
 
 def _warm(spec: Spec) -> None:
@@ -557,9 +608,14 @@ def _run_sweep(spec, base, scheduler, jobs, progress, plots, retry_failed) -> Sw
         check_output_file(base.with_suffix(suffix), "--out")
     done = {r["point"]: r for r in read_rows(base) if not (retry_failed and r.get("error"))}
     wanted = {p["point"] for p in spec.points}
-    todo = []
+
+    def stale(p):  # stored, but its input files changed since (or it predates fingerprints, or one is unreadable)
+        return p["point"] in done and (not p["fingerprint"] or done[p["point"]].get(FINGERPRINT) != p["fingerprint"])
+
+    todo, changed = [], 0
     for g in spec.groups:
-        pts = [p for p in g["points"] if p["point"] not in done]
+        pts = [p for p in g["points"] if p["point"] not in done or stale(p)]
+        changed += sum(1 for p in pts if p["point"] in done)
         if pts:
             todo.append({**g, "points": pts})
     total = sum(len(g["points"]) for g in todo)
@@ -587,7 +643,7 @@ def _run_sweep(spec, base, scheduler, jobs, progress, plots, retry_failed) -> Sw
     files = write_rows(base, rows) if rows else []
     if plots and any(not r.get("error") for r in rows):  # a sweep with no result draws no empty plot
         files += write_plots(spec, base, rows)
-    return SweepResult(rows, len(new), sum(1 for r in rows if r.get("error")), files)
+    return SweepResult(rows, len(new), sum(1 for r in rows if r.get("error")), files, changed)
 
 
 CONNECT_TIMEOUT = 10.0  # seconds to reach a --scheduler address and hear Dask answer

@@ -5,6 +5,7 @@ with MMX/3DNow!/SSE sweep on the CPUs that have them; a sweep with failed points
 
 from __future__ import annotations
 
+import shutil
 import socket
 import subprocess
 import sys
@@ -307,3 +308,75 @@ def test_the_report_has_a_results_table_and_legends_naming_the_kernel(tmp_path, 
         assert any(f"| {r['cycles']:,} |" in ln and f"({r['args']})" in ln and r["cpu"] in ln for ln in table)
     assert sum("power-of-two" in ln for ln in table) == 4
     assert labels and all(lab.startswith("count.S:count(") for lab in labels)
+
+
+# -- a point's inputs: a changed file is recomputed, never served from the old row --------------------
+
+INCLUDING = ".intel_syntax noprefix\n.text\n.globl count\ncount:\n    mov ecx, [esp+4]\n.include \"body.inc\"\n    ret\n"
+
+
+def _run(tmp_path, spec_path):
+    return sweep.run_sweep(sweep.load_spec(spec_path), tmp_path / "out", "serial", plots=False)
+
+
+def test_editing_a_kernel_or_its_include_recomputes_its_points(tmp_path):
+    path = kernel_spec(tmp_path, kernels=(200,))
+    (tmp_path / "count.S").write_text(INCLUDING)
+    (tmp_path / "body.inc").write_text("1:  dec ecx\n    jnz 1b\n")
+    first = _run(tmp_path, path)
+    assert first.computed == 1 and not first.rows[0]["error"] and first.rows[0]["fingerprint"]
+    unchanged = _run(tmp_path, path)  # nothing edited: nothing computed
+    assert (unchanged.computed, unchanged.changed) == (0, 0)
+    assert unchanged.rows[0]["cycles"] == first.rows[0]["cycles"]
+    # the include's loop now does twice the work per iteration: the old figure must not be served
+    (tmp_path / "body.inc").write_text("1:  imul eax, eax\n    imul eax, eax\n    dec ecx\n    jnz 1b\n")
+    edited = _run(tmp_path, path)
+    assert (edited.computed, edited.changed) == (1, 1)
+    assert edited.rows[0]["cycles"] > first.rows[0]["cycles"]
+    assert edited.rows[0]["fingerprint"] != first.rows[0]["fingerprint"]
+    # and an edit of the kernel source itself
+    (tmp_path / "count.S").write_text(COUNT)
+    source_edited = _run(tmp_path, path)
+    assert (source_edited.computed, source_edited.changed) == (1, 1)
+    assert source_edited.rows[0]["cycles"] < edited.rows[0]["cycles"]
+    assert _run(tmp_path, path).computed == 0
+
+
+def test_a_table_without_fingerprints_stays_readable_and_its_points_are_recomputed(tmp_path):
+    import pyarrow.parquet as pq
+
+    path = kernel_spec(tmp_path, kernels=(5, 50))
+    _run(tmp_path, path)
+    parquet = tmp_path / "out.parquet"
+    pq.write_table(pq.read_table(parquet).drop(["fingerprint"]), parquet)  # as written before fingerprints
+    assert len(sweep.read_rows(tmp_path / "out")) == 2
+    again = _run(tmp_path, path)
+    assert (again.computed, again.changed) == (2, 2)
+    assert all(r["fingerprint"] for r in sweep.read_rows(tmp_path / "out"))
+
+
+def test_the_committed_l2_sweep_table_is_still_readable():
+    rows = sweep.read_rows(Path(__file__).resolve().parent.parent / "sweeps" / "l2-size")
+    assert rows and all(r["point"] for r in rows)
+
+
+def test_editing_a_scene_file_or_a_preset_changes_its_points_fingerprint(tmp_path, monkeypatch):
+    from sim.cpus import presets
+
+    scenes = Path(__file__).resolve().parent.parent / "scenes"
+    scene = tmp_path / "zbuffer-small.toml"
+    scene.write_bytes((scenes / "zbuffer-small.toml").read_bytes())
+    spec = spec_file(tmp_path, f'[sweep]\nscenes = ["{scene}"]\ncpus = ["pentium2-233"]\n')
+    before = {p["point"]: p["fingerprint"] for p in sweep.load_spec(spec).points}
+    assert before and all(before.values())
+    assert before == {p["point"]: p["fingerprint"] for p in sweep.load_spec(spec).points}  # deterministic
+    scene.write_bytes(scene.read_bytes() + b"\n# edited\n")
+    after = {p["point"]: p["fingerprint"] for p in sweep.load_spec(spec).points}
+    assert after.keys() == before.keys() and all(after[k] != before[k] for k in before)
+    # a CPU preset's file: a copy of the preset folder with one number changed
+    shutil.copytree(presets.PRESETS, tmp_path / "presets")
+    monkeypatch.setattr(presets, "PRESETS", tmp_path / "presets")
+    assert {p["point"]: p["fingerprint"] for p in sweep.load_spec(spec).points} == after
+    preset = tmp_path / "presets" / "pentium2-233.toml"
+    preset.write_text(preset.read_text() + "\n# edited\n")
+    assert all(p["fingerprint"] != after[p["point"]] for p in sweep.load_spec(spec).points)

@@ -157,7 +157,7 @@ def read_source(path: Path, what: str) -> bytes:
     return b"".join(chunks)
 
 
-def _content_key(source: Path, asm: Assembler, march: str | None = None, depfile: bool = True) -> str:
+def content_key(source: Path, asm: Assembler, march: str | None = None, depfile: bool = True) -> str:
     """Hash of everything the object depends on: the source, its .include files, the assembler
     and its flags (the CPU it assembles for included). `depfile`: the assembler reports what it
     read (checked on each cache hit); without it, an include the scan cannot follow is refused."""
@@ -449,7 +449,7 @@ def assemble(source: str | os.PathLike, assembler: str | None = None, cpu: Guest
     cpu = require_cpu(cpu)
     march = cpu.march(asm.name) if cpu is not None else None
     depfile = asm.name == "gnu"  # GNU as reports the files it read (--MD); zig does not
-    key = _content_key(source, asm, march, depfile) + "-".join(("", *flags))  # also checks every include
+    key = content_key(source, asm, march, depfile) + "-".join(("", *flags))  # also checks every include
     key = hashlib.sha256(key.encode()).hexdigest() if flags else key
     out_dir = cache_dir()
     target = out_dir / f"{source.stem}-{asm.name}-{march or 'i686'}-{key[:20]}.o"
