@@ -102,6 +102,31 @@ def test_robustness_reruns_the_trace_with_each_estimate_at_its_ends(tmp_path):
     assert "Robustness:" in report._claim_sentence(c)
 
 
+P6_CLAIM = FAMILY_CLAIM.replace('families = ["k6"]', 'families = ["p6"]').replace("on the K6", "on the P6")
+
+
+def test_a_claim_on_an_edo_machine_is_checked_against_the_estimated_page_figures(tmp_path):
+    """The EDO preset's page figures are estimates (edo.toml [pages.ranges]): each joins the
+    robustness pass at the range the preset states; PC100's sourced savings do not."""
+    from sim.scenes.claims import parameters
+
+    result = run_scene(scene(tmp_path, cpus='["pentium2-233:edo"]', claims=P6_CLAIM))
+    (c,) = report.evaluate_claims(result)
+    (e,) = c["per_cpu"]
+    rows = {r["parameter"]: r for r in e["robustness"]}
+    stated = {"pages.open_pages": (1, 2), "pages.page_bytes": (4096, 16384),
+              "pages.hit_saving_bus_clocks": (2, 4), "pages.write_saving_bus_clocks": (0, 1)}
+    for key, ends in stated.items():
+        assert (rows[key]["low"], rows[key]["high"]) == ends, key
+        assert "estimated page figure" in rows[key]["why"]
+    assert "pages.hit_saving_bus_clocks 2..4" in report._claim_sentence(c)
+    mechanisms = {p.key: p.mechanism for p in parameters("pentium2-233", "edo")}
+    assert mechanisms["pages.hit_saving_bus_clocks"] == "dram_page_hits"
+    sdram = {p.key for p in parameters("pentium2-233", "sdram-pc100")}
+    assert {"pages.open_pages", "pages.page_bytes"} <= sdram  # the geometry is estimated there too
+    assert "pages.hit_saving_bus_clocks" not in sdram  # tRP + tRCD from the datasheet
+
+
 def test_claim_coverage_is_validated(tmp_path):
     bad = FAMILY_CLAIM.replace('families = ["k6"]', 'families = ["z80"]')
     with pytest.raises(SceneError, match=r"claims\[0\]\.families: unknown family 'z80'"):
@@ -135,6 +160,10 @@ def test_make_model_overrides():
     ({"l2.latency_cycles": 2.5}, r"must be a whole number"),
     ({"l2.latency_cycles": "fast"}, r"expected a finite number"),
     ({"l2.size_kb": 300}, r"CPU preset 'pentium2-233': .*L2"),  # not a cache geometry
+    ({"pages.open_pages": 3}, r"override pages.open_pages: must be a power of two"),
+    ({"pages.page_bytes": 1 << 20}, r"override pages.page_bytes: must be between 512 and 65536"),
+    ({"pages.hit_saving_bus_clocks": 17}, r"override pages.hit_saving_bus_clocks: must be between 0 and 16"),
+    ({"pages.hit_saving": 3}, r"unknown override 'pages.hit_saving'"),
 ])
 def test_make_model_refuses_bad_overrides(overrides, message):
     with pytest.raises(RetrosimError, match=message):

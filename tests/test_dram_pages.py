@@ -8,6 +8,7 @@ latency, CL2 = 2 clocks).
 """
 
 import numpy as np
+import pytest
 
 from sim.cpus import make_model, presets
 from sim.cpus.contract import dram_cost
@@ -60,3 +61,74 @@ def test_without_page_model_every_fill_misses():
     h = Hierarchy.from_preset(presets.load("pentium2-233"))
     hits, fills = _fills(h, np.arange(0, 1 << 20, 32, dtype=np.int64))
     assert hits == 0 and fills > 0
+
+
+STREAM = """
+    push esi
+    mov esi, [esp+8]
+    mov ecx, [esp+12]
+1:  mov eax, [esi]
+    add esi, 32
+    dec ecx
+    jnz 1b
+    pop esi
+    ret
+"""
+
+
+def _stream(write_kernel, size=2 << 20):
+    """A sequential read of `size` bytes, one load per 32-byte line: past the 512 KB L2, so every
+    line is a DRAM fill and nearly every fill's page is open."""
+    from sim.timing.kernel import emulate
+
+    src = write_kernel(STREAM, entry="stream")
+    return emulate(src, "stream", lambda m: [m.arena.put(np.zeros(size, np.uint8)), size // 32], repeat=1)
+
+
+def test_overriding_the_page_hit_saving_moves_a_sequential_stream(write_kernel):
+    """edo.toml's page-hit saving is an estimate (2..4 bus clocks): overridden (``pages.FIELD``, as
+    the claims' robustness pass does), a larger saving makes a stream of page hits faster."""
+    from sim.timing.kernel import time_emulation
+
+    emu = _stream(write_kernel)
+    runs = {s: time_emulation(emu, make_model("pentium2-233", "edo", {"pages.hit_saving_bus_clocks": s})).last
+            for s in (2, 3, 4)}
+    assert runs[3]["dram_page_hits"] > 0.9 * runs[3]["dram_fills"]
+    assert runs[4]["cycles"] < runs[3]["cycles"] < runs[2]["cycles"]
+    assert runs[3] == time_emulation(emu, make_model("pentium2-233", "edo")).last  # 3 is the preset's figure
+
+
+def test_a_page_geometry_override_never_replays_a_log_recorded_with_another(write_kernel):
+    """The page geometry decides which fills are page hits, and it lives in the data caches'
+    configuration a replay log is keyed by: a re-timing with another page size, handed the nominal
+    run's logs, walks the caches itself and times exactly like a fresh run."""
+    from sim.memory.replay import AccessLogs
+    from sim.timing.kernel import time_emulation
+
+    emu = _stream(write_kernel)
+    logs = AccessLogs(keep=4)
+    nominal = time_emulation(emu, make_model("pentium2-233", "edo"), access_logs=logs).last  # 8 KB pages
+    small = {"pages.page_bytes": 4096}
+    shared = time_emulation(emu, make_model("pentium2-233", "edo", small), access_logs=logs).last
+    assert len(logs._logs) == 2  # a second recording, not a replay of the first
+    assert shared == time_emulation(emu, make_model("pentium2-233", "edo", small)).last
+    assert shared["dram_page_hits"] < nominal["dram_page_hits"]  # a row boundary every 128 lines, not 256
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda s: s.replace("hit_saving_bus_clocks = { low = 2, high = 4,", "hit_saving_bus_clocks = { low = 4, high = 5,"),
+     r"\[pages.ranges\] hit_saving_bus_clocks = 4..5 does not hold the model's 3"),
+    (lambda s: s[: s.index("write_saving_bus_clocks = { low")],
+     r"\[pages.ranges\] must give a range for exactly the estimated fields"),
+    (lambda s: s.replace("page_bytes = { low = 4096,", "page_bytes = { low = 5000,"), r"\[pages.ranges\] page_bytes ends must be powers of two"),
+    (lambda s: s.replace('open_pages = { low = 1, high = 2, reason = "', 'open_pages = { low = 1, high = 2, why = "'),
+     r"\[pages.ranges\] open_pages must be \{ low = INT, high = INT, reason"),
+])
+def test_an_estimated_page_figure_needs_a_range_holding_it(tmp_path, monkeypatch, edit, message):
+    from sim.memory import dram
+
+    text = (dram.MEMORY_PRESETS_DIR / "edo.toml").read_text()
+    (tmp_path / "edo.toml").write_text(edit(text))
+    monkeypatch.setattr(dram, "MEMORY_PRESETS_DIR", tmp_path)
+    with pytest.raises(ValueError, match=r"^edo.toml: " + message):
+        dram.load_memory_preset("edo")

@@ -13,6 +13,9 @@ input is bounded) and no run is slowed without end by an absurd figure (:data:`R
   size for every level); ``LEVEL.latency_cycles`` 1..1000 core clocks; ``LEVEL.speed_ratio``
   (cache clock / core clock) 1/8..1;
 - ``memory.overhead_bus_clocks`` 0..1000 bus clocks;
+- ``pages.FIELD``: the memory preset's ``[pages]`` figures (sim/memory/presets/NAME.toml, the
+  machine's memory): ``open_pages`` 1..16 and ``page_bytes`` 512..65536, powers of two;
+  ``hit_saving_bus_clocks`` and ``write_saving_bus_clocks`` 0..16 bus clocks;
 - ``estimates.NAME``: the family machine table's stated plausible range
   (``[estimates.NAME] range``, with its ``range_reason``).
 """
@@ -20,6 +23,7 @@ input is bounded) and no run is slowed without end by an absurd figure (:data:`R
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import re
 
@@ -47,11 +51,12 @@ MODEL_FIELDS = ("clock.core_mhz", "clock.fsb_mhz", "memory.overhead_bus_clocks")
     for f in ("size_kb", "ways", "line_bytes", "latency_cycles", "speed_ratio"))
 
 
-def overridable(cpu: str) -> dict[str, float]:
+def overridable(cpu: str, memory: str | None = None) -> dict[str, float]:
     """Every parameter :func:`make_model` accepts in ``overrides`` for a CPU preset, with its value:
     numeric fields of the preset file by dotted path (``l2.latency_cycles``,
-    ``memory.overhead_bus_clocks``, ``clock.core_mhz``, ...) and the family model's numeric
-    estimates as ``estimates.NAME``."""
+    ``memory.overhead_bus_clocks``, ``clock.core_mhz``, ...), the family model's numeric
+    estimates as ``estimates.NAME``, and the page figures of the memory preset (`memory`, or the
+    CPU preset's default) as ``pages.FIELD`` where it has a ``[pages]`` table."""
     preset = presets.load(cpu)
     out = {}
 
@@ -72,6 +77,9 @@ def overridable(cpu: str) -> dict[str, float]:
     if preset.family in families.FAMILIES:  # the family's estimates (its machine table's [estimates])
         for est in families.family(preset.family).overridable():
             out[est.key] = est.default
+    pages = load_dram(memory or preset.memory).pages
+    if pages is not None:
+        out |= {f"pages.{f}": getattr(pages, f) for f in dram.PAGE_FIELDS}
     return out
 
 
@@ -94,7 +102,12 @@ RANGES = {
     "line_bytes": (8, 256, "line size in bytes, a power of two"),
     "latency_cycles": (1, 1000, "load-to-use latency in core clocks"),
     "speed_ratio": (0.125, 1, "cache clock / core clock"),
+    "pages.open_pages": (1, 16, "open DRAM pages (banks), a power of two"),  # hierarchy.MAX_OPEN_PAGES
+    "pages.page_bytes": (512, 65536, "DRAM page (row) size in bytes, a power of two"),
+    "pages.hit_saving_bus_clocks": (0, 16, "bus clocks a page hit saves against a page miss"),
+    "pages.write_saving_bus_clocks": (0, 16, "bus clocks a line write saves against a read"),
 }
+POWER_OF_TWO = (".line_bytes", "pages.open_pages", "pages.page_bytes")
 MAX_BUS_RATIO = 16  # core clock / bus clock (the era's multipliers were 1.5 to 5)
 
 
@@ -124,7 +137,7 @@ def _check_value(cpu: str, key: str, value, old) -> float | str | bool:
     if isinstance(old, int) and value != int(value):
         raise RetrosimError(f"{where}: must be a whole number (the preset's value is {old}), got {value}")
     leaf = key.rsplit(".", 1)[-1]
-    if value == 0 and not leaf.startswith(("overhead", "partial", "static", "mispredict")):
+    if value == 0 and not leaf.startswith(("overhead", "partial", "static", "mispredict", "hit_saving", "write_saving")):
         raise RetrosimError(f"{where}: must be > 0, got {value}")
     bounds = value_range(cpu, key)
     if bounds is not None:
@@ -132,7 +145,7 @@ def _check_value(cpu: str, key: str, value, old) -> float | str | bool:
         if not low <= value <= high:
             raise RetrosimError(f"{where}: must be between {format_value(low)} and {format_value(high)} "
                                 f"({what}), got {format_value(value)}")
-        if key.endswith(".line_bytes") and int(value) & (int(value) - 1):
+        if key.endswith(POWER_OF_TWO) and int(value) & (int(value) - 1):
             raise RetrosimError(f"{where}: must be a power of two ({what}), got {format_value(value)}")
     return int(value) if isinstance(old, int) else float(value)
 
@@ -230,17 +243,18 @@ def family_of(key: str) -> str:
 def load_preset(label: str):
     """The preset a machine label names, with its overrides applied and validated."""
     base, overrides = split_label(label)
-    preset, _ = _apply(base, overrides)
+    preset, _, _ = _apply(base, overrides)
     return preset
 
 
-def _apply(cpu: str, overrides: dict):
-    """(preset with `overrides` applied, estimate overrides), every override validated."""
+def _apply(cpu: str, overrides: dict, memory: str | None = None):
+    """(preset with `overrides` applied, estimate overrides, memory page overrides), every override
+    validated (a ``pages.FIELD`` against `memory`, or the preset's default memory)."""
     preset = presets.load(cpu)
-    estimates = {}
+    estimates, pages = {}, {}
     if not overrides:
-        return preset, estimates
-    allowed = overridable(cpu)
+        return preset, estimates, pages
+    allowed = overridable(cpu, memory)
     raw = copy.deepcopy(preset.raw)
     for key, value in overrides.items():
         if key not in allowed:
@@ -251,6 +265,9 @@ def _apply(cpu: str, overrides: dict):
         if key.startswith("estimates."):
             estimates[key.split(".", 1)[1]] = value
             continue
+        if key.startswith("pages."):
+            pages[key.split(".", 1)[1]] = value
+            continue
         *path, leaf = key.split(".")
         section = raw
         for part in path:
@@ -258,19 +275,22 @@ def _apply(cpu: str, overrides: dict):
         section[leaf] = value
     if any(k.startswith("clock.") for k in overrides):
         _check_clocks(cpu, raw)
-    return presets.from_raw(raw, cpu, f"CPU preset '{cpu}' (overridden)"), estimates
+    return presets.from_raw(raw, cpu, f"CPU preset '{cpu}' (overridden)"), estimates, pages
 
 
 def make_model(cpu: str, memory: str | None = None, overrides: dict | None = None):
     """The timing model for a CPU preset, with its default memory unless `memory` names another.
 
     `overrides` replaces preset fields or model estimates by name (see :func:`overridable`), e.g.
-    ``{"l2.latency_cycles": 10, "memory.overhead_bus_clocks": 12, "estimates.uop_queue": 8}``;
+    ``{"l2.latency_cycles": 10, "memory.overhead_bus_clocks": 12, "estimates.uop_queue": 8,
+    "pages.hit_saving_bus_clocks": 2}``;
     an unknown name or an impossible value is one clear error. `cpu` may be a machine label
     (``"k6-233{write_allocate.mode=full}"``, see :func:`machine_label`); `overrides` add to its own."""
     base, given = split_label(cpu)
-    preset, estimates = _apply(base, {**given, **normalize_overrides(overrides)})
+    preset, estimates, pages = _apply(base, {**given, **normalize_overrides(overrides)}, memory)
     mem = load_dram(memory or preset.memory)
+    if pages:  # a page figure replaced: the walk's page geometry and the hit costs follow it
+        mem = dataclasses.replace(mem, pages=dataclasses.replace(mem.pages, **pages))
     if preset.family not in families.FAMILIES:
         raise RetrosimError(f"CPU preset '{cpu}': no timing model for family '{preset.family}' yet")
     model = families.family(preset.family).model_class()

@@ -46,7 +46,7 @@ of 512 columns x 8 bytes = 4 KB (Micron 64Mb SDRAM MT48LC8M8A2 data sheet: "each
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from fractions import Fraction
 from pathlib import Path
 
@@ -137,6 +137,43 @@ class PageModel:
     write_saving_bus_clocks: int
     source: str
     estimated: tuple[str, ...] = ()
+    # field -> (low, high, reason): the plausible range of each estimated figure ([pages.ranges]),
+    # which the claims' robustness pass (sim/scenes/claims.py) times at both ends
+    ranges: dict = field(default_factory=dict, compare=False)
+
+
+# The [pages] figures an override may replace (``pages.FIELD``, sim/cpus/__init__.py): the savings
+# only re-time; the geometry (open pages, page size) changes which accesses are page hits.
+PAGE_FIELDS = ("hit_saving_bus_clocks", "write_saving_bus_clocks", "open_pages", "page_bytes")
+PAGE_GEOMETRY = ("open_pages", "page_bytes")
+
+
+def _page_ranges(t: dict, where: str, est: list[str], values: dict) -> dict:
+    """[pages.ranges]: ``FIELD = { low = L, high = H, reason = "..." }`` for every estimated field
+    (and only those), the model's figure inside."""
+    r = t.get("ranges", {})
+    if not isinstance(r, dict):
+        raise ValueError(f"{where}: [pages.ranges] must be a table")
+    for f in est:
+        if f not in PAGE_FIELDS:
+            raise ValueError(f"{where}: [pages] estimated names {f!r}, not one of {', '.join(PAGE_FIELDS)}")
+    if set(r) != set(est):
+        raise ValueError(f"{where}: [pages.ranges] must give a range for exactly the estimated fields "
+                         f"({', '.join(est) or 'none'}), got {', '.join(r) or 'none'}")
+    out = {}
+    for f, spec in r.items():
+        ok = (isinstance(spec, dict) and set(spec) == {"low", "high", "reason"}
+              and all(type(spec[k]) is int for k in ("low", "high")) and isinstance(spec["reason"], str)
+              and spec["reason"].strip())
+        if not ok:
+            raise ValueError(f"{where}: [pages.ranges] {f} must be {{ low = INT, high = INT, reason = \"...\" }}")
+        if not 0 <= spec["low"] <= values[f] <= spec["high"]:
+            raise ValueError(f"{where}: [pages.ranges] {f} = {spec['low']}..{spec['high']} does not hold "
+                             f"the model's {values[f]}")
+        if f in PAGE_GEOMETRY and any(v <= 0 or v & (v - 1) for v in (spec["low"], spec["high"])):
+            raise ValueError(f"{where}: [pages.ranges] {f} ends must be powers of two, got {spec['low']}..{spec['high']}")
+        out[f] = (spec["low"], spec["high"], spec["reason"].strip())
+    return out
 
 
 def _page_model(d: dict, where: str, first_transfer: int) -> PageModel | None:
@@ -167,9 +204,12 @@ def _page_model(d: dict, where: str, first_transfer: int) -> PageModel | None:
     est = t.get("estimated", [])
     if not isinstance(est, list) or not all(isinstance(x, str) for x in est):
         raise ValueError(f"{where}: [pages] estimated must be a list of field names")
+    ranges = _page_ranges(t, where, est, {"open_pages": n, "page_bytes": size, "hit_saving_bus_clocks": hit,
+                                           "write_saving_bus_clocks": wr})
     if policy == "closed":
         hit = 0  # every access opens its row and closes it again
-    return PageModel(need("chipset", str), policy, n, size, hit, wr, need("source", str), tuple(est))
+        ranges.pop("hit_saving_bus_clocks", None)
+    return PageModel(need("chipset", str), policy, n, size, hit, wr, need("source", str), tuple(est), ranges)
 
 
 def available_memory_presets() -> list[str]:

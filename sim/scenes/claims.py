@@ -8,10 +8,15 @@ Robustness. Some model parameters have no sourced figure: the estimates of the f
 family's machine table [estimates], read through sim/cpus/families.py, with its plausible range and
 mechanism counter), the cache latencies a preset marks ``latency_estimated`` and the board's DRAM
 overhead (``[memory] overhead_bus_clocks``, calibrated on one measured system or carried over from
-another), each with a range here. While a variant's emulation is alive the
-runner re-times the same trace (no re-emulation) with each parameter set to either end of its range,
-one at a time (:func:`perturbed_timings`); no such parameter changes the data caches, so the re-timings
-after the first read the caches' results back instead of walking them (sim/memory/replay.py). A parameter whose mechanism never fires in a variant (no
+another), each with a range here; and the page-mode figures a memory preset marks estimated
+(``[pages] estimated``, with their ranges and reasons in ``[pages.ranges]``), as ``pages.FIELD``.
+While a variant's emulation is alive the runner re-times the same trace (no re-emulation) with each
+parameter set to either end of its range, one at a time (:func:`perturbed_timings`). No parameter but
+the page geometry (``pages.open_pages``, ``pages.page_bytes``) changes what the data caches' walk
+decides, so those re-timings read the caches' results back instead of walking them
+(sim/memory/replay.py); the page geometry decides which fills are page hits, so a re-timing with
+another geometry walks the caches itself (the geometry is part of the cache configuration a
+replay log is keyed by, so it could not replay the nominal log anyway). A parameter whose mechanism never fires in a variant (no
 store forward, no MSROM uop, no DRAM fill, ...) cannot change its timing and is not re-run. A claim
 whose verdict on a machine differs at either end of a range from the nominal verdict is reported as
 "depends on <parameter>", never as reproduced. Only the ends are timed: between them the verdict is
@@ -21,6 +26,8 @@ assumed not to flip twice (the cycle ratio moves monotonically with each of thes
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+from sim.memory import dram
 
 # Estimated cache latencies (preset ``latency_estimated = true``): +-30 % of the estimate, the
 # spread between the proxies they were derived from (full-speed 13 vs half-speed 23 on the P6).
@@ -35,7 +42,11 @@ OVERHEAD_MEASURED = 2.0
 # A preset parameter's mechanism fires only when this counter is non-zero (a family estimate names
 # its own: machine table [estimates.NAME] mechanism).
 MECHANISM = {"memory.overhead_bus_clocks": "dram_fills", "l2.latency_cycles": "l1d_load_misses",
-             "l3.latency_cycles": "l3_accesses"}
+             "l3.latency_cycles": "l3_accesses", "pages.hit_saving_bus_clocks": "dram_page_hits",
+             "pages.write_saving_bus_clocks": "dram_writebacks",
+             # the geometry decides which fills are page hits: any DRAM fill may become one
+             "pages.open_pages": "dram_fills", "pages.page_bytes": "dram_fills"}
+PAGE_GEOMETRY_KEYS = tuple(f"pages.{f}" for f in dram.PAGE_GEOMETRY)
 
 
 @dataclass(frozen=True)
@@ -55,12 +66,13 @@ def _n(x: float) -> str:
     return f"{x:g}"
 
 
-def parameters(cpu: str) -> list[Param]:
-    """The estimated parameters of a CPU preset and their plausible ranges."""
-    from sim.cpus import families, overridable, presets
+def parameters(cpu: str, memory: str | None = None) -> list[Param]:
+    """The estimated parameters of a CPU preset on a memory preset (`memory`, or the CPU preset's
+    default) and their plausible ranges."""
+    from sim.cpus import families, load_dram, overridable, presets
 
     preset = presets.load(cpu)
-    values = overridable(cpu)
+    values = overridable(cpu, memory)
     estimates = families.FAMILIES[preset.family].estimates.values() if preset.family in families.FAMILIES else ()
     out = [Param(e.key, values[e.key], e.low, e.high, e.range_reason, None if e.mechanism == families.ALWAYS else e.mechanism)
            for e in estimates if e.key in values and e.applies_to(preset)]  # applies_to: e.g. no on-die L2, never read
@@ -79,6 +91,12 @@ def parameters(cpu: str) -> list[Param]:
         else:
             lo, hi, why = max(0.0, v - OVERHEAD_MEASURED), v + OVERHEAD_MEASURED, "board overhead calibrated on this CPU: +-2 bus clocks"
         out.append(Param("memory.overhead_bus_clocks", v, lo, hi, why, MECHANISM["memory.overhead_bus_clocks"]))
+    pages = load_dram(memory or preset.memory).pages
+    # the savings first: the geometry's re-timings walk the caches (see perturbed_timings)
+    for field in sorted(pages.ranges if pages else (), key=lambda f: f in dram.PAGE_GEOMETRY):
+        low, high, why = pages.ranges[field]
+        key = f"pages.{field}"
+        out.append(Param(key, values[key], low, high, f"estimated page figure ({pages.chipset}): {why}", MECHANISM[key]))
     return out
 
 
@@ -96,16 +114,19 @@ def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, say=lambd
     from sim.timing.kernel import time_emulation
 
     out = {}
-    # no parameter here changes the data caches: one walk of them serves every run
+    # no parameter here but the page geometry changes what the data caches decide: one walk of them
+    # serves every other run; a geometry re-timing walks them without a log (its own recording
+    # would only evict the nominal one, which the log store keys by the geometry anyway)
     logs = AccessLogs() if logs is None else logs
-    for p in parameters(cpu):
+    for p in parameters(cpu, memory):
         for value in (p.low, p.high):
             if value == p.nominal or not exercised(p, nominal):
                 out[(p.key, value)] = nominal
                 continue
             say(f"{cpu}:{memory} with {p.key} = {_n(value)}")
             model = make_model(cpu, memory, {p.key: value})
-            out[(p.key, value)] = time_emulation(emulation, model, access_logs=logs).last
+            geometry = p.key in PAGE_GEOMETRY_KEYS
+            out[(p.key, value)] = time_emulation(emulation, model, access_logs=None if geometry else logs).last
     return out
 
 
@@ -165,7 +186,8 @@ def _robustness(claim, result, key, a, b, verdict) -> list[dict] | None:
     from sim.cpus.machine import MachineKey
 
     rows = []
-    for p in parameters(MachineKey.parse(key).label):
+    machine = MachineKey.parse(key)
+    for p in parameters(machine.label, machine.memory or None):
         ends = {}
         for end, value in (("low", p.low), ("high", p.high)):
             ca, cb = pa[(p.key, value)], pb[(p.key, value)]
