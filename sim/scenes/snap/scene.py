@@ -11,7 +11,8 @@ Format::
 
     [workloads]
     names = ["screen", "ties"]      # required: sim.scenes.snap.workload.WORKLOADS
-    vertices = 2048                 # required: (x, y) vertices per workload
+    vertices = 2048                 # required: (x, y) vertices per workload, at most 262,144
+                                    #   (host memory: about 3.5 KB per vertex, under 1 GB)
     seed = 1998                     # required
     width = 640                     # optional (default 640): the screen the coordinates fall on
     height = 480                    # optional (default 480)
@@ -58,7 +59,11 @@ _CLAIM_KEYS = {"text": ("str", True), "expect": ("str", True), "variants": ("str
                "cpus": ("strlist", False), "families": ("strlist", False), "workloads": ("strlist", False)}
 TIMED = ("slower", "faster")
 NUMERIC = ("exact", "inexact", "only-exact")
-MAX_VERTICES = 1 << 20
+# Host memory grows with the vertices (each variant's traced emulation and timing, the workloads):
+# measured peak RSS (issue 26) with all 7 workloads and 5 variants on one CPU: 3.6 GB at 1,048,576
+# vertices; one workload and one variant: 732 MB. 2^18 keeps the largest scene near 0.9 GB.
+MAX_VERTICES = 1 << 18
+VERTEX_BYTES = 3_600  # measured peak bytes per vertex of the largest scene (above)
 REPEAT = 2  # calls in one machine state; the last is timed (caches warm)
 
 
@@ -135,7 +140,8 @@ def load(path: Path, text: str, doc: dict) -> SnapScene:
         if w in names[:i]:
             v.fail(f"workloads.names[{i}]", f"'{w}' is listed twice", "workloads", "names")
     v.at_least(vertices, 1, "workloads.vertices", "workloads", "vertices")
-    v.at_most(vertices, MAX_VERTICES, "workloads.vertices", "workloads", "vertices")
+    v.at_most(vertices, MAX_VERTICES, "workloads.vertices", "workloads", "vertices",
+              f" (host memory: about {VERTEX_BYTES:,} bytes per vertex)")
     if not 0 <= seed < 1 << 63:
         v.fail("workloads.seed", f"must be between 0 and 2^63 - 1, got {seed}", "workloads", "seed")
     for key, value in (("width", width), ("height", height)):

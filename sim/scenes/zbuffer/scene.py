@@ -29,7 +29,8 @@ Format::
     cpus = ["pentium2-233:edo", "celeron-300a"]    # required: CPU preset[:memory preset]
     metrics = ["visibility", "depth_error", "fp16_precision"]   # optional (default none)
     frames = 2                      # optional (default 1): frames drawn in one machine state,
-                                    # the last one is reported
+                                    # the last one is reported. Host memory: frames x (pixel
+                                    # visits + 4 x spans) at most RETROSIM_MAX_VISITS (8 M, ~1.8 GB)
 
     [[run.machine]]                 # optional, repeatable: a CPU preset with overrides, run after
     cpu = "k6-233"                  #   run.cpus; required: the CPU preset
@@ -82,14 +83,18 @@ ARENA_ALIGN = 64        # sim.guest.emu.Arena.alloc's default alignment
 ZBUF_BYTES = {v: raster.ZBUF_DTYPE[v].itemsize for v in VARIANTS}
 KERNEL_DIR = "kernels/zbuffer"
 MAX_COORDINATE = 1 << 20  # screens are at most 32768 wide; the plane math stays exact far beyond
-# Host memory a scene may take: the runner holds a few int64/float64 arrays per pixel visit
-# (rasterized spans expanded to pixels, the reference, the expected frames): about 220 bytes per
-# visit at peak (a 1024x1024 frame at depth complexity 60, 62 M visits, peaked at 14 GB). The
-# default admits a 4096x3072 frame at depth complexity 3 (38 M visits, ~8 GB); raise it with
-# RETROSIM_MAX_VISITS if the machine has the memory.
+# Host memory a scene may take. Every frame is traced (about 14 instructions per pixel visit and 50
+# per span for fp16t, the costliest variant, about 6.4 trace bytes each) and then timed, and the
+# runner holds a few int64/float64 arrays per visit. Measured peak RSS (issue 26): 640x480 at depth
+# complexity 8, fp16t, 1 frame (2.4 M visits, 20 k spans, 35 M instructions): 564 MB; 65,535
+# explicit 15-pixel triangles (7.3 M visits, 1 M spans): 2.9 GB before the model limit refused it.
+# So the limit counts work over all frames, a span as SPAN_VISITS visits: frames x (visits + 4 x
+# spans) at most 8 M keeps a scene near 1.5 GB (about VISIT_BYTES each, estimate_bytes); the shipped
+# scenes use at most 2.0 M. Raise it with RETROSIM_MAX_VISITS if the machine has the memory.
 MAX_VISITS_ENV = "RETROSIM_MAX_VISITS"
-DEFAULT_MAX_VISITS = 48_000_000
+DEFAULT_MAX_VISITS = 8_000_000
 VISIT_BYTES = 220
+SPAN_VISITS = 4  # a span's driver overhead (~50 instructions) in pixel visits (~14 each)
 
 # key -> (kind, required) per table; kinds: int, number, str, strlist, range, tables
 _SCENE_KEYS = {"kind": ("str", False), "name": ("str", True), "description": ("str", False), "width": ("int", True), "height": ("int", True)}
@@ -320,21 +325,34 @@ def max_visits() -> int:
     return value
 
 
-def _check_visits(v: Validator, geometry: GeometrySpec, width: int, height: int, span_bound: int) -> None:
-    """Refuse a scene whose frame draws more pixels than host memory can follow (see MAX_VISITS_ENV).
+def frame_work(visits: int, spans: int, frames: int) -> int:
+    """What RETROSIM_MAX_VISITS bounds: pixel visits of every traced frame, a span counted as SPAN_VISITS."""
+    return frames * (visits + SPAN_VISITS * spans)
+
+
+def estimate_bytes(work: int) -> int:
+    """Host memory a scene of that much work (frame_work) takes at peak, about (see VISIT_BYTES)."""
+    return work * VISIT_BYTES
+
+
+def _check_visits(v: Validator, geometry: GeometrySpec, width: int, height: int, span_bound: int, frames: int) -> None:
+    """Refuse a scene whose frames draw more than host memory can follow (see MAX_VISITS_ENV).
     Cheap bound first (rows x width); only above the limit is the geometry rasterized to count."""
     limit = max_visits()
-    if span_bound * width <= limit:
+    if frame_work(span_bound * width, span_bound, frames) <= limit:
         return
     try:
-        visits = int(raster.rasterize(geometry.build(width, height), width, height).count.sum(dtype=np.int64))
+        spans = raster.rasterize(geometry.build(width, height), width, height)
     except ValueError as e:
         v.fail("geometry", f"cannot build the geometry: {e}", "geometry")
-    if visits > limit:
-        v.fail("geometry", f"a frame draws {visits:,} pixels ({visits / (width * height):.1f} per screen pixel), "
+    visits = int(spans.count.sum(dtype=np.int64))
+    work = frame_work(visits, int(spans.y.size), frames)
+    if work > limit:
+        v.fail("geometry", f"{frames} frame(s) of {visits:,} pixel visits ({visits / (width * height):.1f} per screen "
+               f"pixel) and {int(spans.y.size):,} spans (each counted as {SPAN_VISITS} visits) make {work:,} visits, "
                f"more than the limit of {limit:,} (host memory: about {VISIT_BYTES} bytes each, "
-               f"{visits * VISIT_BYTES / 2**30:.0f} GB here); raise {MAX_VISITS_ENV} if the machine has the memory",
-               "geometry")
+               f"{estimate_bytes(work) / 2**30:.1f} GB here); lower run.frames or the geometry, or raise "
+               f"{MAX_VISITS_ENV} if the machine has the memory", "geometry")
 
 
 def load(path: Path, text: str, doc: dict) -> Scene:
@@ -513,7 +531,7 @@ def load(path: Path, text: str, doc: dict) -> Scene:
                f"{need['span_count']:,} span records x {SPAN_RECORD_BYTES} = {need['spans']:,}), "
                f"the arena has {DEFAULT_ARENA:,}", "scene", "width")
 
-    _check_visits(v, geometry, width, height, span_bound)
+    _check_visits(v, geometry, width, height, span_bound, frames)
 
     # [[claims]]
     claims = []
