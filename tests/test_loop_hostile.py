@@ -229,3 +229,18 @@ def test_masm_hex_and_anonymous_labels():
     b, = loop.time_body(gnu, ["pentium2-233"], iterations=20)
     assert loop.parse_body(masm).loop
     assert a.per_iteration == b.per_iteration
+
+
+# -- an unterminated string: GNU as only warns and swallows the rest of the file ---------------
+def test_an_unclosed_string_is_refused_at_its_line():
+    line = loop_fails('l: add eax, 1\n.byte 1,"\ndec ecx\njnz l\n')
+    assert line.startswith("<stdin>:2:") and "string is not closed" in line, line
+
+
+@pytest.mark.parametrize("body, line", [('nop\n.ascii "a\\"b # c"\n.ascii "x\nret\n', 3),
+                                        ('nop # a " in a comment\n.ascii "q\nret\n', 2)])
+def test_the_open_quote_is_found_past_escapes_and_comments(body, line, write_kernel):
+    src = write_kernel(body, entry="f")
+    got = fails(["time", src])
+    # write_kernel's header (.intel_syntax, .text, .globl f, f:) comes first: 4 lines
+    assert got.startswith(f"{src}:{line + 4}: a string is not closed"), got

@@ -281,6 +281,28 @@ def format_diagnostics(stderr: str, source: Path, output: Path | None = None) ->
     return lines[0] + extra
 
 
+def _unterminated_string_line(text: bytes | str) -> int:
+    """The line whose double quote is never closed (GNU as strings do not span lines; `#` starts a
+    comment outside a string; a backslash escapes the next character)."""
+    if isinstance(text, bytes):
+        text = text.decode("utf-8", errors="replace")
+    for number, line in enumerate(text.splitlines(), 1):
+        inside = False
+        escaped = False
+        for ch in line:
+            if escaped:
+                escaped = False
+            elif inside and ch == "\\":
+                escaped = True
+            elif ch == '"':
+                inside = not inside
+            elif ch == "#" and not inside:
+                break
+        if inside:
+            return number
+    return len(text.splitlines())
+
+
 _UNSUPPORTED = re.compile(r"^(?P<where>.*?:\d+): `(?P<mnemonic>[^']+)' is not supported on `[^']+'(?P<rest>.*)$")
 
 
@@ -471,6 +493,11 @@ def assemble(source: str | os.PathLike, assembler: str | None = None, cpu: Guest
             # a binary or non-UTF-8 source is echoed back in the messages: never fail on decoding them
             raise AssemblerError(_for_cpu(format_diagnostics(stderr.decode("utf-8", errors="replace"), source, tmp),
                                           cpu))
+        if b"end of file in string" in stderr:
+            # GNU as only warns, closes the string at the end of the file and swallows every line after
+            # it into one symbol name: refuse it where the quote opened
+            raise AssemblerError(f"{source}:{_unterminated_string_line(text)}: a string is not closed "
+                                 "(no matching '\"')")
         manifest = _manifest(_dependencies(deps_tmp, source), source) if depfile else ""
         data = tmp.read_bytes()
         os.chmod(tmp, file_mode())

@@ -32,6 +32,14 @@ STACK_SIZE = 0x00100000
 ARENA_BASE = 0x10000000
 
 R_386_NONE, R_386_32, R_386_PC32 = 0, 1, 2
+# the narrow references GNU as emits for `.word sym`, `.byte sym` and their PC-relative forms
+_NARROW = {20: "a 16-bit reference (R_386_16)", 21: "a 16-bit PC-relative reference (R_386_PC16)",
+           22: "an 8-bit reference (R_386_8)", 23: "an 8-bit PC-relative reference (R_386_PC8)"}
+
+
+def _shown(name: str) -> str:
+    """A symbol name as a user can read it: quoted, with control characters escaped."""
+    return repr(name) if name else ""
 
 
 def page_up(n: int) -> int:
@@ -187,15 +195,18 @@ def _apply(rel, symtab, target: str, address, regions, index_to_name, path: Path
     region, off = regions[base], place - base
     if kind == R_386_NONE:
         return
-    if kind not in (R_386_32, R_386_PC32):
-        raise LoadError(f"{path}: {target}+{rel['r_offset']:#x}: unsupported relocation type {kind} "
-                        "(only R_386_32 and R_386_PC32 are supported)")
     sym = symtab.get_symbol(rel["r_info_sym"])
     shndx = sym["st_shndx"]
     if rel["r_info_sym"] == 0:  # no symbol: an absolute address (`jmp 0x12345678`), value 0 by the ELF spec
         shndx = "SHN_ABS"
     elif shndx == "SHN_UNDEF":
-        raise LoadError(f"{path}: {target}+{rel['r_offset']:#x}: undefined symbol '{sym.name}'")
+        # checked before the type: an unterminated string (`.byte 1,"`) reaches here as an undefined
+        # symbol in an 8-bit field, and the name is what the user can act on
+        raise LoadError(f"{path}: {target}+{rel['r_offset']:#x}: undefined symbol {_shown(sym.name)}")
+    if kind not in (R_386_32, R_386_PC32):
+        what = _NARROW.get(kind, f"relocation type {kind}")
+        raise LoadError(f"{path}: {target}+{rel['r_offset']:#x}: {what} to {_shown(sym.name) or 'an address'} "
+                        "is not supported (only 32-bit absolute and PC-relative references are)")
     if shndx == "SHN_ABS":
         s_value = sym["st_value"]
     else:
