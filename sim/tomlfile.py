@@ -10,11 +10,11 @@ message names the file, with a line where TOML gives one:
 from __future__ import annotations
 
 import re
-import stat
 import tomllib
 from pathlib import Path
 
 from sim.errors import RetrosimError
+from sim.inputfile import read_bounded
 
 MAX_TOML_BYTES = 64 << 20  # the largest inputs are scenes with many explicit triangles (~6 MB for 65535)
 
@@ -24,15 +24,7 @@ def read_toml(path: str | Path, what: str = "TOML file", error: type[Exception] 
     """(text, parsed document) of the TOML file `path`; `what` names it in the messages ("scene
     file", "sweep spec"), `error` is the exception class raised."""
     path = Path(path)
-    try:
-        st = path.stat()
-        if not stat.S_ISREG(st.st_mode):
-            raise error(f"{path}: not a regular file (a device, pipe or folder)")
-        if st.st_size > max_bytes:
-            raise error(f"{path}: {st.st_size:,} bytes, more than the {max_bytes >> 20} MB a {what} may have")
-        raw = path.read_bytes()
-    except OSError as e:
-        raise error(f"{path}: cannot read {what}: {e.strerror or e}") from None
+    raw = read_bounded(path, max_bytes, what, error)
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as e:

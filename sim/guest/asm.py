@@ -23,7 +23,6 @@ import os
 import re
 import shutil
 import signal
-import stat
 import subprocess
 import sys
 import tempfile
@@ -36,6 +35,7 @@ from sim.errors import AssemblerError, AssemblerMissing
 from sim.guest.cpu import GuestCpu
 from sim.guest.cpu import require as require_cpu
 from sim.guest.elf import CODE_BASE, CODE_LIMIT
+from sim.inputfile import read_bounded
 from sim.output import file_mode, temporary_file
 
 CACHE_ENV = "RETROSIM_CACHE"
@@ -130,31 +130,12 @@ def cache_dir() -> Path:
 # Sources and includes are hashed before the assembler runs, so they are read here first: in chunks,
 # only regular files (a FIFO would block, /dev/zero never ends), and at most this many bytes each.
 MAX_SOURCE_BYTES = 16 << 20
-_CHUNK = 1 << 16
 
 
 def read_source(path: Path, what: str) -> bytes:
     """A kernel source or include file, refused with one line unless it is a regular file of at most
     MAX_SOURCE_BYTES. `what` names it in the message (`file` or `file:line: .include "x"`)."""
-    try:
-        # O_NONBLOCK: opening a FIFO for reading must not wait for a writer
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    except OSError as e:
-        raise AssemblerError(f"{what}: cannot read {path}: {e.strerror or e}") from None
-    with os.fdopen(fd, "rb") as f:
-        st = os.fstat(f.fileno())
-        if not stat.S_ISREG(st.st_mode):
-            raise AssemblerError(f"{what}: {path} is not a regular file (a device, pipe or folder)")
-        if st.st_size > MAX_SOURCE_BYTES:
-            raise AssemblerError(f"{what}: {path} has {st.st_size:,} bytes, more than the "
-                                 f"{MAX_SOURCE_BYTES >> 20} MB a kernel source may have")
-        chunks, total = [], 0
-        while chunk := f.read(_CHUNK):
-            total += len(chunk)
-            if total > MAX_SOURCE_BYTES:  # it grew while being read
-                raise AssemblerError(f"{what}: {path} has more than {MAX_SOURCE_BYTES >> 20} MB")
-            chunks.append(chunk)
-    return b"".join(chunks)
+    return read_bounded(path, MAX_SOURCE_BYTES, "kernel source", AssemblerError, where=what)
 
 
 def content_key(source: Path, asm: Assembler, march: str | None = None, depfile: bool = True) -> str:

@@ -8,11 +8,11 @@ from __future__ import annotations
 
 import json
 import os
-import stat
 from dataclasses import dataclass
 from pathlib import Path
 
 from sim.errors import RetrosimError
+from sim.inputfile import read_bounded
 from sim.reports.render import atomic_write
 from sim.scenes.kind import BASELINE_COUNTERS as COUNTERS
 from sim.scenes.registry import baseline_entries
@@ -49,26 +49,6 @@ def entries(result) -> dict[str, dict[str, int]]:
 MAX_BASELINE_BYTES = 16 << 20  # the committed file has ~60 KB; a thousand scenes would fit
 
 
-def _read(path: Path) -> bytes:
-    """The file's bytes, read like every other input: only a regular file (a FIFO would block,
-    /dev/zero never ends), at most MAX_BASELINE_BYTES, checked on the open file itself."""
-    try:
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))  # opening a FIFO must not wait
-    except OSError as e:
-        raise BaselineError(f"{path}: cannot read: {e.strerror or e}") from None
-    with os.fdopen(fd, "rb") as f:
-        st = os.fstat(f.fileno())
-        if not stat.S_ISREG(st.st_mode):
-            raise BaselineError(f"{path}: not a regular file (a device, pipe or folder)")
-        if st.st_size > MAX_BASELINE_BYTES:
-            raise BaselineError(f"{path}: {st.st_size:,} bytes, more than the {MAX_BASELINE_BYTES >> 20} MB "
-                                "a baselines file may have")
-        data = f.read(MAX_BASELINE_BYTES + 1)
-    if len(data) > MAX_BASELINE_BYTES:  # it grew while being read
-        raise BaselineError(f"{path}: more than the {MAX_BASELINE_BYTES >> 20} MB a baselines file may have")
-    return data
-
-
 def load(path: Path | None = None) -> dict:
     """The recorded baselines ({} when there is no file); a damaged file is one clear error."""
     path = Path(path) if path is not None else BASELINE_FILE
@@ -76,7 +56,7 @@ def load(path: Path | None = None) -> dict:
         return {}
     restore = "restore it from git (git checkout -- reports/baselines.json)"
     try:
-        text = _read(path).decode("utf-8")
+        text = read_bounded(path, MAX_BASELINE_BYTES, "baselines file", BaselineError).decode("utf-8")
         data = json.loads(text)
     except OSError as e:
         raise BaselineError(f"{path}: cannot read: {e.strerror or e}") from None
