@@ -53,10 +53,10 @@ def screenshot(out: Path) -> None:
 
     from sim.cli import main
 
-    root = Path(__file__).resolve().parents[1]
+    os.chdir(Path(__file__).resolve().parents[1])  # the page names the body as README's command does
     with tempfile.TemporaryDirectory() as tmp:
         page_file = Path(tmp) / "pipeline.html"
-        r = CliRunner().invoke(main, ["loop", str(root / "examples" / "texture-loop.s"), "--cpu", SCREENSHOT_CPUS,
+        r = CliRunner().invoke(main, ["loop", "examples/texture-loop.s", "--cpu", SCREENSHOT_CPUS,
                                       "--html", str(page_file), "--brief"])
         if r.exit_code != 0:
             raise SystemExit(r.output)

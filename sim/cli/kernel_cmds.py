@@ -24,6 +24,15 @@ html_option = click.option("--html", "html_out", type=click.Path(path_type=Path)
                            help="also write the pipeline view: one self-contained HTML page (no network)")
 
 
+def _check_html(path: Path | None) -> None:
+    """--html FILE, checked before the work (a bad path fails at once); its folder is created."""
+    if path is not None:
+        from sim.output import check_output_dir, check_output_file
+
+        check_output_dir(path.parent if str(path.parent) else Path("."), "--html", for_file=path)
+        check_output_file(path, "--html")
+
+
 # -- commands ------------------------------------------------------------------------------
 @main.command("kernels")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
@@ -189,10 +198,7 @@ Narrow terminals get the table in three parts keyed by the instruction."""
 def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets, iterations, as_json, html_out):
     from sim.reports import views
 
-    if html_out is not None:
-        from sim.output import check_output_file
-
-        check_output_file(html_out, "--html")  # before the work: a bad path fails at once
+    _check_html(html_out)
     result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations, sets=sets)
     limits = views.caveats(result)
     doc = {"summary": {**views.summary(result), "model_limits": limits},
@@ -312,10 +318,7 @@ def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset
     from sim.timing import loop
     from sim.reports import views
 
-    if html_out is not None:
-        from sim.output import check_output_file
-
-        check_output_file(html_out, "--html")  # before the work: a bad path fails at once
+    _check_html(html_out)
     text, name = loop.read_body(source, sys.stdin.buffer)
     doc, timings = loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline,
                                  assembler, warn=lambda w: click.echo(f"retrosim: warning: {w}", err=True))
