@@ -265,6 +265,7 @@ def make_handler(worker: Worker, page: bytes):
     class Handler(BaseHTTPRequestHandler):
         server_version = "retrosim"
         quiet = False
+        timeout = 60  # seconds a connection may idle (a client that never sends its request lets go)
 
         def log_message(self, fmt, *args):  # one line per request on stderr, as http.server does
             if not self.quiet:
