@@ -14,6 +14,7 @@ import subprocess
 import sys
 import threading
 import time
+import urllib.error
 import urllib.request
 from pathlib import Path
 
@@ -160,3 +161,14 @@ def test_runaway_request_is_stopped_and_the_server_answers_after(server):
     assert time.monotonic() - t < 15
     b = post(server, body=BODY, cpus=["pentium2-233"])
     assert "error" not in b and b["data"]["doc"]["results"][0]["cycles_per_iteration"] > 0
+
+
+def test_only_json_from_this_machine(server):
+    # a form on another site cannot post JSON without asking first; a rebound name is refused
+    data = json.dumps({"body": BODY}).encode()
+    with pytest.raises(urllib.error.HTTPError) as e:
+        urllib.request.urlopen(urllib.request.Request(server + "api/loop", data, {"Content-Type": "text/plain"}))
+    assert e.value.code == 415
+    with pytest.raises(urllib.error.HTTPError) as e:
+        urllib.request.urlopen(urllib.request.Request(server, headers={"Host": "evil.example:8022"}))
+    assert e.value.code == 403

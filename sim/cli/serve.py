@@ -253,10 +253,11 @@ def warm_up(say=lambda line: None) -> None:
 
 
 def app_config() -> dict:
-    from sim.cpus import memory_presets, presets
+    from sim.cpus import families, memory_presets, presets
 
-    return {"cpus": presets.available(), "memories": memory_presets(), "defaults": list(DEFAULT_CPUS),
-            "example": EXAMPLE}
+    # the CPUs by family (P5, P6, K6: the order the page shows them in), then by name
+    cpus = sorted(presets.available(), key=lambda c: (families.order(presets.load(c).family), c))
+    return {"cpus": cpus, "memories": memory_presets(), "defaults": list(DEFAULT_CPUS), "example": EXAMPLE}
 
 
 def make_handler(worker: Worker, page: bytes):
@@ -283,7 +284,21 @@ def make_handler(worker: Worker, page: bytes):
         def _json(self, status: int, answer: dict) -> None:
             self._send(status, json.dumps(answer, separators=(",", ":")).encode(), "application/json")
 
+        def _host_ok(self) -> bool:
+            """On a loopback address, only requests naming a loopback host (a page of another site
+            that re-points its name at 127.0.0.1, DNS rebinding, names its own)."""
+            if not self.server.loopback:
+                return True
+            raw = self.headers.get("Host") or ""
+            host = raw.split("]")[0] + "]" if raw.startswith("[") else raw.rsplit(":", 1)[0]
+            if host in ("localhost", "[::1]") or host.startswith("127."):
+                return True
+            self._json(403, {"error": error_line(f"Host {host!r}: this server answers 127.0.0.1 and localhost only")})
+            return False
+
         def do_GET(self):
+            if not self._host_ok():
+                return
             path = self.path.split("?", 1)[0]
             if path in ("/", "/index.html"):
                 self._send(200, page, "text/html; charset=utf-8")
@@ -293,8 +308,14 @@ def make_handler(worker: Worker, page: bytes):
                 self._json(404, {"error": error_line(f"{path}: no such page")})
 
         def do_POST(self):
+            if not self._host_ok():
+                return
             if self.path.split("?", 1)[0] != "/api/loop":
                 self._json(404, {"error": error_line(f"{self.path}: no such endpoint (POST /api/loop)")})
+                return
+            # JSON only: a form on another site cannot send it without the browser asking first (CORS)
+            if (self.headers.get("Content-Type") or "").split(";")[0].strip().lower() != "application/json":
+                self._json(415, {"error": error_line("the request must be JSON (Content-Type: application/json)")})
                 return
             try:
                 n = int(self.headers.get("Content-Length", ""))
@@ -335,6 +356,7 @@ def serve(host: str, port: int, timeout: float, memory_mb: int, jobs: int, quiet
     except OSError as e:
         raise RetrosimError(f"cannot listen on {host}:{port}: {e.strerror or e}") from None
     httpd.daemon_threads = True
+    httpd.loopback = host in ("127.0.0.1", "localhost", "::1") or host.startswith("127.")
     url_host = f"[{host}]" if ":" in host else host
     click.echo(f"retrosim serve: http://{url_host}:{httpd.server_address[1]}/ (Ctrl-C stops it)")
     sys.stdout.flush()
