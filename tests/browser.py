@@ -33,6 +33,18 @@ def missing_reason() -> str | None:
     return None
 
 
+def require() -> None:
+    """Skip the calling test when the browser cannot run here; fail it under CI=true (CI installs
+    chromium: a browser test that silently skipped there would prove nothing)."""
+    import pytest
+
+    why = missing_reason()
+    if why:
+        if os.environ.get("CI") == "true":
+            pytest.fail(f"browser tests cannot run in CI: {why}")
+        pytest.skip(why)
+
+
 @contextlib.contextmanager
 def browser_context(width: int = 1600, height: int = 1000):
     """A Playwright browser context on Debian's chromium with a fresh user-data directory."""

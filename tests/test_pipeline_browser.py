@@ -8,7 +8,6 @@ where they fail (CI must run them: .ci/run installs chromium)."""
 from __future__ import annotations
 
 import json
-import os
 import re
 import subprocess
 import sys
@@ -35,11 +34,7 @@ BODY = "top:\n  add eax, [esi]\n  imul ebx, ecx\n  add esi, 4\n  dec edx\n  jnz 
 
 @pytest.fixture(scope="module")
 def context():
-    why = chromium.missing_reason()
-    if why:
-        if os.environ.get("CI") == "true":
-            pytest.fail(f"browser tests cannot run in CI: {why}")
-        pytest.skip(why)
+    chromium.require()
     with chromium.browser_context() as ctx:
         yield ctx
 
@@ -172,3 +167,28 @@ def test_only_json_from_this_machine(server):
     with pytest.raises(urllib.error.HTTPError) as e:
         urllib.request.urlopen(urllib.request.Request(server, headers={"Host": "evil.example:8022"}))
     assert e.value.code == 403
+
+
+def test_missing_browser_fails_in_ci_and_skips_elsewhere(monkeypatch):
+    monkeypatch.setattr(chromium, "CHROMIUM", "/nonexistent/chromium")
+    monkeypatch.setenv("CI", "true")
+    with pytest.raises(pytest.fail.Exception, match="cannot run in CI: /nonexistent/chromium is missing"):
+        chromium.require()
+    monkeypatch.delenv("CI")
+    with pytest.raises(pytest.skip.Exception):
+        chromium.require()
+
+
+def test_long_timelines_are_capped(context, tmp_path):
+    out = tmp_path / "long.html"
+    r = CliRunner().invoke(main, ["loop", "-", "--cpu", "pentium2-233", "--timeline", "100", "--json", "--html",
+                                  str(out)], input=BODY)
+    assert r.exit_code == 0, r.output
+    rows = len(json.loads(r.output)["results"][0]["timeline"])
+    assert rows > pipeline_html.MAX_ROWS
+    page = context.new_page()
+    page.goto(out.as_uri())
+    page.wait_for_selector("body[data-state=ready]")
+    assert page.locator(".row").count() == pipeline_html.MAX_ROWS
+    assert f"{rows - pipeline_html.MAX_ROWS} more rows not drawn" in page.locator(".more").inner_text()
+    page.close()

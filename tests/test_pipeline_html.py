@@ -124,3 +124,13 @@ def test_request_errors_are_the_clis_line():
     answer = serve.compute({"body": "top:\n  add eax, 1\n  jnz top\n", "cpus": ["pentium9"]})
     r = CliRunner().invoke(main, ["loop", "-", "--cpu", "pentium9"], input="top:\n  add eax, 1\n  jnz top\n")
     assert answer["error"] == r.output.strip().splitlines()[-1]
+
+
+def test_a_request_over_its_memory_bound_is_refused_and_the_next_answers():
+    # 64 MB more than this process is far less than timing needs (the emulator alone reserves more):
+    # the forked child fails inside its bound, and says so in one line
+    small = {"body": "top:\n  add eax, 1\n  dec edx\n  jnz top\n", "cpus": ["pentium2-233"]}
+    answer = serve.Worker(timeout=30, memory_mb=64, jobs=1).run(small)
+    assert answer["error"].startswith("retrosim: error: ") and "--memory-mb" in answer["error"]
+    answer = serve.Worker(timeout=30, memory_mb=2048, jobs=1).run(small)
+    assert "error" not in answer and answer["data"]["doc"]["results"][0]["cycles_per_iteration"] > 0
