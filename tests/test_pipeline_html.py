@@ -127,8 +127,9 @@ def test_request_errors_are_the_clis_line():
 
 
 def test_a_request_over_its_memory_bound_is_refused_and_the_next_answers():
-    # 64 MB more than this process is far less than timing needs (the emulator alone reserves more):
-    # the forked child fails inside its bound, and says so in one line
+    # 64 MB more than this process is far less than timing a body needs: the forked child fails
+    # inside its bound and says so in one line
+    serve.warm_up()  # as the server does before it forks
     small = {"body": "top:\n  add eax, 1\n  dec edx\n  jnz top\n", "cpus": ["pentium2-233"]}
     answer = serve.Worker(timeout=30, memory_mb=64, jobs=1).run(small)
     assert answer["error"].startswith("retrosim: error: ") and "--memory-mb" in answer["error"]

@@ -160,7 +160,9 @@ class Worker:
                 try:
                     answer = compute(req)
                 except BaseException as e:  # noqa: BLE001  (the child must answer whatever happens)
-                    answer = {"error": error_line(f"internal error: {type(e).__name__}: {e}")}
+                    answer = {"error": error_line(f"internal error: {type(e).__name__}: {e} (a library that cannot "
+                                                  f"get memory fails so: the server's bound is --memory-mb "
+                                                  f"{self.memory_mb})")}
                 data = json.dumps(answer, separators=(",", ":")).encode()
                 view = memoryview(data)
                 while view:
@@ -190,7 +192,6 @@ class Worker:
                 chunks.append(chunk)
                 size += len(chunk)
                 if size > MAX_ANSWER_BYTES:
-                    timed_out = False
                     break
         finally:
             os.close(r)
