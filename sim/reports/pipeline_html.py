@@ -174,9 +174,10 @@ th{background:#eee} td.num{text-align:right;font-variant-numeric:tabular-nums}
 .chart{position:relative;font-family:monospace;font-size:11px;margin-top:6px}
 .row{position:relative;height:16px;white-space:nowrap}
 .row:hover{background:#eef}
-.lbl{position:absolute;left:0;width:200px;overflow:hidden;text-overflow:ellipsis}
-.lane{display:inline-block;width:34px;color:#555}
-.cells{position:absolute;left:202px;top:0;height:16px}
+.lbl{position:absolute;left:0;width:280px;overflow:hidden;text-overflow:ellipsis}
+.lane{display:inline-block;width:26px;color:#555}
+.units{display:inline-block;width:62px;color:#357;overflow:hidden;vertical-align:bottom}
+.cells{position:absolute;left:282px;top:0;height:16px}
 .seg{position:absolute;top:2px;height:12px;font-size:10px;line-height:12px;text-align:center;color:#000}
 .s-D{background:#9cf} .s-R{background:#ccc} .s-E{background:#6c6} .s-done{background:#dfd} .s-C{background:#fc6}
 .s-wait{background:#eee}
@@ -247,7 +248,7 @@ _SCRIPT = r"""
     for (const ins of result.instructions || []) byPc[ins.pc] = ins;
     const ruler = el("div", {"class": "ruler"});
     ruler.appendChild(el("span", {"style": "left:0"}, "cycle 0 = " + base));
-    for (let c = 0; c < span; c += 10) ruler.appendChild(el("span", {"style": "left:" + (202 + c * W) + "px"}, c));
+    for (let c = 0; c < span; c += 10) ruler.appendChild(el("span", {"style": "left:" + (282 + c * W) + "px"}, c));
     box.appendChild(ruler);
     rows.forEach((r, i) => {
       const row = el("div", {"class": "row", "data-insn": r.insn, "data-cause": r.cause});
@@ -255,6 +256,11 @@ _SCRIPT = r"""
       const lane = view.family === "p5" ? (view.lanes[i] || "") : (ins ? ins.decoder : "");
       const lbl = el("div", {"class": "lbl " + causeClass(r.cause)});
       lbl.appendChild(el("span", {"class": "lane"}, lane));
+      // the units it ran on (P6 ports, K6 units), from its explain row: "p0:0.5 p1:0.5" -> "p0 p1"
+      if (view.family !== "p5") {
+        const units = (ins && ins.ports) ? ins.ports.split(" ").map(u => u.split(":")[0]).join(" ") : "";
+        lbl.appendChild(el("span", {"class": "units"}, units));
+      }
       lbl.appendChild(document.createTextNode(r.instruction));
       row.appendChild(lbl);
       const cells = el("div", {"class": "cells", "style": "width:" + (span * W) + "px"});
