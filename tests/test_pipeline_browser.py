@@ -60,8 +60,11 @@ def test_saved_page_shows_the_clis_cycles(context, tmp_path):
     assert r.exit_code == 0, r.output
     doc = json.loads(r.output)
     page = context.new_page()
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
     page.goto(out.as_uri())
     page.wait_for_selector("body[data-state=ready]")
+    assert not errors
     assert shown_cycles(page) == {x["cpu"]: f"{x['cycles_per_iteration']:.2f}" for x in doc["results"]}
     assert page.locator("#injected").count() == 0  # the body is text, never markup
     assert "<img id=injected" in page.locator("#body-text").text_content()
@@ -192,3 +195,21 @@ def test_long_timelines_are_capped(context, tmp_path):
     assert page.locator(".row").count() == pipeline_html.MAX_ROWS
     assert f"{rows - pipeline_html.MAX_ROWS} more rows not drawn" in page.locator(".more").inner_text()
     page.close()
+
+
+def test_explain_page_on_each_family(context, tmp_path):
+    for cpu in CPUS:
+        out = tmp_path / f"{cpu}.html"
+        r = CliRunner().invoke(main, ["explain", "convert/fp16z.S", "--entry", "fp16z_convert_array", "--args",
+                                      "buf:u32:16:7,buf:u32:16,16,0,0", "--cpu", cpu, "--json", "--html", str(out)])
+        assert r.exit_code == 0, r.output
+        doc = json.loads(r.output)
+        page = context.new_page()
+        errors = []
+        page.on("pageerror", lambda e: errors.append(str(e)))
+        page.goto(out.as_uri())
+        page.wait_for_selector("body[data-state=ready]")
+        assert not errors, (cpu, errors)
+        assert page.locator("#summary-table td.cycles").inner_text() == str(doc["summary"]["cycles"])
+        assert page.locator("table.explain tr").count() == len(doc["instructions"]) + 1
+        page.close()
