@@ -20,6 +20,19 @@ from sim.cli.app import (
 )
 
 
+html_option = click.option("--html", "html_out", type=click.Path(path_type=Path), metavar="FILE",
+                           help="also write the pipeline view: one self-contained HTML page (no network)")
+
+
+def _check_html(path: Path | None) -> None:
+    """--html FILE, checked before the work (a bad path fails at once); its folder is created."""
+    if path is not None:
+        from sim.output import check_output_dir, check_output_file
+
+        check_output_dir(path.parent if str(path.parent) else Path("."), "--html", for_file=path)
+        check_output_file(path, "--html")
+
+
 # -- commands ------------------------------------------------------------------------------
 @main.command("kernels")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
@@ -181,15 +194,23 @@ Narrow terminals get the table in three parts keyed by the instruction."""
 @with_timing_options
 @click.option("--iterations", default=3, show_default=True, callback=bounded(0, 1000), help="hot-loop iterations in the timeline")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object (rows and timeline)")
-def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets, iterations, as_json):
+@html_option
+def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets, iterations, as_json, html_out):
     from sim.reports import views
 
+    _check_html(html_out)
     result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations, sets=sets)
     limits = views.caveats(result)
+    doc = {"summary": {**views.summary(result), "model_limits": limits},
+           "instructions": views.explain_rows(result),
+           "timeline": views.timeline_rows(result)}
+    if html_out is not None:
+        from sim.output import atomic_write
+        from sim.reports import pipeline_html
+
+        atomic_write(html_out, pipeline_html.page(pipeline_html.explain_data(doc, result)).encode(), "--html")
     if as_json:
-        click.echo(json.dumps({"summary": {**views.summary(result), "model_limits": limits},
-                               "instructions": views.explain_rows(result),
-                               "timeline": views.timeline_rows(result)}, indent=2))
+        click.echo(json.dumps(doc, indent=2))
         return
     console.print(views.summary_table(result))
     _print_lines(views.caveat_lines(result, limits))
@@ -224,6 +245,50 @@ def _loop_explain_table(t) -> Table:
     return table
 
 
+def loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline, assembler,
+                  warn=lambda w: None):
+    """Time a loop body as `retrosim loop` does and return (the --json document, the timings). Shared by
+    `loop` and `serve`; `warn` receives each warning line (syntax first, then the run's)."""
+    from sim.cpus import load_dram
+    from sim.timing import loop
+    from sim.reports import views
+
+    loop.placement(align, offset)
+    if memory:
+        load_dram(memory)
+    try:  # a forced --syntax that contradicts the body: said before the assembler's complaints
+        syntax_warnings = loop.parse_body(text, name, syntax).warnings
+    except RetrosimError:
+        syntax_warnings = []  # refused below, with the CPU named
+    for warning in syntax_warnings:
+        warn(warning)
+    labels = []
+    for cpu in cpu_list(cpus):  # --set applies to every CPU, as `time --set` does to its one
+        label, set_memory, _ = resolve_machine(cpu, sets)
+        labels.append(label)
+        memory = memory or set_memory
+    timings, not_timed = loop.time_body_where_possible(text, list(dict.fromkeys(labels)), name, syntax, iterations,
+                                                       loop.parse_regs(regs), assembler, timeline, memory, align,
+                                                       offset)
+    warnings = list(dict.fromkeys(w for t in timings for w in t.warnings))
+    for warning in warnings:
+        warn(warning)
+    warnings = syntax_warnings + warnings
+    doc = {"source": name, "registers": {k: f"{v:#010x}" for k, v in loop.parse_regs(regs).items()},
+           "placement": _placement(timings, align, offset),
+           "not_timed": not_timed,
+           "warnings": warnings,
+           "results": [{"cpu": t.cpu, "memory": t.memory,
+                        "cycles_per_iteration": t.cycles_per_iteration,
+                        "uops_per_iteration": t.uops_per_iteration,
+                        "instructions_per_iteration": t.per_iteration["instructions"],
+                        "measured_iterations": t.iterations, "per_iteration": t.per_iteration,
+                        "model_limits": views.caveats(t.result),
+                        "instructions": views.explain_rows(t.result),
+                        "timeline": views.timeline_rows(t.result)} for t in timings]}
+    return doc, timings
+
+
 @main.command("loop")
 @click.argument("source")
 @click.option("--cpu", "-c", "cpus", multiple=True,
@@ -246,47 +311,25 @@ def _loop_explain_table(t) -> Table:
 @click.option("--brief", is_flag=True, help="only the table of cycles per iteration")
 @click.option("--assembler", type=click.Choice(["gnu", "zig"]), help="assembler back end (default: GNU as)")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
-def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline, brief, assembler, as_json):
+@html_option
+def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline, brief, assembler, as_json,
+             html_out):
     """Time a bare loop body or basic block (FILE, or - for standard input): steady-state cycles per iteration."""
-    from sim.cpus import load_dram
     from sim.timing import loop
     from sim.reports import views
 
+    _check_html(html_out)
     text, name = loop.read_body(source, sys.stdin.buffer)
-    loop.placement(align, offset)
-    if memory:
-        load_dram(memory)
-    try:  # a forced --syntax that contradicts the body: said before the assembler's complaints
-        syntax_warnings = loop.parse_body(text, name, syntax).warnings
-    except RetrosimError:
-        syntax_warnings = []  # refused below, with the CPU named
-    for warning in syntax_warnings:
-        click.echo(f"retrosim: warning: {warning}", err=True)
-    labels = []
-    for cpu in cpu_list(cpus):  # --set applies to every CPU, as `time --set` does to its one
-        label, set_memory, _ = resolve_machine(cpu, sets)
-        labels.append(label)
-        memory = memory or set_memory
-    timings, not_timed = loop.time_body_where_possible(text, list(dict.fromkeys(labels)), name, syntax, iterations,
-                                                       loop.parse_regs(regs), assembler, timeline, memory, align,
-                                                       offset)
-    warnings = list(dict.fromkeys(w for t in timings for w in t.warnings))
-    for warning in warnings:
-        click.echo(f"retrosim: warning: {warning}", err=True)
-    warnings = syntax_warnings + warnings
+    doc, timings = loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline,
+                                 assembler, warn=lambda w: click.echo(f"retrosim: warning: {w}", err=True))
+    not_timed = doc["not_timed"]
+    if html_out is not None:
+        from sim.output import atomic_write
+        from sim.reports import pipeline_html
+
+        atomic_write(html_out, pipeline_html.page(pipeline_html.loop_data(doc, timings, text)).encode(), "--html")
     if as_json:
-        click.echo(json.dumps({"source": name, "registers": {k: f"{v:#010x}" for k, v in loop.parse_regs(regs).items()},
-                               "placement": _placement(timings, align, offset),
-                               "not_timed": not_timed,
-                               "warnings": warnings,
-                               "results": [{"cpu": t.cpu, "memory": t.memory,
-                                            "cycles_per_iteration": t.cycles_per_iteration,
-                                            "uops_per_iteration": t.uops_per_iteration,
-                                            "instructions_per_iteration": t.per_iteration["instructions"],
-                                            "measured_iterations": t.iterations, "per_iteration": t.per_iteration,
-                                            "model_limits": views.caveats(t.result),
-                                            "instructions": views.explain_rows(t.result),
-                                            "timeline": views.timeline_rows(t.result)} for t in timings]}, indent=2))
+        click.echo(json.dumps(doc, indent=2))
         return
     if not brief:
         for t in timings:

@@ -22,6 +22,7 @@ Buffer layout (uint64 words)::
     [5] instruction limit for this run segment (at most the capacity)
     [6] control-word read pending   [7] control-word entries recorded   [8] their capacity
     [9] scratch word uc_reg_read writes FPCW into
+    [10] address of uc_emu_stop     [11] address of uc_reg_read (the hooks call them; cacheable code)
     [HEADER : HEADER+icap]             executed PCs
     [HEADER+icap : HEADER+icap+2*acap] access pairs: addr | size << 32 | write << 40, instruction index
     [... : ... + 2*ccap]               control-word entries: instruction index, control word
@@ -34,7 +35,9 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
+from llvmlite import ir
 from numba import carray, cfunc, njit, types
+from numba.extending import intrinsic
 from unicorn import UC_HOOK_CODE, UC_HOOK_MEM_READ, UC_HOOK_MEM_WRITE, UC_MEM_WRITE
 from unicorn import x86_const as X
 from unicorn.unicorn_py3.unicorn import uclib
@@ -72,9 +75,40 @@ def check_trace_bytes(nbytes: int, instructions: int) -> None:
         raise LimitError(f"the trace passed {limit >> 20:,} MB of host memory after {instructions:,} instructions "
                          f"(limit {TRACE_LIMIT_ENV}={limit >> 20}; raise it, or lower --budget or --repeat)")
 
-_uc_emu_stop = uclib.uc_emu_stop
-_uc_reg_read = uclib.uc_reg_read
+# The hooks call these two Unicorn functions through addresses the tracer puts in the buffer's
+# header (slots 10 and 11), not through ctypes objects: a compiled function that holds a ctypes
+# function's address cannot be cached (the address changes with every process), and compiling the
+# three hooks anew took most of a second at every start of retrosim.
+_H_EMU_STOP = 10
+_H_REG_READ = 11
 _REG_FPCW = X.UC_X86_REG_FPCW
+
+
+def _address(fn) -> int:
+    return ctypes.cast(fn, ctypes.c_void_p).value
+
+
+@intrinsic
+def _call_emu_stop(typingctx, address, uc):
+    """uc_emu_stop(uc) at `address` (uc_err uc_emu_stop(uc_engine *uc))."""
+    def codegen(context, builder, signature, args):
+        fnty = ir.FunctionType(ir.IntType(32), [ir.IntType(8).as_pointer()])
+        builder.call(builder.inttoptr(args[0], fnty.as_pointer()), [args[1]])
+        return context.get_dummy_value()
+    return types.void(types.uint64, types.voidptr), codegen
+
+
+@intrinsic
+def _call_reg_read(typingctx, address, uc, regid, value):
+    """uc_reg_read(uc, regid, value) at `address` (uc_err uc_reg_read(uc_engine *uc, int regid,
+    void *value)); `value` is the target's address as an integer."""
+    def codegen(context, builder, signature, args):
+        i8p = ir.IntType(8).as_pointer()
+        fnty = ir.FunctionType(ir.IntType(32), [i8p, ir.IntType(32), i8p])
+        builder.call(builder.inttoptr(args[0], fnty.as_pointer()),
+                     [args[1], builder.trunc(args[2], ir.IntType(32)), builder.inttoptr(args[3], i8p)])
+        return context.get_dummy_value()
+    return types.void(types.uint64, types.voidptr, types.int64, types.int64), codegen
 FNINIT_CW = 0x037F  # the control word after FNINIT: 64-bit precision, round to nearest, exceptions masked
 # capstone mnemonics of the instructions that write the control word (FSAVE/FNSAVE reinitialise the
 # x87; FNSTENV masks the exceptions; the WAIT forms decode as WAIT followed by these)
@@ -90,16 +124,16 @@ def precision_of(control_word) -> np.ndarray:
     return np.asarray(PRECISION_OF_FIELD, np.uint8)[(np.asarray(control_word, np.int64) >> 8) & 3]
 
 
-@cfunc(types.void(types.voidptr, types.uint64, types.uint32, types.voidptr))
+@cfunc(types.void(types.voidptr, types.uint64, types.uint32, types.voidptr), cache=True)
 def _on_code(uc, address, size, user_data):
     head = carray(user_data, HEADER, np.uint64)
     n, icap, m, acap = head[0], head[1], head[2], head[3]
     if n >= head[5] or m + ACCESS_SLACK > acap or head[7] >= head[8]:
-        _uc_emu_stop(uc)  # this instruction has not run; it is recorded when the run resumes
+        _call_emu_stop(head[_H_EMU_STOP], uc)  # this instruction has not run; it is recorded when the run resumes
         return
     buf = carray(user_data, HEADER + icap + 2 * acap + 2 * head[8], np.uint64)
     if head[6] != 0:  # a control-word writer ran just before: the word in force from here on
-        _uc_reg_read(uc, _REG_FPCW, head[9:].ctypes.data)
+        _call_reg_read(head[_H_REG_READ], uc, np.int64(_REG_FPCW), np.int64(head[9:].ctypes.data))
         at = HEADER + icap + 2 * acap + 2 * head[7]
         buf[at] = n
         buf[at + 1] = head[9] & np.uint64(0xFFFF)
@@ -109,13 +143,13 @@ def _on_code(uc, address, size, user_data):
     head[0] = n + 1
 
 
-@cfunc(types.void(types.voidptr, types.uint64, types.uint32, types.voidptr))
+@cfunc(types.void(types.voidptr, types.uint64, types.uint32, types.voidptr), cache=True)
 def _on_control_word_writer(uc, address, size, user_data):
     head = carray(user_data, HEADER, np.uint64)
     head[6] = 1  # read FPCW before the next instruction, once this one has run
 
 
-@cfunc(types.void(types.voidptr, types.int32, types.uint64, types.int32, types.int64, types.voidptr))
+@cfunc(types.void(types.voidptr, types.int32, types.uint64, types.int32, types.int64, types.voidptr), cache=True)
 def _on_access(uc, kind, address, size, value, user_data):
     head = carray(user_data, HEADER, np.uint64)
     n, icap, m, acap = head[0], head[1], head[2], head[3]
@@ -328,6 +362,8 @@ class NativeTracer:
         self.buffer = np.zeros(HEADER + self.icap + 2 * self.acap + 2 * self.ccap, dtype=np.uint64)
         self.buffer[1], self.buffer[3], self.buffer[5] = self.icap, self.acap, self.icap
         self.buffer[6], self.buffer[8] = 1, self.ccap  # the first instruction reads the control word
+        self.buffer[_H_EMU_STOP] = _address(uclib.uc_emu_stop)  # what the hooks call (see _H_EMU_STOP)
+        self.buffer[_H_REG_READ] = _address(uclib.uc_reg_read)
         self._handles: list[ctypes.c_size_t] = []
         self.recorded = 0  # instructions recorded since the last reset (all drained chunks)
         self.held_bytes = 0  # bytes of the drained chunks (bounded by trace_limit_bytes)

@@ -1,0 +1,465 @@
+"""The pipeline view: one self-contained HTML page per loop body (or explained kernel), and the page
+`retrosim serve` answers with.
+
+The page renders the models' own records, never timing of its own: the document `retrosim loop
+--json` prints (per CPU: cycles per iteration, the explain rows, the timeline rows) plus, per CPU,
+the family's words for them (:func:`view`: its stage names, what each stall cause means on that
+family, which P5 pipe each timeline row ran in). The data travels as one JSON object; the page's
+script builds every element from it with ``textContent``, so nothing from a loop body or a file
+name is ever parsed as HTML. `serve` sends the same objects over HTTP, so the saved page and the
+app draw with the same code.
+
+No network: the styles and the script are inline, the page loads nothing.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import re
+
+from sim.cpus import contract as core
+from sim.cpus import families, vocabulary
+
+# Most timeline rows and cycles one CPU's chart draws: beyond them the page says how many it left
+# out (a browser stays responsive with a few thousand positioned elements per chart).
+MAX_ROWS = 200
+MAX_CYCLES = 400
+
+# The letters of the text timeline (sim/reports/views.py: timeline_text) and what each marks.
+_LEGEND_PART = re.compile(r"(?:^|,\s*|;\s*)([DR=EC\-]) ")
+
+
+def stage_words(legend: str) -> list[list[str]]:
+    """[[mark, what it means on this family], ...] from the family's timeline legend
+    ("D decode, R rename, = wait in the reservation station, E execute, - done, C retire")."""
+    marks = list(_LEGEND_PART.finditer(legend))
+    out = []
+    for m, nxt in zip(marks, marks[1:] + [None]):
+        text = legend[m.end():nxt.start() if nxt else len(legend)]
+        out.append([m.group(1), text.split(";")[0].strip().rstrip(",")])
+    return out
+
+
+def view(result) -> dict:
+    """The family's words for one timed run (a :class:`sim.timing.kernel.TimingResult`): the stage
+    names, the meaning of each stall cause, the unit and decoder names, and per timeline row the
+    lane the family's model puts it in (P5: the U or V pipe)."""
+    from sim.reports import views
+
+    model = result.model
+    family = getattr(model, "family", "")
+    voc = vocabulary.of(model)
+    legend = views.timeline_key(result)
+    out = {"family": family, "family_name": families.family(family).display_name if family else "",
+           "legend": legend, "stages": stage_words(legend)}
+    if hasattr(model, "timeline_causes"):  # the P5: a row's cause is why it ran alone
+        reasons = list(getattr(model, "reasons", ()))
+        out["causes"] = [[c, "paired in the U/V pipes" if i == 0 else f"ran alone in the U pipe: {reasons[i]}"
+                          if i < len(reasons) else c] for i, c in enumerate(model.timeline_causes)]
+        out["units"] = "U/V pipes"
+        out["op"] = "instruction"
+        out["lanes"] = p5_lanes(views.timeline_rows(result))
+        out["notes"] = ["In-order U and V pipes: two instructions issued in one clock paired (the first in U, "
+                        "the second in V); one issued alone ran in U, and its colour says why it did not pair."]
+    else:
+        causes = getattr(model, "timeline_causes", core.CAUSES)
+        out["causes"] = [[c, "" if c == "none" else voc.stall_help.get(c, c)] for c in causes]
+        out["units"] = f"{voc.unit}s " + ", ".join(voc.port_label(k) for k in range(5)) + \
+            "".join(f", {n}" for _, n in voc.extra_units)
+        out["op"] = voc.op
+        out["lanes"] = []
+        out["notes"] = [voc.decode_help, "; ".join(voc.port_help),
+                        f"window: {voc.window}"]
+    out["notes"] = [n for n in out["notes"] if n]
+    return out
+
+
+def p5_lanes(rows: list[dict]) -> list[str]:
+    """The pipe of each P5 timeline row, as the P5 core records a group: the two instructions of a
+    pair share their issue clock (and are the only rows with cause 'none'), the first in U, the
+    second in V; an instruction issued alone runs in U."""
+    lanes = [""] * len(rows)
+    i = 0
+    while i < len(rows):
+        r = rows[i]
+        if r["cause"] != "none":
+            lanes[i] = "U"
+        elif i + 1 < len(rows) and rows[i + 1]["cause"] == "none" and rows[i + 1]["alloc"] == r["alloc"]:
+            lanes[i], lanes[i + 1] = "U", "V"
+            i += 1
+        else:  # the other half of the pair is outside the recorded window
+            lanes[i] = "V" if i == 0 else "U"
+        i += 1
+    return lanes
+
+
+def loop_data(doc: dict, timings, body: str | None = None) -> dict:
+    """What the page draws for `retrosim loop`: its --json document, the family words of each CPU,
+    and the body's text (shown as text)."""
+    return {"kind": "loop", "doc": doc, "views": [view(t.result) for t in timings], "body": body}
+
+
+def explain_data(doc: dict, result) -> dict:
+    """What the page draws for `retrosim explain` (one CPU, the last call): its --json document in
+    the loop document's shape (one result; cycles of the call instead of cycles per iteration)."""
+    s = doc["summary"]
+    one = {"cpu": s["cpu"], "memory": s["memory"], "cycles": s["cycles"], "instructions_count": s["instructions"],
+           "uops": s["uops"], "model_limits": s.get("model_limits"), "instructions": doc["instructions"],
+           "timeline": doc["timeline"]}
+    return {"kind": "explain", "doc": {"source": f"{s['source']}:{s['entry']}", "results": [one], "warnings": [],
+                                       "not_timed": {}},
+            "views": [view(result)], "body": None}
+
+
+def _json_for_script(data) -> str:
+    """JSON that can sit inside <script>: no '<', '>' or '&' (so no '</script>' or '<!--' from a body)."""
+    text = json.dumps(data, sort_keys=True, separators=(",", ":"))
+    return text.replace("&", "\\u0026").replace("<", "\\u003c").replace(">", "\\u003e") \
+        .replace("\u2028", "\\u2028").replace("\u2029", "\\u2029")
+
+
+def page(data: dict | None, app: dict | None = None) -> str:
+    """The whole page. `data`: what :func:`loop_data` or :func:`explain_data` give (None: nothing
+    drawn yet). `app`: the form of `retrosim serve` ({"cpus": [...], "memories": [...],
+    "defaults": [...]}), or None for a saved page."""
+    title = "retrosim pipeline view"
+    if data:
+        title = f"{data['doc'].get('source', '')}: {title}"
+    config = {"max_rows": MAX_ROWS, "max_cycles": MAX_CYCLES, "app": app}
+    return (_TEMPLATE.replace("%TITLE%", html.escape(title))
+            .replace("%STYLE%", _STYLE)
+            .replace("%DATA%", _json_for_script(data))
+            .replace("%CONFIG%", _json_for_script(config))
+            .replace("%SCRIPT%", _SCRIPT))
+
+
+_TEMPLATE = """<!DOCTYPE html>
+<html lang="en">
+<head>
+<meta charset="utf-8">
+<meta http-equiv="Content-Security-Policy" content="default-src 'none'; style-src 'unsafe-inline'; script-src 'unsafe-inline'; connect-src 'self'">
+<title>%TITLE%</title>
+<style>%STYLE%</style>
+</head>
+<body>
+<header><h1 id="title">retrosim pipeline view</h1><p id="subtitle"></p></header>
+<section id="form"></section>
+<div id="error" role="alert" hidden></div>
+<div id="status"></div>
+<section id="summary"></section>
+<section id="cpus"></section>
+<div id="tip" hidden></div>
+<script type="application/json" id="retrosim-data">%DATA%</script>
+<script type="application/json" id="retrosim-config">%CONFIG%</script>
+<script>%SCRIPT%</script>
+</body>
+</html>
+"""
+
+_STYLE = """
+body{font:13px/1.35 system-ui,sans-serif;margin:12px;color:#222;background:#fafafa}
+h1{font-size:18px;margin:0 0 4px} h2{font-size:15px;margin:4px 0} p{margin:2px 0}
+table{border-collapse:collapse;margin:6px 0} td,th{border:1px solid #ccc;padding:2px 6px;text-align:left}
+th{background:#eee} td.num{text-align:right;font-variant-numeric:tabular-nums}
+#error{background:#fdd;border:1px solid #c00;color:#800;padding:6px;margin:6px 0;font-family:monospace;white-space:pre-wrap}
+#status{color:#555;margin:4px 0}
+#form textarea{font-family:monospace;width:46em;height:12em}
+#form fieldset{display:inline-block;vertical-align:top;border:1px solid #ccc;margin:4px}
+#form label{display:inline-block;margin-right:8px}
+#cpus{display:flex;flex-wrap:wrap;gap:12px;align-items:flex-start}
+.cpu{background:#fff;border:1px solid #bbb;padding:6px;flex:1 1 30%;min-width:420px;overflow-x:auto}
+.cpu .head{font-weight:bold} .cpu .cpi{font-size:16px}
+.notes{color:#444;font-size:12px;max-width:60em}
+.chart{position:relative;font-family:monospace;font-size:11px;margin-top:6px}
+.row{position:relative;height:16px;white-space:nowrap}
+.row:hover{background:#eef}
+.lbl{position:absolute;left:0;width:280px;overflow:hidden;text-overflow:ellipsis}
+.lane{display:inline-block;width:26px;color:#555}
+.units{display:inline-block;width:62px;color:#357;overflow:hidden;vertical-align:bottom}
+.cells{position:absolute;left:282px;top:0;height:16px}
+.seg{position:absolute;top:2px;height:12px;font-size:10px;line-height:12px;text-align:center;color:#000}
+.s-D{background:#9cf} .s-R{background:#ccc} .s-E{background:#6c6} .s-done{background:#dfd} .s-C{background:#fc6}
+.s-wait{background:#eee}
+.ruler{position:relative;height:14px;color:#777;font-size:10px}
+.ruler span{position:absolute;top:0}
+.legend span.key{display:inline-block;padding:0 4px;margin:1px 3px 1px 0;border:1px solid #999}
+.more{color:#a00;font-size:12px}
+#tip{position:fixed;z-index:10;background:#ffe;border:1px solid #886;padding:6px;max-width:42em;font-size:12px;
+white-space:pre-wrap;pointer-events:none;box-shadow:2px 2px 6px #0003}
+.c-decode{background:#f99} .c-window{background:#f6a} .c-partial{background:#c9f} .c-dependency{background:#fc9}
+.c-port{background:#ff8} .c-memory{background:#9ee} .c-store_forward{background:#bdf} .c-mispredict{background:#f66}
+.c-alone{background:#fb8}
+"""
+
+_SCRIPT = r"""
+"use strict";
+(function () {
+  const CONFIG = JSON.parse(document.getElementById("retrosim-config").textContent);
+  const W = 10;  // pixels per cycle
+  const tip = document.getElementById("tip");
+  function el(tag, attrs, text) {
+    const e = document.createElement(tag);
+    for (const k in (attrs || {})) e.setAttribute(k, attrs[k]);
+    if (text !== undefined && text !== null) e.textContent = String(text);
+    return e;
+  }
+  function fmt2(x) { return Number(x).toFixed(2); }
+  function causeClass(c) {
+    if (!c || c === "none") return "";
+    if (c.startsWith("alone")) return "c-alone";
+    return "c-" + c.replace(/[^a-z_]/g, "");
+  }
+  function hover(node, text) {
+    node.addEventListener("mouseenter", () => { tip.textContent = text(); tip.hidden = false; });
+    node.addEventListener("mousemove", (ev) => {
+      tip.style.left = Math.min(ev.clientX + 14, window.innerWidth - 420) + "px";
+      tip.style.top = (ev.clientY + 14) + "px";
+    });
+    node.addEventListener("mouseleave", () => { tip.hidden = true; });
+  }
+  function rowText(view, ins) {
+    if (!ins) return "";
+    const lines = [ins.instruction + "  (pc 0x" + ins.pc.toString(16) + ", " + ins.executions + " executions)"];
+    if (view.family === "p5") {
+      lines.push("class " + ins["class"] + "; U pipe " + ins.u_pipe + ", V pipe " + ins.v_pipe +
+                 "; clocks per group " + ins.group_cycles);
+      if (ins.alone_because) lines.push("ran alone because: " + ins.alone_because);
+    } else {
+      lines.push("decoder " + ins.decoder + " (" + ins.decoder_class + "), " + ins.uops + " " + view.op +
+                 "(s); " + (ins.ports || "no unit"));
+      lines.push("issue to retire " + ins.issue_to_retire + " cycles per execution");
+    }
+    const stalls = Object.keys(ins).filter(k => k.startsWith("stall_") && ins[k]).map(k => k.slice(6) + " " + ins[k]);
+    if (stalls.length) lines.push("stall cycles per execution: " + stalls.join(", "));
+    lines.push("table row: " + ins.row + (ins.estimated ? " (estimated)" : ""));
+    lines.push("source: " + ins.source);
+    return lines.join("\n");
+  }
+  function chart(result, view) {
+    const box = el("div", {"class": "chart"});
+    const all = result.timeline || [];
+    const rows = all.slice(0, CONFIG.max_rows);
+    if (!rows.length) { box.appendChild(el("p", {}, "no timeline rows")); return box; }
+    const base = Math.min(...rows.map(r => r.decode));
+    const last = Math.max(...rows.map(r => r.retire));
+    const span = Math.min(last - base + 1, CONFIG.max_cycles);
+    const byPc = {};
+    for (const ins of result.instructions || []) byPc[ins.pc] = ins;
+    const ruler = el("div", {"class": "ruler"});
+    ruler.appendChild(el("span", {"style": "left:0"}, "cycle 0 = " + base));
+    for (let c = 0; c < span; c += 10) ruler.appendChild(el("span", {"style": "left:" + (282 + c * W) + "px"}, c));
+    box.appendChild(ruler);
+    rows.forEach((r, i) => {
+      const row = el("div", {"class": "row", "data-insn": r.insn, "data-cause": r.cause});
+      const ins = byPc[r.pc];
+      const lane = view.family === "p5" ? (view.lanes[i] || "") : (ins ? ins.decoder : "");
+      const lbl = el("div", {"class": "lbl " + causeClass(r.cause)});
+      lbl.appendChild(el("span", {"class": "lane"}, lane));
+      // the units it ran on (P6 ports, K6 units), from its explain row: "p0:0.5 p1:0.5" -> "p0 p1"
+      if (view.family !== "p5") {
+        const units = (ins && ins.ports) ? ins.ports.split(" ").map(u => u.split(":")[0]).join(" ") : "";
+        lbl.appendChild(el("span", {"class": "units"}, units));
+      }
+      lbl.appendChild(document.createTextNode(r.instruction));
+      row.appendChild(lbl);
+      const cells = el("div", {"class": "cells", "style": "width:" + (span * W) + "px"});
+      function seg(from, to, cls, mark) {
+        const a = Math.max(from - base, 0), b = Math.min(to - base, span);
+        if (b <= a) return;
+        cells.appendChild(el("div", {"class": "seg " + cls, "style": "left:" + (a * W) + "px;width:" + ((b - a) * W - 1) + "px"}, mark));
+      }
+      // as the text timeline: D decode, R issue/rename, wait, E execute, done, C retire; the wait is
+      // coloured by the row's stall cause (the tooltip says which wait it was)
+      seg(r.decode + 1, r.alloc, "s-wait " + causeClass(r.cause), "");
+      seg(r.alloc + 1, r.dispatch, "s-wait " + causeClass(r.cause), "");
+      seg(r.dispatch, r.complete, "s-E", "E");
+      seg(r.complete, r.retire, "s-done", "");
+      if (r.decode < r.dispatch) seg(r.decode, r.decode + 1, "s-D", "D");
+      if (r.alloc !== r.decode && r.alloc < r.dispatch) seg(r.alloc, r.alloc + 1, "s-R", "R");
+      seg(r.retire, r.retire + 1, "s-C", "C");
+      row.appendChild(cells);
+      const why = (view.causes.find(([c, _]) => c === r.cause) || [])[1];
+      hover(row, () => [
+        "#" + r.insn + "  " + r.instruction + (lane ? "  [" + lane + "]" : ""),
+        "decode " + r.decode + ", issue " + r.alloc + ", execute " + r.dispatch + "-" + r.complete + ", retire " + r.retire +
+          " (cycle " + (r.decode - base) + " to " + (r.retire - base) + " of the chart)",
+        r.cause === "none" ? (view.family === "p5" ? "paired" : "no stall") : "held back: " + r.cause + (why ? " - " + why : ""),
+        "", rowText(view, ins)].join("\n"));
+      box.appendChild(row);
+    });
+    const cut = [];
+    if (all.length > rows.length) cut.push((all.length - rows.length) + " more rows not drawn");
+    if (last - base + 1 > span) cut.push((last - base + 1 - span) + " more cycles not drawn");
+    if (cut.length) box.appendChild(el("p", {"class": "more"}, cut.join("; ") + " (all of them: --json)"));
+    return box;
+  }
+  function legend(view) {
+    const p = el("div", {"class": "legend"});
+    for (const [mark, what] of view.stages || []) {
+      const cls = {"D": "s-D", "R": "s-R", "E": "s-E", "-": "s-done", "C": "s-C", "=": "s-wait"}[mark] || "";
+      p.appendChild(el("span", {"class": "key " + cls}, mark + " " + what));
+    }
+    const causes = (view.causes || []).filter(([c, _]) => c !== "none");
+    const cl = el("div", {"class": "legend"});
+    cl.appendChild(el("span", {}, view.family === "p5" ? "why it ran alone: " : "stall causes: "));
+    for (const [c, what] of causes) {
+      const k = el("span", {"class": "key " + causeClass(c)}, c);
+      hover(k, () => c + ": " + what);
+      cl.appendChild(k);
+    }
+    const wrap = el("div");
+    wrap.appendChild(p); wrap.appendChild(cl);
+    return wrap;
+  }
+  function table(result, view) {
+    const t = el("table", {"class": "explain"});
+    const head = el("tr");
+    const p5 = view.family === "p5";
+    const cols = p5 ? ["instruction", "class", "U", "V", "clk", "alone because", "table row"]
+                    : ["instruction", "dec", view.op + "s", "units", "iss->ret", "table row"];
+    cols.forEach(c => head.appendChild(el("th", {}, c)));
+    t.appendChild(head);
+    for (const ins of result.instructions || []) {
+      const tr = el("tr");
+      const cells = p5 ? [ins.instruction, ins["class"], ins.u_pipe, ins.v_pipe, ins.group_cycles, ins.alone_because, ins.row]
+                       : [ins.instruction, ins.decoder, ins.uops, ins.ports, ins.issue_to_retire, ins.row];
+      cells.forEach(c => tr.appendChild(el("td", {}, c)));
+      hover(tr, () => rowText(view, ins));
+      t.appendChild(tr);
+    }
+    return t;
+  }
+  function headline(result) {
+    return result.cycles_per_iteration !== undefined ? ["cycles per iteration", result.cycles_per_iteration]
+                                                      : ["cycles (last call)", result.cycles];
+  }
+  function draw(data) {
+    const sum = document.getElementById("summary"), cpus = document.getElementById("cpus");
+    sum.replaceChildren(); cpus.replaceChildren();
+    if (!data) return;
+    const doc = data.doc;
+    document.getElementById("subtitle").textContent = doc.source + (data.kind === "loop" ?
+      ": steady state, a few iterations from the middle of the measured pass" : ": the last call");
+    for (const w of doc.warnings || []) sum.appendChild(el("p", {"class": "more"}, "warning: " + w));
+    for (const [what, list] of Object.entries(doc.not_timed || {})) sum.appendChild(el("p", {"class": "more"},
+      "not timed (no " + what + "): " + list.join(", ")));
+    const t = el("table", {"id": "summary-table"});
+    const hr = el("tr");
+    ["cpu", "family", headline(doc.results[0] || {})[0], "IPC", "est. rows"].forEach(c => hr.appendChild(el("th", {}, c)));
+    t.appendChild(hr);
+    doc.results.forEach((r, k) => {
+      const v = data.views[k];
+      const tr = el("tr", {"data-cpu": r.cpu});
+      const [_, cyc] = headline(r);
+      const ipc = r.cycles_per_iteration !== undefined ? (r.cycles_per_iteration ? r.instructions_per_iteration / r.cycles_per_iteration : 0)
+                                                      : (r.cycles ? r.instructions_count / r.cycles : 0);
+      tr.appendChild(el("td", {}, r.cpu));
+      tr.appendChild(el("td", {}, v.family_name));
+      tr.appendChild(el("td", {"class": "num cycles", "data-value": cyc}, data.kind === "loop" ? fmt2(cyc) : cyc));
+      tr.appendChild(el("td", {"class": "num"}, fmt2(ipc)));
+      const lim = r.model_limits;
+      tr.appendChild(el("td", {"class": "num"}, lim ? Math.round(100 * lim.estimated_share) + "%" : ""));
+      t.appendChild(tr);
+    });
+    sum.appendChild(t);
+    if (data.body) {
+      const d = el("details");
+      d.appendChild(el("summary", {}, "the body as given"));
+      d.appendChild(el("pre", {"id": "body-text"}, data.body));
+      sum.appendChild(d);
+    }
+    doc.results.forEach((r, k) => {
+      const v = data.views[k];
+      const box = el("div", {"class": "cpu", "data-cpu": r.cpu});
+      const [what, cyc] = headline(r);
+      box.appendChild(el("div", {"class": "head"}, r.cpu + " (" + v.family_name + ", " + r.memory + ")"));
+      const line = el("div", {"class": "cpi"});
+      line.appendChild(el("span", {"class": "cycles", "data-value": cyc}, data.kind === "loop" ? fmt2(cyc) : cyc));
+      line.appendChild(document.createTextNode(" " + what));
+      box.appendChild(line);
+      box.appendChild(el("p", {"class": "notes"}, "timeline: " + v.legend));
+      for (const n of v.notes || []) box.appendChild(el("p", {"class": "notes"}, n));
+      box.appendChild(legend(v));
+      box.appendChild(chart(r, v));
+      box.appendChild(table(r, v));
+      cpus.appendChild(box);
+    });
+  }
+  function form(app) {
+    const f = el("form", {"id": "loop-form"});
+    const left = el("fieldset");
+    left.appendChild(el("legend", {}, "loop body (Intel or AT&T)"));
+    const ta = el("textarea", {"id": "body", "name": "body", "spellcheck": "false"});
+    ta.value = app.example || "";
+    left.appendChild(ta);
+    f.appendChild(left);
+    const cpus = el("fieldset", {"id": "cpu-choice"});
+    cpus.appendChild(el("legend", {}, "CPUs"));
+    for (const c of app.cpus) {
+      const lab = el("label");
+      const box = el("input", {"type": "checkbox", "name": "cpu", "value": c});
+      box.checked = (app.defaults || []).includes(c);
+      lab.appendChild(box); lab.appendChild(document.createTextNode(c));
+      cpus.appendChild(lab); cpus.appendChild(el("br"));
+    }
+    f.appendChild(cpus);
+    const opts = el("fieldset");
+    opts.appendChild(el("legend", {}, "options"));
+    opts.appendChild(el("label", {"for": "memory"}, "memory"));
+    const mem = el("select", {"id": "memory"});
+    mem.appendChild(el("option", {"value": ""}, "(each CPU's default)"));
+    for (const m of app.memories) mem.appendChild(el("option", {"value": m}, m));
+    opts.appendChild(mem); opts.appendChild(el("br"));
+    opts.appendChild(el("label", {"for": "syntax"}, "syntax"));
+    const syn = el("select", {"id": "syntax"});
+    for (const [v, t] of [["", "detect"], ["intel", "Intel"], ["att", "AT&T"]]) syn.appendChild(el("option", {"value": v}, t));
+    opts.appendChild(syn); opts.appendChild(el("br"));
+    opts.appendChild(el("label", {"for": "iterations"}, "iterations"));
+    opts.appendChild(el("input", {"id": "iterations", "type": "number", "value": "100", "min": "4", "style": "width:6em"}));
+    opts.appendChild(el("br"));
+    opts.appendChild(el("label", {"for": "sets"}, "--set KEY=VALUE, one a line"));
+    opts.appendChild(el("br"));
+    opts.appendChild(el("textarea", {"id": "sets", "style": "width:22em;height:4em"}));
+    opts.appendChild(el("br"));
+    opts.appendChild(el("button", {"type": "submit", "id": "run"}, "time it"));
+    f.appendChild(opts);
+    f.addEventListener("submit", (ev) => { ev.preventDefault(); submit(); });
+    document.getElementById("form").appendChild(f);
+  }
+  async function submit() {
+    const err = document.getElementById("error"), status = document.getElementById("status");
+    const req = {
+      body: document.getElementById("body").value,
+      cpus: Array.from(document.querySelectorAll("input[name=cpu]:checked")).map(b => b.value),
+      memory: document.getElementById("memory").value || null,
+      syntax: document.getElementById("syntax").value || null,
+      iterations: Number(document.getElementById("iterations").value || 100),
+      sets: document.getElementById("sets").value.split("\n").map(s => s.trim()).filter(s => s),
+    };
+    status.textContent = "timing...";
+    document.body.setAttribute("data-state", "busy");
+    const t0 = performance.now();
+    try {
+      const resp = await fetch("api/loop", {method: "POST", headers: {"Content-Type": "application/json"},
+                                            body: JSON.stringify(req)});
+      const answer = await resp.json();
+      if (answer.error) {
+        err.textContent = answer.error; err.hidden = false;
+        status.textContent = "";
+      } else {
+        err.hidden = true; err.textContent = "";
+        draw(answer.data);
+        status.textContent = "answered in " + Math.round(performance.now() - t0) + " ms (server: " + answer.ms + " ms)";
+      }
+    } catch (e) {
+      err.textContent = "retrosim: error: the server did not answer (" + e + ")"; err.hidden = false;
+      status.textContent = "";
+    }
+    document.body.setAttribute("data-state", "done");
+  }
+  if (CONFIG.app) form(CONFIG.app);
+  draw(JSON.parse(document.getElementById("retrosim-data").textContent));
+  document.body.setAttribute("data-state", "ready");
+})();
+"""

@@ -1,0 +1,137 @@
+"""The pipeline view's data and page without a browser (sim/reports/pipeline_html.py) and the
+request checks of `retrosim serve` (sim/cli/serve.py); the browser tests are in
+test_pipeline_browser.py."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from sim.cli import main, serve
+from sim.errors import ArgumentError
+from sim.reports import pipeline_html, views
+from sim.timing import loop
+
+ROOT = Path(__file__).resolve().parents[1]
+TEXTURE = (ROOT / "examples" / "texture-loop.s").read_text()
+
+
+def script_json(page: str, name: str):
+    m = re.search(rf'<script type="application/json" id="{name}">(.*?)</script>', page, re.S)
+    return json.loads(m.group(1))
+
+
+def test_page_carries_the_data_and_no_markup_from_it():
+    nasty = 'x.s</script><script>alert(1)</script><!-- & "\u2028'
+    data = {"kind": "loop", "doc": {"source": nasty, "results": []}, "views": [], "body": nasty}
+    page = pipeline_html.page(data)
+    assert "<script>alert(1)" not in page and "<!--" not in page.split("<body>")[1]
+    assert script_json(page, "retrosim-data") == data  # the page reads back exactly what it was given
+    assert "http://" not in page and "https://" not in page  # nothing loaded from the network
+    assert "<title>x.s&lt;/script&gt;" in page
+
+
+@pytest.fixture(scope="module")
+def timings():
+    return loop.time_body(TEXTURE, ["pentium-mmx-233", "pentium2-233", "k6-2-300"], name="texture-loop.s",
+                          iterations=20)
+
+
+def test_stage_words_name_every_mark_of_each_familys_timeline(timings):
+    for t in timings:
+        marks = [m for m, _ in pipeline_html.view(t.result)["stages"]]
+        assert {"D", "R", "E", "C"} <= set(marks), (t.cpu, marks)
+
+
+def test_every_stall_cause_a_row_shows_is_explained(timings):
+    for t in timings:
+        v = pipeline_html.view(t.result)
+        helps = dict(v["causes"])
+        for row in views.timeline_rows(t.result):
+            assert row["cause"] in helps
+            assert row["cause"] == "none" or helps[row["cause"]], (t.cpu, row["cause"])
+
+
+def test_p5_lanes_agree_with_the_models_pipe_counters(timings):
+    # the page's U/V per timeline row against the P5 core's own per-instruction U and V counts: an
+    # instruction that always ran in V must be drawn in V, one that always ran in U in U
+    p5 = next(t for t in timings if t.cpu == "pentium-mmx-233")
+    rows = views.timeline_rows(p5.result)
+    lanes = pipeline_html.view(p5.result)["lanes"]
+    per = {r["pc"]: r for r in views.explain_rows(p5.result)}
+    checked = 0
+    for row, lane in zip(rows[1:], lanes[1:]):  # the first row's partner may be outside the window
+        r = per[row["pc"]]
+        if r["v_pipe"] == r["executions"]:
+            assert lane == "V", row
+            checked += 1
+        elif r["u_pipe"] == r["executions"]:
+            assert lane == "U", row
+            checked += 1
+    assert checked >= len(rows) // 2
+
+
+def test_loop_html_and_json_come_from_one_run(tmp_path):
+    out = tmp_path / "sub" / "view.html"  # its folder is created
+    r = CliRunner().invoke(main, ["loop", "-", "--cpu", "pentium2-233,k6-233", "--iterations", "20", "--json",
+                                  "--html", str(out)], input=TEXTURE)
+    assert r.exit_code == 0, r.output
+    data = script_json(out.read_text(), "retrosim-data")
+    assert data["doc"] == json.loads(r.output)
+    assert [v["family"] for v in data["views"]] == ["p6", "k6"]
+
+
+def test_bad_html_path_fails_before_the_work(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    r = CliRunner().invoke(main, ["loop", "-", "--html", str(blocker / "x.html")], input="movv eax, 1\n")
+    assert r.exit_code == 2
+    assert "--html" in r.output and "movv" not in r.output  # the path was refused before assembling
+
+
+def test_explain_html(tmp_path):
+    out = tmp_path / "e.html"
+    r = CliRunner().invoke(main, ["explain", "convert/fp16z.S", "--entry", "fp16z_convert_array", "--args",
+                                  "buf:u32:64:7,buf:u32:64,64,0,0", "--cpu", "k6-233", "--json", "--html", str(out)])
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.output)
+    data = script_json(out.read_text(), "retrosim-data")
+    assert data["kind"] == "explain"
+    assert data["doc"]["results"][0]["cycles"] == doc["summary"]["cycles"]
+    assert data["doc"]["results"][0]["timeline"] == doc["timeline"]
+
+
+@pytest.mark.parametrize("req, message", [
+    ([], "not a JSON object"),
+    ({"body": "nop", "colour": 1}, "unknown request field(s): colour"),
+    ({"body": 3}, "body: expected text"),
+    ({"body": " \n"}, "no instructions"),
+    ({"body": "nop", "cpus": "k6-233"}, "cpus: expected a list"),
+    ({"body": "nop", "iterations": True}, "iterations: expected an integer"),
+    ({"body": "nop", "syntax": "masm"}, "--syntax masm"),
+    ({"body": "nop", "timeline": 5000}, "--timeline 5000"),
+])
+def test_bad_requests_get_one_line(req, message):
+    with pytest.raises(ArgumentError, match=re.escape(message)):
+        serve.parse_request(req)
+
+
+def test_request_errors_are_the_clis_line():
+    answer = serve.compute({"body": "top:\n  add eax, 1\n  jnz top\n", "cpus": ["pentium9"]})
+    r = CliRunner().invoke(main, ["loop", "-", "--cpu", "pentium9"], input="top:\n  add eax, 1\n  jnz top\n")
+    assert answer["error"] == r.output.strip().splitlines()[-1]
+
+
+def test_a_request_over_its_memory_bound_is_refused_and_the_next_answers():
+    # 64 MB more than this process is far less than timing a body needs: the forked child fails
+    # inside its bound and says so in one line
+    serve.warm_up()  # as the server does before it forks
+    small = {"body": "top:\n  add eax, 1\n  dec edx\n  jnz top\n", "cpus": ["pentium2-233"]}
+    answer = serve.Worker(timeout=30, memory_mb=64, jobs=1).run(small)
+    assert answer["error"].startswith("retrosim: error: ") and "--memory-mb" in answer["error"]
+    answer = serve.Worker(timeout=30, memory_mb=2048, jobs=1).run(small)
+    assert "error" not in answer and answer["data"]["doc"]["results"][0]["cycles_per_iteration"] > 0
