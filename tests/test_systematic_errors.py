@@ -58,3 +58,36 @@ def test_p54c_prefix_after_one_clock_instructions_still_costs_a_clock():
     shadowed = cycles("cld\nbswap eax", "pentium-133")
     assert plain == pytest.approx(1 + 2, abs=0.05)   # the pair, then BSWAP's prefix and execute clocks
     assert shadowed == pytest.approx(2 + 1, abs=0.05)  # CLD 2 clocks, BSWAP 1: its prefix is hidden
+
+
+# -- P6: the multiply's uop flow ------------------------------------------------------------------
+# Intel, "Optimizations for Intel's 32-Bit Processors" v2.2 (1995), App. D "P6 Processor Instruction
+# Timing Information": MUL/IMUL rm8 is one port-0 uop (AX = mul(AL, r8), latency 4); MUL/IMUL rm32 is
+# the multiply (port 0, latency 4), then EAX (port 0 or 1) and EDX (port 0), one clock each.
+# Intel 242816 (Intel Architecture Optimization Manual, 1997) Table 2-3: integer multiplication
+# latency 4, throughput 1/cycle (pipelined). InstLatX64 PII: MUL r8 L 4, MUL r32 L 5 (EAX and EDX).
+
+@pytest.mark.table_check
+@pytest.mark.parametrize("insn, clocks", [("mul bl", 4), ("imul bl", 4), ("mul ebx", 5), ("imul ebx", 5)])
+def test_p6_multiply_latency(insn, clocks):
+    assert cycles(insn, "pentium2-233") == pytest.approx(clocks, abs=0.05)
+
+
+@pytest.mark.parametrize("cpu", ["pentium2-233", "pentium3-500"])
+def test_p6_independent_byte_multiplies_pipeline(cpu):
+    # four MUL r8 whose AL each comes from a fresh MOV: one port-0 uop each on a pipelined
+    # multiplier, so port 0 gives one multiply per clock (the model held the multiplier 4 clocks
+    # per MUL r8, InstLat's T 4.00, which is the chain through AL/AX, and took 16)
+    body = "mov al, cl\nmul bl\n" * 4
+    assert cycles(body, cpu) == pytest.approx(4, abs=0.3)
+
+
+@pytest.mark.parametrize("cpu", ["pentium-pro-200", "pentium2-233", "pentium3-500"])
+def test_p6_partial_flags_stall_costs_about_four_clocks(cpu):
+    # Agner Fog, The microarchitecture of Intel, AMD and VIA CPUs, sec. 6.8 "Partial flags stalls"
+    # (PPro/P2/P3): reading a flag INC/DEC left unmodified (CF) stalls, "approximately 4 clocks".
+    # The model's wait (the writers' retirement plus estimates.partial_extra, set from the measured
+    # +5 of the partial-register stall) is not given this figure.
+    stalled = cycles("inc ecx\nadc edx, 0", cpu)
+    clean = cycles("add ecx, 1\nadc edx, 0", cpu)
+    assert stalled - clean == pytest.approx(4, abs=1)
