@@ -2,8 +2,8 @@
 the depth keys of a Z-buffer scene.
 
 Synthetic distributions (:data:`SYNTHETIC`) are numpy draws from ``default_rng([seed, index of the
-distribution, n])``, so each (distribution, size) has its own keys and adding a size or a
-distribution changes no other. The Z-buffer keys are built only when a scene lists them
+distribution, n])`` ("sorted" and "reversed" order the "uniform" draw), so each (distribution,
+size) has its own keys and adding a size or a distribution changes no other. The Z-buffer keys are built only when a scene lists them
 (:func:`zbuffer_keys`): only then is the Z-buffer scene loaded and rasterized (sim.scenes.raster,
 imported inside the function, never at module level).
 
@@ -42,7 +42,8 @@ def synthetic(name: str, n: int, seed: int) -> np.ndarray:
     """n uint16 keys of a synthetic distribution; the same for the same (name, n, seed)."""
     if name not in SYNTHETIC:
         raise ValueError(f"unknown key distribution '{name}' (known: {', '.join(SYNTHETIC)})")
-    rng = np.random.default_rng([seed, list(SYNTHETIC).index(name), n])
+    stream = "uniform" if name in ("sorted", "reversed") else name  # the uniform keys, put in order
+    rng = np.random.default_rng([seed, list(SYNTHETIC).index(stream), n])
     if name in ("uniform", "sorted", "reversed"):
         k = rng.integers(0, 1 << 16, n)
         if name != "uniform":
