@@ -22,7 +22,7 @@ import json
 from pathlib import Path
 
 from sim.cpus.machine import MachineKey
-from sim.reports.render import FORMATS, add_label_column, console_label, md_table, png_bytes, render_html, write_payloads
+from sim.reports.render import FORMATS, md_table, png_bytes, render_html, write_payloads
 from sim.scenes.kind import BASELINE_COUNTERS
 from sim.scenes.sort import keys as K
 from sim.scenes.sort.runner import SortResult
@@ -526,8 +526,8 @@ def baseline_entries(result: SortResult) -> dict[str, dict[str, int]]:
 
 
 def summary_tables(result: SortResult) -> list:
-    """The terminal summary: cycles per key on the first distribution at table_size (CPUs as rows),
-    each radix sort's crossover, and how many claims held."""
+    """The terminal summary: cycles per key on the first distribution at table_size (a column per
+    CPU), where each radix sort starts to win, and how many claims held."""
     from rich import box
     from rich.markup import escape
     from rich.padding import Padding
@@ -536,31 +536,32 @@ def summary_tables(result: SortResult) -> list:
 
     s = result.scene
     dist = s.distributions[0]
+    presets = [MachineKey.parse(k).label for k in result.cpu_keys]
+    if len(set(presets)) < len(presets):  # one preset with two memories: name the memory too
+        presets = list(result.cpu_keys)
     t = Table(title=f"{escape(s.name)}: cycles per key, {s.table_size:,} {dist} keys", title_justify="left",
               box=box.SIMPLE_HEAD, pad_edge=False)
-    add_label_column(t, "CPU (memory)", [console_label(m.label, m.memory) for m in map(MachineKey.parse, result.cpu_keys)])
+    t.add_column("variant", no_wrap=True)
+    for p in presets:
+        t.add_column(escape(p), justify="right")
     for v in s.variants:
-        t.add_column(v, justify="right", no_wrap=True)
-    for key in result.cpu_keys:
-        m = MachineKey.parse(key)
-        t.add_row(escape(console_label(m.label, m.memory)),
-                  *[("refused" if (v, key) in result.refused else _num(result.cycles_per_key(v, dist, s.table_size, key)))
-                    for v in s.variants])
+        t.add_row(v, *[("refused" if (v, key) in result.refused else _num(result.cycles_per_key(v, dist, s.table_size, key)))
+                       for key in result.cpu_keys])
     out = [t]
     xs = crossovers(result)
     if xs:
-        c = Table(title="radix sort faster than every comparison sort", title_justify="left", box=box.SIMPLE_HEAD,
-                  pad_edge=False)
-        c.add_column("radix")
-        c.add_column("CPU (memory)")
-        for d in s.sweep_distributions:
-            c.add_column(f"{d} keys")
+        c = Table(title="keys from which radix sort beats every comparison sort", title_justify="left",
+                  box=box.SIMPLE_HEAD, pad_edge=False)
+        c.add_column("radix, keys", no_wrap=True)
+        for p in presets:
+            c.add_column(escape(p), justify="right")
         for r in dict.fromkeys(x["radix"] for x in xs):
-            for key in result.cpu_keys:
-                m = MachineKey.parse(key)
-                c.add_row(r, escape(console_label(m.label, m.memory)),
-                          *[_crossover_text(next(x for x in xs if (x["radix"], x["cpu"], x["distribution"]) == (r, key, d)))
-                            for d in s.sweep_distributions])
+            for d in s.sweep_distributions:
+                cells = []
+                for key in result.cpu_keys:
+                    x = next(x for x in xs if (x["radix"], x["cpu"], x["distribution"]) == (r, key, d))
+                    cells.append("never" if x["from_size"] is None else f"{x['from_size']:,}")
+                c.add_row(f"{r}, {d}", *cells)
         out.append(c)
     claims = evaluate_claims(result)
     if claims:
