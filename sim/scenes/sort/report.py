@@ -420,7 +420,9 @@ def to_markdown(result: SortResult, png_name: str | None) -> str:
               "instead of 4.",
               "- The merge sorts run from runs of one key up (no insertion-sorted start), so their loop-end branches "
               "mispredict often in the first passes whatever the select is made of; the SBB and CMOV merges remove "
-              "only the select's branch.", ""]
+              "only the select's branch.",
+              "- Every kernel loads its keys with MOVZX, which the P5 does not pair and spends 3 clocks on "
+              "(sim/cpus/tables/p5.toml); all variants pay it alike, once per key loaded.", ""]
     return "\n".join(parts).rstrip() + "\n"
 
 
