@@ -32,7 +32,8 @@ from sim.scenes.sort.variants import VARIANTS
 # counters per key that explain a faster/slower verdict (when present and different)
 EXPLAIN_COUNTERS = ["instructions", "uops", "mispredicts", "stall_mispredict", "l1d_load_misses", "l1d_store_misses",
                     "l2_misses", "stall_memory", "stall_store_forward", "stall_partial_register"]
-# the counters each timing lists in the JSON report (the CSV has every counter of every model)
+# each timing in the JSON report: a row of these columns (the CSV has every counter of every model)
+TIMING_COLUMNS = ["variant", "distribution", "keys", "cpu", "memory", "cycles_per_key"]
 JSON_COUNTERS = list(dict.fromkeys([*BASELINE_COUNTERS, "branches", "stall_mispredict", "l1d_loads", "l1d_stores",
                                     "l2_accesses", "stall_memory", "stall_store_forward"]))
 MISS_COLUMNS = [("mispredicts", "mispredicts"), ("l1d_load_misses", "L1D load misses"),
@@ -440,14 +441,22 @@ def to_json(result: SortResult) -> dict:
                          "label": VARIANTS[v].label} for v in s.variants},
         "refused": [{"variant": v, "cpu": k, "message": m} for (v, k), m in result.refused.items()],
         "checked_runs": len(result.checked),
-        "timings": [{"variant": t.variant, "distribution": t.distribution, "keys": t.size, "cpu": t.cpu,
-                     "memory": t.memory, "cycles_per_key": round(t.per_key("cycles"), 4),
-                     **{c: t.counters[c] for c in JSON_COUNTERS if c in t.counters}}
-                    for t in result.timings],
+        "timings": {"columns": TIMING_COLUMNS + JSON_COUNTERS,
+                    "rows": [[t.variant, t.distribution, t.size, t.cpu, t.memory, round(t.per_key("cycles"), 4)]
+                             + [t.counters.get(c) for c in JSON_COUNTERS] for t in result.timings]},
         "crossovers": crossovers(result),
         "claims": evaluate_claims(result),
         "findings": findings(result),
     }
+
+
+def json_text(result: SortResult) -> str:
+    """The JSON report, indented, with each timing row on one line (a thousand rows stay readable)."""
+    doc = to_json(result)
+    timings = doc.pop("timings")
+    rows = ",\n".join("      " + json.dumps(r) for r in timings["rows"])
+    return (json.dumps(doc, indent=2)[:-2] + f',\n  "timings": {{\n    "columns": {json.dumps(timings["columns"])},\n'
+            f'    "rows": [\n{rows}\n    ]\n  }}\n}}\n')
 
 
 def to_csv(result: SortResult) -> str:
@@ -520,7 +529,7 @@ def write_reports(result: SortResult, out_dir: Path, formats: tuple[str, ...] = 
     image = png(result) if ("png" in formats or "html" in formats) else None
     md = to_markdown(result, f"{name}.png" if image is not None else None)
     payloads = {"md": md.encode(), "png": image,
-                "json": (json.dumps(to_json(result), indent=2) + "\n").encode(),
+                "json": json_text(result).encode(),
                 "csv": to_csv(result).encode(), "html": render_html(md, image).encode()}
     return write_payloads(out_dir, name, payloads, formats)
 
