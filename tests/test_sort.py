@@ -234,3 +234,18 @@ def test_report_writes_every_format(tmp_path):
     data = json.loads((out / "sort-tiny.json").read_text())
     assert data["checked_runs"] == len(load_scene(scene).cases())
     assert {c["text"] for c in data["claims"]} == {"radix beats quicksort", "CMOV clamp on every family"}
+
+
+def test_the_terminal_summary_fits_80_columns(tiny):
+    import io
+
+    from rich.console import Console
+
+    from sim.scenes.registry import summary_tables
+
+    console = Console(width=80, file=io.StringIO(), color_system=None)
+    for part in summary_tables([tiny]):
+        console.print(part)
+    text = console.file.getvalue()
+    assert "…" not in text and all(len(line.rstrip()) <= 80 for line in text.splitlines())
+    assert "refused" in text and "pentium-mmx-" in text

@@ -338,6 +338,19 @@ def findings(result: SortResult) -> list[str]:
         out.append(f"{_label(key)}: fastest sort at {s.table_size:,} keys: "
                    + ", ".join(f"{d} {v} ({result.cycles_per_key(v, d, s.table_size, key):.1f} cycles/key)"
                                for d, v in best.items()) + ".")
+    if {"radix8", "radix11"} <= set(s.variants):
+        dist = s.sweep_distributions[0]
+        for n in sorted({s.table_size, max(s.sizes)}):
+            parts = []
+            for key in result.cpu_keys:
+                a, b = result.timing("radix8", dist, n, key), result.timing("radix11", dist, n, key)
+                if a is None or b is None:
+                    continue
+                miss = lambda t: t.per_key("l1d_load_misses") + t.per_key("l1d_store_misses")
+                parts.append(f"{_label(key)} {b.per_key('cycles'):.1f} against {a.per_key('cycles'):.1f} cycles, "
+                             f"{miss(b):.2f} against {miss(a):.2f} L1D misses")
+            if parts:
+                out.append(f"radix11 against radix8 per key at {n:,} {dist} keys: " + "; ".join(parts) + ".")
     return out
 
 
@@ -380,8 +393,9 @@ def to_markdown(result: SortResult, png_name: str | None) -> str:
         for dist in s.distributions[:1]:
             parts += [f"## Mispredicts and cache misses per key ({dist} keys, {s.table_size:,} keys)", "",
                       "The models' counters over the timed call, per key: mispredicted branches, L1 data cache load "
-                      "and store misses (the K6 and the P6 allocate on a write miss, the P5 does not), and misses of "
-                      "the L2 (the P5's and the K6-2's L2 is the board cache).", "",
+                      "and store misses (a store miss allocates a line on the P6, and on a K6 whose preset sets write "
+                      "allocation (the K6-2 300's does); the P5 never allocates on a store, so each store to a line not "
+                      "in L1 counts), and misses of the L2 (the P5's and the K6-2's L2 is the board cache).", "",
                       md_table(*counter_rows(result, dist, s.table_size)), ""]
         for dist in s.sweep_distributions:
             parts += [f"## Cycles per key against size ({dist} keys)", ""]
@@ -418,10 +432,10 @@ def to_markdown(result: SortResult, png_name: str | None) -> str:
     parts += ["## Notes", "",
               "- 16-bit keys need two passes with 8-bit digits and still two with 11-bit digits: `radix11` saves no pass "
               "here, it only trades a 1 KB histogram for an 8 KB one (and 32 entries for the high 5 bits). 8 KB is the "
-              "whole L1 data cache of the P5 (the P6's is 16 KB, the K6's 32 KB): while the first pass scatters, the "
-              "histogram competes with the keys and the output it streams through, and clearing it and summing its "
-              "2,048 counts costs the same for 256 keys as for 64 K. With 32-bit keys 11-bit digits would need 3 passes "
-              "instead of 4.",
+              "whole L1 data cache of the first Pentiums (P54C; the Pentium MMX's and the P6's are 16 KB, the K6-2's "
+              "32 KB): while the first pass scatters, the histogram competes with the keys it reads and the buffer it "
+              "writes, and clearing it and summing its 2,048 counts costs the same for 256 keys as for 64 K. The "
+              "findings above give each CPU's misses. With 32-bit keys 11-bit digits would need 3 passes instead of 4.",
               "- The merge sorts run from runs of one key up (no insertion-sorted start), so their loop-end branches "
               "mispredict often in the first passes whatever the select is made of; the SBB and CMOV merges remove "
               "only the select's branch.",
@@ -554,6 +568,7 @@ def summary_tables(result: SortResult) -> list:
     presets = [MachineKey.parse(k).label for k in result.cpu_keys]
     if len(set(presets)) < len(presets):  # one preset with two memories: name the memory too
         presets = list(result.cpu_keys)
+    presets = [p.rpartition("-")[0] + "-\n" + p.rpartition("-")[2] if "-" in p else p for p in presets]  # 80 columns
     t = Table(title=f"{escape(s.name)}: cycles per key, {s.table_size:,} {dist} keys", title_justify="left",
               box=box.SIMPLE_HEAD, pad_edge=False)
     t.add_column("variant", no_wrap=True)
