@@ -65,7 +65,7 @@ def test_shipped_scene_builds_only_what_it_names():
 
 
 @pytest.mark.parametrize("edit,message", [
-    (('kind = "snap"', 'kind = "snapping"'), r":4: scene.kind: unknown kind 'snapping' \(known: zbuffer, texture, snap\)"),
+    (('kind = "snap"', 'kind = "snapping"'), r":4: scene.kind: unknown kind 'snapping' \(known: zbuffer, texture, snap, sort\)"),
     (('"ties", "huge"', '"ties", "giant"'), r"workloads.names\[2\]: unknown workload 'giant'"),
     (('"trick-64", "portable-64"]', '"trick-65", "portable-64"]'), r"run.variants\[1\]: unknown variant 'trick-65'"),
     (('expect = "slower"', 'expect = "slowest"'), r"claims\[1\].expect: unknown expectation 'slowest'"),

@@ -25,6 +25,7 @@ assumed not to flip twice (the cycle ratio moves monotonically with each of thes
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from sim.memory import dram
@@ -90,6 +91,8 @@ def parameters(cpu: str, memory: str | None = None) -> list[Param]:
             lo, hi, why = min(v, OVERHEAD_CARRIED[0]), max(v, OVERHEAD_CARRIED[1]), "board overhead carried over from another system"
         else:
             lo, hi, why = max(0.0, v - OVERHEAD_MEASURED), v + OVERHEAD_MEASURED, "board overhead calibrated on this CPU: +-2 bus clocks"
+        if isinstance(values["memory.overhead_bus_clocks"], int):  # a whole-number field (the P5 presets'):
+            lo, hi = math.floor(lo), math.ceil(hi)                   # its range's ends widened to whole clocks
         out.append(Param("memory.overhead_bus_clocks", v, lo, hi, why, MECHANISM["memory.overhead_bus_clocks"]))
     pages = load_dram(memory or preset.memory).pages
     # the savings first: the geometry's re-timings walk the caches (see perturbed_timings)

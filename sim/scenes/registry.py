@@ -14,11 +14,12 @@ from sim.reports.render import FORMATS
 from sim.scenes.kind import SceneKind
 from sim.scenes.schema import Validator, read_scene, show
 from sim.scenes.snap.kind import KIND as SNAP
+from sim.scenes.sort.kind import KIND as SORT
 from sim.scenes.texture.kind import KIND as TEXTURE
 from sim.scenes.zbuffer.kind import KIND as ZBUFFER
 
 DEFAULT_KIND = ZBUFFER.name  # a scene file without [scene] kind
-KINDS: dict[str, SceneKind] = {k.name: k for k in (ZBUFFER, TEXTURE, SNAP)}
+KINDS: dict[str, SceneKind] = {k.name: k for k in (ZBUFFER, TEXTURE, SNAP, SORT)}
 
 
 def kind_of(item) -> SceneKind:
