@@ -118,6 +118,21 @@ class Validator:
             self.fail(name, f"expected a table [{name}], got {toml_type(value)}", None, name)
         return value
 
+    def scene_header(self, doc: dict, kind: str, tables: tuple[str, ...], scene_keys: dict) -> tuple[dict, str, str]:
+        """What every kind's file shares: only the kind's top-level tables, a [scene] table with
+        `scene_keys`, and scene.name equal to the file's name. Returns ([scene], name, description)."""
+        for key in doc:
+            if key not in tables:
+                here = isinstance(doc[key], dict)
+                self.fail(key, f"unknown table (allowed for kind '{kind}': {', '.join(tables)})",
+                          key if here else None, None if here else key)
+        sc = self.table(doc, "scene")
+        self.keys(sc, scene_keys, "scene", note=f" for kind '{kind}'")
+        name = self.typed(sc, "name", "str", "scene")
+        if name != self.path.stem:
+            self.fail("scene.name", f"'{name}' must equal the file name '{self.path.stem}'", "scene", "name")
+        return sc, name, self.typed(sc, "description", "str", "scene", default="")
+
     def machine(self, machines: list, label: str, memory: str | None, field: str, table: str, key: str,
                 index: int | None = None) -> None:
         """Append the CpuChoice of a machine label (preset{overrides}) and memory to `machines`, with

@@ -113,16 +113,7 @@ def load(path: Path, text: str, doc: dict) -> SnapScene:
     from sim.cpus import presets
 
     v = Validator(path, text)
-    for key in doc:
-        if key not in ("scene", "workloads", "run", "claims"):
-            v.fail(key, "unknown table (allowed for kind 'snap': scene, workloads, run, claims)",
-                   key if isinstance(doc[key], dict) else None, None if isinstance(doc[key], dict) else key)
-    sc = v.table(doc, "scene")
-    v.keys(sc, _SCENE_KEYS, "scene", note=" for kind 'snap'")
-    name = v.typed(sc, "name", "str", "scene")
-    if name != path.stem:
-        v.fail("scene.name", f"'{name}' must equal the file name '{path.stem}'", "scene", "name")
-    description = v.typed(sc, "description", "str", "scene", default="")
+    sc, name, description = v.scene_header(doc, "snap", ("scene", "workloads", "run", "claims"), _SCENE_KEYS)
 
     wl = v.table(doc, "workloads")
     v.keys(wl, _WORKLOAD_KEYS, "workloads")

@@ -173,16 +173,7 @@ def load(path: Path, text: str, doc: dict) -> SortScene:
     from sim.cpus import presets
 
     v = Validator(path, text)
-    for key in doc:
-        if key not in ("scene", "keys", "clamp", "run", "claims"):
-            v.fail(key, "unknown table (allowed for kind 'sort': scene, keys, clamp, run, claims)",
-                   key if isinstance(doc[key], dict) else None, None if isinstance(doc[key], dict) else key)
-    sc = v.table(doc, "scene")
-    v.keys(sc, _SCENE_KEYS, "scene", note=" for kind 'sort'")
-    name = v.typed(sc, "name", "str", "scene")
-    if name != path.stem:
-        v.fail("scene.name", f"'{name}' must equal the file name '{path.stem}'", "scene", "name")
-    description = v.typed(sc, "description", "str", "scene", default="")
+    sc, name, description = v.scene_header(doc, "sort", ("scene", "keys", "clamp", "run", "claims"), _SCENE_KEYS)
 
     kt = v.table(doc, "keys")
     v.keys(kt, _KEYS_KEYS, "keys")

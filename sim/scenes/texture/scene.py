@@ -186,14 +186,7 @@ def load(path: Path, text: str, doc: dict) -> TextureScene:
     from sim.cpus import presets as cpu_presets
 
     v = Validator(path, text)
-    for key in doc:
-        if key not in ("scene", "geometry", "run", "claims"):
-            v.fail(key, "unknown table (allowed: scene, geometry, run, claims)")
-    sc = v.table(doc, "scene")
-    v.keys(sc, _SCENE_KEYS, "scene", note=" for kind 'texture'")
-    name = v.typed(sc, "name", "str", "scene")
-    if name != path.stem:
-        v.fail("scene.name", f"'{name}' must equal the file name '{path.stem}'", "scene", "name")
+    sc, name, description = v.scene_header(doc, "texture", ("scene", "geometry", "run", "claims"), _SCENE_KEYS)
     width, height = v.typed(sc, "width", "int", "scene"), v.typed(sc, "height", "int", "scene")
     for key, val in (("width", width), ("height", height)):
         v.at_least(val, 16, f"scene.{key}", "scene", key)
@@ -284,7 +277,7 @@ def load(path: Path, text: str, doc: dict) -> TextureScene:
         v.require_cover(field_, i, machines, lambda preset, memory, family: claim.covers(preset, family))
         claims.append(claim)
 
-    scene = TextureScene(path, name, v.typed(sc, "description", "str", "scene", default=""), width, height, seed,
+    scene = TextureScene(path, name, description, width, height, seed,
                          columns, rows, w_range, st_range, tuple(variants), tuple(machines), stride, tuple(claims))
     try:  # the 24.8 variant needs v inside the texture: say so now, not after the emulation
         params = F.span_params(scene.build_geometry(), width, height)

@@ -363,20 +363,10 @@ def load(path: Path, text: str, doc: dict) -> Scene:
     from sim.guest.emu import DEFAULT_ARENA
 
     v = Validator(path, text)
-    for key in doc:
-        if key not in ("scene", "geometry", "run", "claims"):
-            v.fail(key, "unknown table (allowed: scene, geometry, run, claims)", key if isinstance(doc[key], dict) else None,
-                   None if isinstance(doc[key], dict) else key)
-
     # [scene]
-    sc = v.table(doc, "scene")
-    v.keys(sc, _SCENE_KEYS, "scene")
-    name = v.typed(sc, "name", "str", "scene")
-    description = v.typed(sc, "description", "str", "scene", default="")
+    sc, name, description = v.scene_header(doc, "zbuffer", ("scene", "geometry", "run", "claims"), _SCENE_KEYS)
     width = v.typed(sc, "width", "int", "scene")
     height = v.typed(sc, "height", "int", "scene")
-    if name != path.stem:
-        v.fail("scene.name", f"'{name}' must equal the file name '{path.stem}'", "scene", "name")
     v.at_least(width, 1, "scene.width", "scene", "width")
     v.at_least(height, 1, "scene.height", "scene", "height")
     v.at_most(width, 1 << 15, "scene.width", "scene", "width")
