@@ -20,7 +20,7 @@ COPY_BYTES = 2 << 20    # each STREAM array: four times the largest board cache
 
 # STREAM's copy, c[j] = a[j] on 8-byte doubles (STREAM counts 16 bytes per element: 8 read + 8
 # written), as an x87 load and store of each double: what the i386 compiler makes of a double
-# assignment (gcc 12 -m32 -O3 -march=pentium: fldl / fstpl per element; the measured board's egcs
+# assignment (gcc 12 -m32 -O3 -march=pentium, with its memcpy and vector rewrites off: fldl / fstpl per element; the measured board's egcs
 # 1.1.2 run was not available), and what the measurement itself shows: Copy (54.66 MB/s) runs at
 # the rate of Scale (54.24 MB/s), whose b[j] = scalar * c[j] must go through the x87 and store
 # each double with one 8-byte FSTP. Integer moves would make two 4-byte stores per element, which
