@@ -150,19 +150,24 @@ class DramCost:
     lead_off_hit: int = 0
     line_busy_hit: int = 0
     writeback_busy_hit: int = 0
+    # a fill's whole bus cycle, request to last transfer (the board's overhead included), where the
+    # bus does not overlap one line fill with the next (Socket 7, sim/cpus/k6.py)
+    line_tenure: int = 0
+    line_tenure_hit: int = 0
 
 
 def dram_cost(memory: DramTiming, preset: CpuPreset) -> DramCost:
     """The memory preset's burst (bus clocks at the CPU's FSB) in core clocks, rounded up: lead-off =
     the board's overhead (the preset's calibrated [memory] overhead_bus_clocks: bus protocol,
     board-cache tag check, chipset) + the memory's first transfer; a fill or writeback keeps the
-    bus for the whole burst."""
+    bus for the whole burst (``line_tenure``: a fill's whole bus cycle, overhead included, which
+    the K6 charges instead)."""
     try:
         costs = line_costs(memory, preset.core_mhz, preset.fsb_mhz, dram_overhead(preset, memory.name))
     except ValueError as e:
         raise RetrosimError(f"{preset.name} with {memory.name}: {e}") from None
     return DramCost(memory.name, costs.lead_off, costs.fill, costs.writeback, costs.lead_off_hit,
-                    costs.fill_hit, costs.writeback_hit)
+                    costs.fill_hit, costs.writeback_hit, costs.fill_tenure, costs.fill_tenure_hit)
 
 
 def caches(preset: CpuPreset) -> tuple[Hierarchy, Hierarchy]:

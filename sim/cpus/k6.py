@@ -343,10 +343,12 @@ class K6Model(FamilyModel):
             P[core.P_L2_BUS] = self.estimates["ondie_l2_port"]
         P[core.P_IMISS] = P[core.P_L2_LAT] if level == 2 else (P[core.P_BOARD_LAT] or self.dram.lead_off)
         P[core.P_DRAM_LAT] = self.dram.lead_off
-        P[core.P_DRAM_LINE] = self.dram.line_busy
+        # a DRAM line fill holds the Socket 7 bus for its whole cycle, request to last transfer
+        # (k6_machine.toml [bus] fill_tenure): the next fill's lead-off cannot hide under it
+        P[core.P_DRAM_LINE] = self.dram.line_tenure
         P[core.P_DRAM_WB] = self.dram.writeback_busy
         P[core.P_DRAM_LAT_HIT] = self.dram.lead_off_hit
-        P[core.P_DRAM_LINE_HIT] = self.dram.line_busy_hit
+        P[core.P_DRAM_LINE_HIT] = self.dram.line_tenure_hit
         P[core.P_DRAM_WB_HIT] = self.dram.writeback_busy_hit
         P[core.P_BUS_WRITE] = core_clocks(self.estimates["bus_write_bus_clocks"], self.ratio)
         P[core.P_SQ] = self.estimates["store_queue"]

@@ -21,6 +21,12 @@ memory, so it is not in the memory presets: the caller (the CPU model, from the 
 It may be fractional (a measured latency rarely falls on whole bus clocks); the sum times the
 core/bus ratio is rounded up as every other cost.
 
+Bus tenure. On a bus whose cycle runs from the request to its last data transfer, one line fill
+at a time (the Socket 7 bus of the K6 presets: AMD-K6 data sheet sec. 6.3), a fill holds the bus
+for ``overhead + the whole burst`` (``LineCosts.fill_tenure``), not the burst alone: the next
+fill's request waits for it, and a pointer chase's time per load is that tenure, which is what the
+K6 presets' overheads are calibrated on.
+
 Page mode (issue 24). A preset's ``[pages]`` table (:class:`PageModel`) gives its chipset's page
 policy, the open pages it tracks (one per bank) and their size, and what a page hit saves against
 a page miss. The data side's cache walk (sim/memory/hierarchy.py) keeps the open row of each bank
@@ -281,6 +287,10 @@ class LineCosts:
     fill_hit: int = 0
     writeback_hit: int = 0
     lead_off_hit: int = 0
+    # the bus tenure of a line fill on a bus whose cycle runs from the request (ADS#) to the last
+    # data transfer, the board's overhead included: ceil((overhead + fill burst) x ratio); on an open page
+    fill_tenure: int = 0
+    fill_tenure_hit: int = 0
 
 
 def exact(value: float | int | Fraction, what: str = "overhead_bus_clocks") -> Fraction:
@@ -314,7 +324,8 @@ def line_costs(timing: DramTiming, core_mhz: float, fsb_mhz: float,
                          f"{timing.first_access_bus_clocks} - {save} bus clocks) must be at least 1")
     return LineCosts(timing.name, ratio, fill, wb, core_clocks(fill, ratio), core_clocks(wb, ratio), over, lead,
                      core_clocks(timing.bus_busy(save), ratio), core_clocks(timing.bus_busy(save + write_save), ratio),
-                     core_clocks(lead_hit, ratio))
+                     core_clocks(lead_hit, ratio), core_clocks(over + fill, ratio),
+                     core_clocks(over + timing.bus_busy(save), ratio))
 
 
 def line_costs_for_cpu(cpu_preset: dict, memory: str | None = None) -> LineCosts:
