@@ -255,3 +255,18 @@ def test_length_bytes_across_an_icache_line_cost_a_decode_clock(tmp_path, cpu):
     aligned, shifted = cycles(0), cycles(2)
     assert 12.9 <= shifted <= 13.2          # 12 one-per-clock 0x66 decodes + the DEC/JNZ pair
     assert 0.95 <= aligned - shifted <= 1.05
+
+
+@pytest.mark.parametrize("stores, stalls", [(7, False), (8, True)])
+def test_store_queue_holds_seven_stores(write_kernel, stores, stalls):
+    # k6_machine.toml [units.store]: 7 store-queue entries (GMP mpn/x86/k6/README, secondhand). On the
+    # k6-233 a store to a line never read is a 36-clock bus write (k6-233.toml [write_allocate]), so
+    # seven back-to-back stores all find a queue entry and the eighth waits for the first to commit.
+    body = "    mov eax, [esp+4]\n" + "    mov [eax], ecx\n" * stores + "    ret\n"
+    src = write_kernel(body, "sq.S", "run")
+    c = time_kernel(src, "run", lambda m: [m.arena.alloc(64, align=64)], cpu="k6-233", repeat=2).last
+    assert c["bus_writes"] == stores
+    if stalls:
+        assert c["stall_store_buffer"] >= 30      # about one bus write (10 bus clocks at 3.5x)
+    else:
+        assert c["stall_store_buffer"] == 0
