@@ -255,3 +255,40 @@ def test_length_bytes_across_an_icache_line_cost_a_decode_clock(tmp_path, cpu):
     aligned, shifted = cycles(0), cycles(2)
     assert 12.9 <= shifted <= 13.2          # 12 one-per-clock 0x66 decodes + the DEC/JNZ pair
     assert 0.95 <= aligned - shifted <= 1.05
+
+
+@pytest.mark.parametrize("stores, stalls", [(7, False), (8, True)])
+def test_store_queue_holds_seven_stores(write_kernel, stores, stalls):
+    # k6_machine.toml [units.store]: 7 store-queue entries (GMP mpn/x86/k6/README, secondhand). On the
+    # k6-233 a store to a line never read is a 36-clock bus write (k6-233.toml [write_allocate]), so
+    # seven back-to-back stores all find a queue entry and the eighth waits for the first to commit.
+    body = "    mov eax, [esp+4]\n" + "    mov [eax], ecx\n" * stores + "    ret\n"
+    src = write_kernel(body, "sq.S", "run")
+    c = time_kernel(src, "run", lambda m: [m.arena.alloc(64, align=64)], cpu="k6-233", repeat=2).last
+    assert c["bus_writes"] == stores
+    if stalls:
+        assert c["stall_store_buffer"] >= 30      # about one bus write (10 bus clocks at 3.5x)
+    else:
+        assert c["stall_store_buffer"] == 0
+
+
+@pytest.mark.parametrize("cpu, degraded", [("k6-233", True), ("k6-2-300", True), ("k6-3-450", False)])
+def test_a_sib_byte_after_0f_decodes_one_class_lower(write_kernel, cpu, degraded):
+    # k6_machine.toml [decode.length_bytes] (GMP mpn/x86/k6/README citing AMD 21924D p.67): on the K6
+    # and the pre-CXT K6-2 an 0F instruction whose ModRM is 00-xxx-100 needs its SIB byte to know its
+    # length and decodes long instead of short; a displacement (mod 01) avoids it; the K6-III is fixed.
+    # 8 x (MOVQ mm0,[esi+ecx]{+8}, ADD eax,1): short pairs 1 clock each; long + short alone 2 clocks.
+    def cycles(disp):
+        pairs = f"    movq mm0, [esi+ecx{disp}]\n    add eax, 1\n" * 8
+        body = ("    push ebp\n    push esi\n    mov ebp, [esp+12]\n    mov esi, [esp+16]\n    xor ecx, ecx\n"
+                ".p2align 5\n1:\n" + pairs + "    dec ebp\n    jnz 1b\n    emms\n    pop esi\n    pop ebp\n    ret\n")
+        src = write_kernel(body, f"sib{len(disp)}.S", "run")
+        r = time_kernel(src, "run", lambda m: [N, m.arena.alloc(64, align=64)], cpu=cpu, repeat=2)
+        return r.last["cycles"] / N
+
+    no_disp, disp8 = cycles(""), cycles("+8")
+    assert 8 <= disp8 <= 9.5                 # 8 pairs + DEC/JNZ (+ copies across a line)
+    if degraded:
+        assert 7.5 <= no_disp - disp8 <= 9.2
+    else:
+        assert abs(no_disp - disp8) <= 1.1

@@ -21,7 +21,9 @@ How a table row becomes ops (:class:`K6Rules`):
 - any other short or long row whose measured throughput its decoder, slots and units do not give
   holds a resource of its own (mnemonic and issue slot) for that throughput (K6Rules._hold_unexplained);
 - decoder: the row's class, promoted when the encoding breaks the class's limits (short: <= 7
-  bytes and <= 2 ops; long: <= 11 bytes and <= 4 ops; else vector);
+  bytes and <= 2 ops; long: <= 11 bytes and <= 4 ops; else vector); on the K6 and the pre-CXT K6-2
+  a 0x0F instruction whose SIB byte decides its length (ModRM 00-xxx-100) one class further
+  (k6_machine.toml [decode.length_bytes]);
 - decode clocks: a short instruction without prefixes pairs (0); long 1; vector: the vector
   decoder and ROM sequencer are busy for max(2, ceil(ops / 4), the row's throughput when no
   non-pipelined unit explains it) clocks; prefixes: the measured rate (one prefix 1 clock alone, 2
@@ -102,6 +104,7 @@ class K6Rules:
         self.mmx_first_only = bool(d["short"]["mmx_first_decoder_only"][key])
         self.line_bytes = d["line_crossing"]["line_bytes"]
         self.crossing_cycles = d["line_crossing"]["extra_decode_cycles"]
+        self.sib_degrades = bool(d["length_bytes"]["sib_after_0f_degrades"][key])
         self.resources: dict = {}  # (mnemonic, issue slots) -> resource id (see _hold_unexplained)
 
     def field(self, row, name):
@@ -214,7 +217,18 @@ class K6Rules:
             dec = DEC_COMPLEX
         if dec == DEC_COMPLEX and (rec.length > self.long_len or len(uops) > self.long_ops):
             dec = DEC_MSROM
+        if self.sib_degrades and self.length_needs_four_bytes(rec):
+            dec = DEC_COMPLEX if dec == DEC_SIMPLE else DEC_MSROM
         return dec
+
+    @staticmethod
+    def length_needs_four_bytes(rec: InsnRecord) -> bool:
+        """0x0F, opcode, ModRM 00-xxx-100 and the SIB byte all decide the length (with mod 00 the SIB's
+        base says whether a displacement follows): on the K6 and the pre-CXT K6-2 such an instruction
+        decodes one class lower (k6_machine.toml [decode.length_bytes], GMP's K6 notes citing AMD
+        21924D p.67)."""
+        return (rec.escape_0f and rec.modrm is not None and not rec.addrsize_prefix
+                and rec.modrm >> 6 == 0 and rec.modrm & 7 == 4)
 
     def vector_cycles(self, match: Match, uops) -> int:
         cycles = max(self.vector_min, -(-len(uops) // self.vector_rate))
