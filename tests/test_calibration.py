@@ -263,7 +263,7 @@ def lmbench_ratio(latency_ns: float, read_mb_s: float) -> float:
 # not stated), timed on pentium-pro-200 at that clock with its EDO. The model misses all three by
 # more than the 20 % fixed beforehand: its lat_mem_rd load (backward 128-byte stride: DRAM page
 # hits) takes about 289 ns against 194, its read stream gives about 266 MB/s against 205, so a
-# dependent load costs 2.4 stream lines where the machine measured 1.3. The P6 board overhead
+# dependent load costs 2.4 stream lines where the machine measured 1.24. The P6 board overhead
 # (15.5 bus clocks) is the Celeron 266's, a 440LX/BX-era board with SDRAM; the PPro's 1995 board
 # (450KX/GX or an early 440FX) was not named, and no chipset timing was found to replace it.
 @pytest.mark.xfail(strict=True, reason="lat_mem_rd on pentium-pro-200 at 167 MHz: model about 289 ns against "
@@ -291,7 +291,7 @@ def test_lmbench_memory_write_reproduces_the_pentium_pro(lmbench):
 
 # The done-when of issue 24: a stream and a chase on the same board give the measured ratio.
 @pytest.mark.xfail(strict=True, reason="latency / read-stream time per line: model about 2.4 against the "
-                                       "measured 1.3 on lmbench's Pentium Pro (issue 24)")
+                                       "measured 1.24 on lmbench's Pentium Pro (issue 24)")
 def test_lmbench_latency_over_stream_matches_the_pentium_pro(lmbench):
     r = lmbench["row"]
     measured = lmbench_ratio(r["latency_ns"], r["read_mb_s"])
