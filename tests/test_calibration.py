@@ -1,6 +1,7 @@
 """The memory model against published measurements of real boards (sim/memory/measured_boards.toml,
-issue 24 part 4): a random pointer chase far beyond the caches and a STREAM copy, timed on the
-closest preset, against the measured nanoseconds and MB/s. The sources are in the data file and in
+issue 24 part 4): a random pointer chase far beyond the caches, a STREAM copy, and lmbench's
+lat_mem_rd and bw_mem loops as lmbench 1 ran them, timed on the closest preset, against the measured
+nanoseconds and MB/s. The sources are in the data file and in
 docs/sources/memory.md; `python tests/test_calibration.py` prints the comparison table of that page."""
 
 import sys
@@ -111,6 +112,13 @@ def test_every_measurement_names_its_source_and_a_preset():
         for r in data[kind]:
             assert r["source"] and r["system"] and r["benchmark"], r
             presets.load(r["preset"])  # an unknown preset is an error
+    for r in data["lmbench"]:
+        assert r["source"] and r["system"] and r["benchmark"], r
+        presets.load(r["preset"])
+        # lmbench 1 reports a load's latency less one clock: the L1 figure is the L1 load-to-use
+        # latency of the preset less one clock, at the measured clock (a check on cpu_mhz)
+        l1_clks = r["l1_latency_ns"] * r["cpu_mhz"] / 1000 + 1
+        assert abs(l1_clks - presets.load(r["preset"]).l1d.latency_cycles) <= 0.25, (r["system"], l1_clks)
     for r in data["latency"]:
         # clocks and nanoseconds agree with the measured clock
         assert abs(r["latency_clks"] * 1000 / r["cpu_mhz"] - r["latency_ns"]) <= 0.03 * r["latency_ns"], r["system"]
@@ -119,7 +127,7 @@ def test_every_measurement_names_its_source_and_a_preset():
 # The boards the presets' board overheads were calibrated on, timed on the preset of the same CPU
 # with the memory it is compared with: the chase reproduces the measured ns within 10 %
 # (the calibration tolerance of docs/sources/p6.md and k6.md).
-@pytest.mark.parametrize("preset", ["celeron-266", "k6-233", "pentium-133"])
+@pytest.mark.parametrize("preset", ["celeron-266", "pentium-pro-200", "k6-233", "pentium-133"])
 def test_chase_reproduces_the_measured_board(chase, preset):
     r = row("latency", preset, "calibrated")
     model = chase_ns(chase, preset, r["memory_preset"])
@@ -174,6 +182,128 @@ def test_stream_copy_sdram_over_edo_matches_the_measured_ratio(copy):
     assert abs(model - measured) <= 0.10 * measured, (model, measured)
 
 
+# lmbench 1 (McVoy & Staelin, USENIX 1996) as its database was measured: sim/memory/measured_boards.toml
+# [[lmbench]], docs/sources/memory.md. lat_mem_rd: a ring of pointers, each pointing one stride
+# (128 bytes, the stride lmbench's summary is taken from) BACK, walked with p = *p in an unrolled
+# loop; lmbench reports the time per load less one clock (the load instruction). The database's
+# arrays reach 8 MB. bw_mem read: "an unrolled loop that sums up a series of integers ... a load and
+# an add for each word of memory" (4-byte ints, every word); write: "an unrolled loop that stores a
+# value into an integer ... and then increments the pointer". Both count the bytes of the array.
+LMBENCH_LAT_BYTES = 8 << 20
+LMBENCH_STRIDE = 128
+LMBENCH_BW_BYTES = 8 << 20
+LMBENCH_UNROLL = 32  # words per loop iteration (the paper says "unrolled", not how far)
+LMBENCH_TOLERANCE = 0.20  # fixed before the model was timed on these kernels
+
+
+def _unrolled(name: str, body) -> str:
+    lines = [".intel_syntax noprefix", ".text", f".globl {name}", f"{name}:", "    mov ecx, [esp+4]",
+             "    mov esi, [esp+8]", "    mov eax, 1" if name == "lm_wr" else "    xor eax, eax", f".L{name}:"]
+    lines += [body(4 * i) for i in range(LMBENCH_UNROLL)]
+    lines += [f"    add esi, {4 * LMBENCH_UNROLL}", "    dec ecx", f"    jnz .L{name}", "    ret", ""]
+    return "\n".join(lines)
+
+
+LMBENCH_RD = _unrolled("lm_rd", lambda off: f"    add eax, [esi+{off}]")
+LMBENCH_WR = _unrolled("lm_wr", lambda off: f"    mov [esi+{off}], eax")
+
+
+def lat_mem_rd_setup(m):
+    """lat_mem_rd's ring: the word at offset i points to offset i - stride; offset 0 to the last one."""
+    base = m.arena.alloc(LMBENCH_LAT_BYTES, align=4096)
+    words = np.zeros(LMBENCH_LAT_BYTES // 4, np.uint32)
+    offsets = np.arange(0, LMBENCH_LAT_BYTES, LMBENCH_STRIDE)
+    words[offsets // 4] = base + np.where(offsets == 0, LMBENCH_LAT_BYTES - LMBENCH_STRIDE, offsets - LMBENCH_STRIDE)
+    m.uc.mem_write(base, words.tobytes())
+    return [LMBENCH_LAT_BYTES // LMBENCH_STRIDE // 8, base + LMBENCH_LAT_BYTES - LMBENCH_STRIDE]
+
+
+def bw_mem_setup(m):
+    base = m.arena.alloc(LMBENCH_BW_BYTES, align=4096)
+    m.uc.mem_write(base, np.arange(LMBENCH_BW_BYTES // 4, dtype=np.uint32).tobytes())
+    return [LMBENCH_BW_BYTES // (4 * LMBENCH_UNROLL), base]
+
+
+def lmbench_machine(r: dict) -> str:
+    """The preset at the measured clock (its bus clock kept: the ratio becomes cpu_mhz / fsb_mhz)."""
+    assert r["fsb_mhz"] == presets.load(r["preset"]).fsb_mhz, r["system"]
+    return f"{r['preset']}{{clock.core_mhz={r['cpu_mhz']}}}"
+
+
+def lmbench_figures(d: Path) -> dict:
+    """The modelled lmbench figures of the [[lmbench]] row: ns as lmbench reports them, MB/s."""
+    from sim.timing.kernel import emulate, time_emulation
+    r = row("lmbench", "pentium-pro-200")
+    cpu, memory, mhz = lmbench_machine(r), r["memory_preset"], r["cpu_mhz"]
+    (d / "rd.S").write_text(LMBENCH_RD)
+    (d / "wr.S").write_text(LMBENCH_WR)
+    lat = time_emulation(emulate(Path("kernels/micro/memory.S"), "chase", lat_mem_rd_setup, repeat=1), cpu, memory).last
+    assert lat["dram_fills"] >= 0.99 * lat["l1d_loads"]
+    rd = time_emulation(emulate(d / "rd.S", "lm_rd", bw_mem_setup, repeat=1), cpu, memory).last
+    wr = time_emulation(emulate(d / "wr.S", "lm_wr", bw_mem_setup, repeat=1), cpu, memory).last
+    mb_s = lambda c: LMBENCH_BW_BYTES / (c["cycles"] / (mhz * 1e6)) / 1e6  # noqa: E731
+    return {"row": r, "latency_ns": (lat["cycles"] / lat["l1d_loads"] - 1) * 1000.0 / mhz,
+            "read_mb_s": mb_s(rd), "write_mb_s": mb_s(wr)}
+
+
+@pytest.fixture(scope="module")
+def lmbench(tmp_path_factory):
+    return lmbench_figures(tmp_path_factory.mktemp("lmbench"))
+
+
+def lmbench_ratio(latency_ns: float, read_mb_s: float) -> float:
+    """A dependent load's time over the time the read stream spends per 32-byte line: how much a
+    board gains from streaming. lmbench's latency leaves out one clock; that clock is small
+    against either, and left out on both sides."""
+    return latency_ns / (32 / read_mb_s * 1000.0)
+
+
+# The one published P6 machine with both a memory latency and a memory bandwidth in one source:
+# lmbench 1's "Linux i686" (a Pentium Pro at 167 MHz; board, chipset and memory not stated), timed
+# on pentium-pro-200 at that clock with its EDO, within 20 % (fixed before the model was timed).
+#
+# The latency: pentium-pro-200's board overhead is calibrated on another Pentium Pro 200
+# (InstLatX64's 1 KB-stride chase, 47 clks), not on this machine, so this checks it. lmbench's walk
+# (backward, 128-byte stride) finds the DRAM page open in the model, so the result leans on the
+# estimated page-hit saving: 3 bus clocks give 193 ns, the range's 2 and 4 give 205 and 175
+# (all inside 20 %). InstLatX64's own board walks the same pattern at 46 clks, a single clock under
+# its 47: that board gained almost nothing from open pages, where the model gains 9 clocks
+# (docs/sources/memory.md).
+def test_lmbench_lat_mem_rd_reproduces_the_pentium_pro(lmbench):
+    measured = lmbench["row"]["latency_ns"]
+    assert abs(lmbench["latency_ns"] - measured) <= LMBENCH_TOLERANCE * measured, (lmbench["latency_ns"], measured)
+
+
+# The read stream misses: the model's fills overlap (four L1 misses in flight, only the page-hit
+# burst holds the bus: 8 bus clocks per line), where the machine spends 10.4 bus clocks per line,
+# close to the 11.3 of an isolated page-hit load. What serialises them on the board (the memory
+# controller of a 450KX/GX or 440FX) was not found.
+@pytest.mark.xfail(strict=True, reason="bw_mem read on pentium-pro-200 at 167 MHz: model about 266 MB/s against "
+                                       "205 MB/s: the model's line fills overlap more than the measured board's; "
+                                       "no chipset timing found (issue 24)")
+def test_lmbench_memory_read_reproduces_the_pentium_pro(lmbench):
+    measured = lmbench["row"]["read_mb_s"]
+    assert abs(lmbench["read_mb_s"] - measured) <= LMBENCH_TOLERANCE * measured, (lmbench["read_mb_s"], measured)
+
+
+@pytest.mark.xfail(strict=True, reason="bw_mem write on pentium-pro-200 at 167 MHz: model about 96 MB/s against "
+                                       "56 MB/s (a read for ownership and a writeback per line in both) (issue 24)")
+def test_lmbench_memory_write_reproduces_the_pentium_pro(lmbench):
+    measured = lmbench["row"]["write_mb_s"]
+    assert abs(lmbench["write_mb_s"] - measured) <= LMBENCH_TOLERANCE * measured, (lmbench["write_mb_s"], measured)
+
+
+# The done-when of issue 24: a stream and a chase on the same board give the measured ratio.
+@pytest.mark.xfail(strict=True, reason="latency / read-stream time per line: model about 1.6 against the "
+                                       "measured 1.24 on lmbench's Pentium Pro: the read stream is too fast "
+                                       "(issue 24)")
+def test_lmbench_latency_over_stream_matches_the_pentium_pro(lmbench):
+    r = lmbench["row"]
+    measured = lmbench_ratio(r["latency_ns"], r["read_mb_s"])
+    model = lmbench_ratio(lmbench["latency_ns"], lmbench["read_mb_s"])
+    assert abs(model - measured) <= LMBENCH_TOLERANCE * measured, (model, measured)
+
+
 def comparison() -> list[str]:
     """The markdown table of docs/sources/memory.md: each latency row against its preset's model."""
     from test_p6 import chase_setup
@@ -189,5 +319,21 @@ def comparison() -> list[str]:
     return out
 
 
+def lmbench_comparison() -> list[str]:
+    """The lmbench table of docs/sources/memory.md."""
+    import tempfile
+    with tempfile.TemporaryDirectory() as d:
+        m = lmbench_figures(Path(d))
+    r = m["row"]
+    return ["| figure | measured | model | model/measured |", "|---|---|---|---|",
+            f"| lat_mem_rd, 128 B stride (ns, less one clock) | {r['latency_ns']} | {m['latency_ns']:.1f} | {m['latency_ns'] / r['latency_ns']:.2f} |",
+            f"| bw_mem read (MB/s) | {r['read_mb_s']} | {m['read_mb_s']:.1f} | {m['read_mb_s'] / r['read_mb_s']:.2f} |",
+            f"| bw_mem write (MB/s) | {r['write_mb_s']} | {m['write_mb_s']:.1f} | {m['write_mb_s'] / r['write_mb_s']:.2f} |",
+            f"| latency / read time per 32 B line | {lmbench_ratio(r['latency_ns'], r['read_mb_s']):.2f} "
+            f"| {lmbench_ratio(m['latency_ns'], m['read_mb_s']):.2f} | |"]
+
+
 if __name__ == "__main__":
     print("\n".join(comparison()))
+    print()
+    print("\n".join(lmbench_comparison()))

@@ -392,6 +392,7 @@ MEASURED_CHASE = {
     ("k6-233", None): 62,            # K6 233.8 MHz: linear 16 MB, 32-256 B strides, 61-62 clks
     ("k6-2-300", None): 300 * 0.2156,  # K6-2 334 MHz: 72 clks = 215.6 ns, at 300 MHz
     ("k6-3-450", None): 98 * 4.5 / 4.0,
+    ("pentium-pro-200", None): 47,   # Pentium Pro 199.45 MHz: 'Mem latency 233.910 ns (47 clks)' at 16 MB
     ("pentium-133", None): 29,       # P54C 133.6 MHz: 'Mem latency 213.815 ns (29 clks)' at 16 MB  # K6-III 400 (4 x 100): 98 clks = 24.5 bus clocks per fill, at 4.5 x
 }
 # No measurement of these CPUs was found: the 66 MHz P6 platform's measured bus clocks (the
@@ -403,7 +404,6 @@ DERIVED_CHASE = {
     ("pentium2-233", "edo"): 3 + 4 + 20.5 * 3.5,
     ("pentium2-233", "sdram-pc100"): 3 + 4 + 19.5 * 3.5,
     ("celeron-300a", None): 3 + 2 + 20.5 * 4.5,
-    ("pentium-pro-200", None): 3 + 2 + 20.5 * 3.0,
 }
 
 
