@@ -206,6 +206,7 @@ def test_zbuffer_keys_are_built_when_asked_for(tmp_path, monkeypatch):
     (lambda t: t.replace('"sorted"]', '"zbuffer"]'), r"keys\.zbuffer_scene: required with the 'zbuffer' distribution"),
     (lambda t: t.replace("quicksort = 64", "quicksort = 8"), r"run\.max_size\.quicksort: 8 is below keys\.table_size"),
     (lambda t: t.replace("sizes = [16, 64]", "sizes = [16, 70000]"), r"keys\.sizes\[1\]: must be between 1 and 65,536"),
+    (lambda t: t.replace("table_size = 16", "table_size = 0"), r"keys\.table_size: must be between 1 and 65,536"),
     (lambda t: t.replace("quicksort = 64", "quicksort = 16"), r"claims\[0\]: the scene does not run quicksort on uniform"),
     (lambda t: t.replace('expect = "faster"', 'expect = "quicker"'), r"claims\[0\]\.expect: unknown expectation 'quicker'"),
 ])

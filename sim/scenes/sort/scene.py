@@ -194,7 +194,8 @@ def load(path: Path, text: str, doc: dict) -> SortScene:
                 v.fail(f"keys.{key}[{i}]", f"'{d}' is listed twice", "keys", key)
     if not 0 <= seed < 1 << 63:
         v.fail("keys.seed", f"must be between 0 and 2^63 - 1, got {seed}", "keys", "seed")
-    _sizes_ok(v, (table_size,), "keys.table_size", "keys", "table_size")
+    if not 1 <= table_size <= MAX_KEYS:  # one number: its name has no [index]
+        v.fail("keys.table_size", f"must be between 1 and {MAX_KEYS:,} keys, got {table_size}", "keys", "table_size")
     _sizes_ok(v, sizes, "keys.sizes", "keys", "sizes")
     if K.ZBUFFER in dists + sweep:
         if zscene is None:
