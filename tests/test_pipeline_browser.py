@@ -212,4 +212,7 @@ def test_explain_page_on_each_family(context, tmp_path):
         assert not errors, (cpu, errors)
         assert page.locator("#summary-table td.cycles").inner_text() == str(doc["summary"]["cycles"])
         assert page.locator("table.explain tr").count() == len(doc["instructions"]) + 1
+        # the column of execution resources in the family's words: P6 ports p0-p4, K6 units X/Y/load/...
+        heads = page.locator("table.explain th").all_inner_texts()
+        assert {"pentium-mmx-233": "U", "pentium2-233": "ports", "k6-2-300": "units"}[cpu] in heads, (cpu, heads)
         page.close()

@@ -67,6 +67,7 @@ def view(result) -> dict:
         out["causes"] = [[c, "" if c == "none" else voc.stall_help.get(c, c)] for c in causes]
         out["units"] = f"{voc.unit}s " + ", ".join(voc.port_label(k) for k in range(5)) + \
             "".join(f", {n}" for _, n in voc.extra_units)
+        out["unit_heading"] = f"{voc.unit}s"  # the table's column: P6 "ports", K6 "units"
         out["op"] = voc.op
         out["lanes"] = []
         out["notes"] = [voc.decode_help, "; ".join(voc.port_help),
@@ -317,7 +318,7 @@ _SCRIPT = r"""
     const head = el("tr");
     const p5 = view.family === "p5";
     const cols = p5 ? ["instruction", "class", "U", "V", "clk", "alone because", "table row"]
-                    : ["instruction", "dec", view.op + "s", "units", "iss->ret", "table row"];
+                    : ["instruction", "dec", view.op + "s", view.unit_heading || "units", "iss->ret", "table row"];
     cols.forEach(c => head.appendChild(el("th", {}, c)));
     t.appendChild(head);
     for (const ins of result.instructions || []) {
