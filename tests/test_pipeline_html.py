@@ -135,3 +135,19 @@ def test_a_request_over_its_memory_bound_is_refused_and_the_next_answers():
     assert answer["error"].startswith("retrosim: error: ") and "--memory-mb" in answer["error"]
     answer = serve.Worker(timeout=30, memory_mb=2048, jobs=1).run(small)
     assert "error" not in answer and answer["data"]["doc"]["results"][0]["cycles_per_iteration"] > 0
+
+
+def test_a_port_in_use_fails_before_the_warm_up(monkeypatch):
+    # the warm-up may take a minute (numba compiling each family's model): a port that cannot be
+    # had must be said first, not after it
+    import socket
+
+    warmed = []
+    monkeypatch.setattr(serve, "warm_up", lambda say=None: warmed.append(True))
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        r = CliRunner().invoke(main, ["serve", "--port", str(port)])
+    assert r.exit_code == 2 and f"cannot listen on 127.0.0.1:{port}" in r.output
+    assert not warmed

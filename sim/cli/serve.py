@@ -347,11 +347,11 @@ def serve(host: str, port: int, timeout: float, memory_mb: int, jobs: int, quiet
 
     from sim.reports import pipeline_html
 
-    warm_up(say)
     worker = Worker(timeout, memory_mb, jobs)
     page = pipeline_html.page(None, app=app_config()).encode()
     handler = make_handler(worker, page)
     handler.quiet = quiet
+    # listen before the warm-up (up to a minute while numba compiles): a port in use fails at once
     try:
         httpd = ThreadingHTTPServer((host, port), handler)
     except OSError as e:
@@ -359,9 +359,10 @@ def serve(host: str, port: int, timeout: float, memory_mb: int, jobs: int, quiet
     httpd.daemon_threads = True
     httpd.loopback = host in ("127.0.0.1", "localhost", "::1") or host.startswith("127.")
     url_host = f"[{host}]" if ":" in host else host
-    click.echo(f"retrosim serve: http://{url_host}:{httpd.server_address[1]}/ (Ctrl-C stops it)")
-    sys.stdout.flush()
     try:
+        warm_up(say)  # requests wait in the listen queue meanwhile; the address is printed once warm
+        click.echo(f"retrosim serve: http://{url_host}:{httpd.server_address[1]}/ (Ctrl-C stops it)")
+        sys.stdout.flush()
         httpd.serve_forever()
     except KeyboardInterrupt:
         pass
