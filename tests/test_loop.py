@@ -1,6 +1,7 @@
 """`retrosim loop`: bare loop bodies and blocks, their start-up-free cycles per iteration, errors."""
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -135,6 +136,22 @@ def test_bad_bodies_get_one_error_line(tmp_path, text, regs, message):
     assert result.exit_code == 2, result.output
     lines = result.output.strip().splitlines()
     assert len(lines) == 1 and message in lines[0] and "body.s" in lines[0] and "Traceback" not in result.output
+
+
+def test_too_many_iterations_of_a_long_body_say_so(tmp_path, monkeypatch):
+    # a body that does iterate, but whose iterations asked for exceed the per-pass bound: the error
+    # says so and how many would fit, not that the back-edge was never reached
+    monkeypatch.setattr(loop, "MAX_INSTRUCTIONS", 5_000)
+    src = tmp_path / "long.s"
+    src.write_text("top:\n" + "  add eax, ebx\n" * 98 + "  dec ecx\n  jnz top\n")  # 100 per iteration
+    result = CliRunner().invoke(main, ["loop", str(src), "--iterations", "100"])
+    assert result.exit_code == 2, result.output
+    line = result.output.strip()
+    assert "--iterations" in line and "never reached" not in line
+    fits = int(re.search(r"at most about ([\d,]+)", line).group(1).replace(",", ""))
+    assert fits < 100
+    ok = CliRunner().invoke(main, ["loop", str(src), "--iterations", str(fits), "--brief"])
+    assert ok.exit_code == 0, ok.output
 
 
 def test_fault_message_prints_the_whole_memory_operand(tmp_path):

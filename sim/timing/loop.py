@@ -520,6 +520,14 @@ def _pass(machine: Machine, body: Body, regs: dict[str, int], starts: list[int],
                         f"(defaults: {', '.join(f'{k}={v:#x}' for k, v in REG_DEFAULTS.items())})")
                 raise RetrosimError(f"{body.name}: the block skipped some of its own copies (a forward jump out of it)")
             if tracer.recorded >= MAX_INSTRUCTIONS:
+                done = len(marks) - 1
+                if done >= 1:  # it does iterate: the iterations asked for are too many for its length
+                    per = (marks[-1] - marks[0]) / done
+                    raise RetrosimError(
+                        f"{body.name}: {iterations} iterations of the body need more than {MAX_INSTRUCTIONS:,} "
+                        f"instructions per pass: it reached its back-edge {done} times, {per:,.0f} instructions "
+                        f"per iteration (fewer --iterations, at most about {max(int(MAX_INSTRUCTIONS / per) - 1, 1):,}; "
+                        "or a shorter inner loop or REP count: set its register with --reg)")
                 raise RetrosimError(f"{body.name}: the body never reached its back-edge {iterations} times in "
                                     f"{MAX_INSTRUCTIONS:,} instructions (an inner loop or REP count too long? "
                                     "set its register with --reg)")
