@@ -56,10 +56,19 @@ def _reason(e: OSError) -> str:
     return e.strerror or str(e)
 
 
+def file_path(given: str, what: str = "output") -> Path:
+    """A file name as typed: refused when empty or ending in "/" (a folder meant; Path() would drop
+    the "/" and the file would take the folder's name)."""
+    if not given or given.endswith(("/", os.sep)):
+        raise OutputError(f"{what} {given!r}: " + ("names a folder, not a file; give the file's name" if given
+                                                  else "no file name"))
+    return Path(given)
+
+
 def check_output_file(path: str | os.PathLike, what: str = "output") -> Path:
     """Refuse, with one line, a target that is not a regular file or whose folder cannot take a new
     file. Returns the path. Does not create anything that stays behind."""
-    path = Path(path)
+    path = file_path(path, what) if isinstance(path, str) else Path(path)
     try:
         st = os.stat(path)
     except FileNotFoundError:

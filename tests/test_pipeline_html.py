@@ -93,6 +93,16 @@ def test_bad_html_path_fails_before_the_work(tmp_path):
     assert "--html" in r.output and "movv" not in r.output  # the path was refused before assembling
 
 
+@pytest.mark.parametrize("cmd", [["loop", "-"], ["explain", "convert/fp16z.S"]])
+def test_html_path_naming_a_folder_is_refused(tmp_path, cmd):
+    # "out/" means a folder: writing a file called "out" instead would surprise; "" is no name at all
+    for given in (str(tmp_path / "out") + "/", ""):
+        r = CliRunner().invoke(main, [*cmd, "--html", given], input="movv eax, 1\n")
+        assert r.exit_code == 2 and "--html" in r.output and "movv" not in r.output, r.output
+        assert len(r.output.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()
+
+
 def test_explain_html(tmp_path):
     out = tmp_path / "e.html"
     r = CliRunner().invoke(main, ["explain", "convert/fp16z.S", "--entry", "fp16z_convert_array", "--args",

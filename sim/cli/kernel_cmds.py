@@ -20,17 +20,20 @@ from sim.cli.app import (
 )
 
 
-html_option = click.option("--html", "html_out", type=click.Path(path_type=Path), metavar="FILE",
+html_option = click.option("--html", "html_out", type=click.Path(), metavar="FILE",
                            help="also write the pipeline view: one self-contained HTML page (no network)")
 
 
-def _check_html(path: Path | None) -> None:
+def _check_html(given: str | None) -> Path | None:
     """--html FILE, checked before the work (a bad path fails at once); its folder is created."""
-    if path is not None:
-        from sim.output import check_output_dir, check_output_file
+    if given is None:
+        return None
+    from sim.output import check_output_dir, check_output_file, file_path
 
-        check_output_dir(path.parent if str(path.parent) else Path("."), "--html", for_file=path)
-        check_output_file(path, "--html")
+    path = file_path(given, "--html")
+    check_output_dir(path.parent if str(path.parent) else Path("."), "--html", for_file=path)
+    check_output_file(path, "--html")
+    return path
 
 
 # -- commands ------------------------------------------------------------------------------
@@ -198,7 +201,7 @@ Narrow terminals get the table in three parts keyed by the instruction."""
 def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets, iterations, as_json, html_out):
     from sim.reports import views
 
-    _check_html(html_out)
+    html_out = _check_html(html_out)
     result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations, sets=sets)
     limits = views.caveats(result)
     doc = {"summary": {**views.summary(result), "model_limits": limits},
@@ -318,7 +321,7 @@ def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset
     from sim.timing import loop
     from sim.reports import views
 
-    _check_html(html_out)
+    html_out = _check_html(html_out)
     text, name = loop.read_body(source, sys.stdin.buffer)
     doc, timings = loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline,
                                  assembler, warn=lambda w: click.echo(f"retrosim: warning: {w}", err=True))
