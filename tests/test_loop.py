@@ -154,6 +154,22 @@ def test_too_many_iterations_of_a_long_body_say_so(tmp_path, monkeypatch):
     assert ok.exit_code == 0, ok.output
 
 
+def test_main_stalls_are_named_in_each_familys_words():
+    # the summary's stall column uses the words `retrosim time` uses per family: an address computed
+    # the clock before its use is an AGI stall on the P5 (Intel's Pentium optimization manual), not
+    # a P6-style "dependency"; the K6 has a scheduler, not a reorder buffer ("rob")
+    agi = "top:\n  add esi, 4\n  mov eax, [esi]\n  add ebx, eax\n  dec ecx\n  jnz top\n"
+    r = CliRunner().invoke(main, ["loop", "-", "--cpu", "pentium-mmx-233", "--brief"], input=agi, env={"COLUMNS": "120"})
+    assert r.exit_code == 0, r.output
+    row = next(line for line in r.output.splitlines() if "pentium-mmx-233" in line)
+    assert "agi" in row and "dependency" not in row, row
+    from sim.reports import views
+
+    k6 = loop.time_body(agi, ["k6-2-300"], iterations=20)[0].result
+    assert dict(views.stall_labels(k6, {"stall_rob": 2.0, "stall_dependency": 1.0})) == {
+        "stall_rob": "window", "stall_dependency": "dependency"}
+
+
 def test_fault_message_prints_the_whole_memory_operand(tmp_path):
     src = tmp_path / "null.s"
     src.write_text("top:\n  mul dword ptr [esi]\n  dec ecx\n  jnz top\n")

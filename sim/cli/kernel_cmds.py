@@ -353,7 +353,8 @@ def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset
     limits = {t.cpu: views.caveats(t.result) for t in timings}
     for t in timings:
         p = t.per_iteration
-        stalls = sorted(((p[k], k[6:].replace("_", " ")) for k in views.STALLS if p.get(k)), reverse=True)[:3]
+        stalls = sorted(((p[k], label) for k, label in views.stall_labels(t.result, p) if p[k]),
+                        key=lambda x: -x[0])[:3]  # the family's words, as `retrosim time` names them
         table.add_row(escape(t.cpu), f"{t.cycles_per_iteration:.2f}", f"{p['instructions']:g}", f"{t.uops_per_iteration:g}",
                       f"{p['instructions'] / t.cycles_per_iteration:.2f}" if t.cycles_per_iteration else "-",
                       f"{100 * limits[t.cpu]['estimated_share']:.0f}%",

@@ -222,6 +222,9 @@ class P5Model(FamilyModel):
 
     family = "p5"
     pipe_names = ("U", "V")
+    # the stall counters `time` and `loop` list for a P5 run, in its own words (not the P6 aliases)
+    stall_counters = ("stall_agi", "stall_prefix", "stall_fpu", "stall_memory", "stall_misaligned", "stall_bank",
+                      "stall_write_buffer", "stall_fetch", "stall_mispredict")
     counter_names = core.C_NAMES
     reasons = core.REASONS
     # timeline words: a row's cause is why its instruction ran alone ("none" when it paired)
@@ -314,8 +317,7 @@ class P5Model(FamilyModel):
     # ---- vocabulary for the views ---------------------------------------------------------------
     def summary_rows(self, s: dict) -> list[tuple[str, str, str]]:
         """(label, value, detail) rows of `retrosim time` for a P5 run."""
-        stalls = [(k, s[k]) for k in ("stall_agi", "stall_prefix", "stall_fpu", "stall_memory", "stall_misaligned",
-                                      "stall_bank", "stall_write_buffer", "stall_fetch", "stall_mispredict") if s[k]]
+        stalls = [(k, s[k]) for k in self.stall_counters if s[k]]
         alone = sorted(((s[f"alone_{j}"], name) for j, name in enumerate(core.REASONS) if j and s[f"alone_{j}"]),
                        reverse=True)
         return [

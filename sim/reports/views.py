@@ -98,6 +98,17 @@ def summary_table(result: TimingResult) -> Table:
     return t
 
 
+def stall_labels(result: TimingResult, counters: dict) -> list[tuple[str, str]]:
+    """(counter, label) of the stall kinds in `counters`, in the words `retrosim time` uses for the
+    family: the P5's own (agi, prefix, write buffer, ...), else the summary's (window, branch, ...;
+    "window (RS)" only when the reorder buffer's and the reservation station's are told apart)."""
+    own = getattr(result.model, "stall_counters", None)
+    if own:
+        return [(k, k[6:].replace("_", " ")) for k in own if k in counters]
+    return [(k, "window (ROB)" if k == "stall_rob" and counters.get("stall_rs") else label)
+            for k, label, _ in _SUMMARY_STALLS if k in counters]
+
+
 def stall_table(result: TimingResult) -> Table:
     """Stall cycles of the last call by kind, each with what it counts in this family."""
     s, v = summary(result), _vocab(result)
