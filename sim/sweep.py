@@ -27,7 +27,8 @@ Spec format::
 A point is (scene variant or kernel, CPU, memory, overrides); its row holds the point's id, its
 coordinates (`set.KEY` columns, as text), every counter of the last frame or call, `pixels` and
 `cycles_per_pixel` for scenes (per unit of the scene's work: pixels, or vertices for a snap scene,
-as its reports count them), and `error` (empty, or the one-line reason the point failed: a
+or keys for a sort scene (its first distribution at its table_size), as its reports count them; the
+plots, findings and table say which), and `error` (empty, or the one-line reason the point failed: a
 failed point does not stop the sweep). Points whose id already has a row in the output are not
 recomputed (failed ones are with --retry-failed), so an interrupted sweep resumes where it stopped.
 
@@ -109,6 +110,7 @@ class Spec:
     axes: dict                       # swept column -> values in spec order (as text)
     compare: tuple[str, str] | None = None
     description: str = ""
+    units: dict = field(default_factory=dict)  # scene name -> its kind's unit of work ("pixel", "key", ...)
 
     @property
     def points(self) -> list[dict]:
@@ -262,9 +264,9 @@ def load_spec(path: str | Path, max_points: int = MAX_POINTS) -> Spec:
     keys = list(dict.fromkeys(k for s in sets for k in s))
 
     # what is emulated: scene variants and kernel calls
-    subjects = []
+    subjects, units = [], {}
     for i, name in enumerate(scenes):
-        from sim.scenes.registry import load_scene
+        from sim.scenes.registry import KINDS, load_scene
 
         p = Path(name)
         p = p if p.suffix == ".toml" else SCENES_DIR / f"{name}.toml"
@@ -276,6 +278,7 @@ def load_spec(path: str | Path, max_points: int = MAX_POINTS) -> Spec:
             fail("sweep.variants", f"none of {variants_wanted} is a variant of scene '{scene.name}'")
         for v in chosen:
             subjects.append({"kind": "scene", "what": str(p), "name": scene.name, "variant": v})
+        units[scene.name] = KINDS[scene.kind].unit
     for i, k in enumerate(kernels):
         extra = set(k) - _KERNEL_KEYS
         if extra or "source" not in k or "entry" not in k:
@@ -319,7 +322,7 @@ def load_spec(path: str | Path, max_points: int = MAX_POINTS) -> Spec:
     axes = {"cpu": cpus, "memory": memories}
     axes.update({f"set.{k}": list(dict.fromkeys(_text(s[k]) for s in sets if k in s)) for k in keys})
     axes = {k: v for k, v in axes.items() if len(v) > 1}
-    return Spec(path, groups, keys, axes, tuple(compare) if compare else None, str(sw.get("description", "")))
+    return Spec(path, groups, keys, axes, tuple(compare) if compare else None, str(sw.get("description", "")), units)
 
 
 # -- one group's work (runs on a Dask worker or in this process) ----------------------------------
@@ -751,9 +754,16 @@ def _run_dask(spec, todo, scheduler, jobs, new, checkpoint, tick):
 
 # -- plots and findings ------------------------------------------------------------------------------
 
-def _metric(rows) -> tuple[str, str]:
-    if any(r.get("scene") for r in rows):
-        return "cycles_per_pixel", "cycles per pixel (last frame)"
+def _metric(rows, units: dict | None = None) -> tuple[str, str]:
+    """(column, label) of what the plots and findings compare: cycles per unit of a scene's work
+    (the column keeps its name cycles_per_pixel for every kind: pixels, a snap scene's vertices, a
+    sort scene's keys), or a kernel call's cycles."""
+    scenes = {r["scene"] for r in rows if r.get("scene")}
+    if scenes:
+        kinds = sorted({(units or {}).get(s, "pixel") for s in scenes})
+        if kinds == ["pixel"]:
+            return "cycles_per_pixel", "cycles per pixel (last frame)"
+        return "cycles_per_pixel", f"cycles per {' or '.join(kinds)}"
     return "cycles", "cycles (last call)"
 
 
@@ -768,7 +778,7 @@ def write_plots(spec: Spec, base: Path, rows: list[dict]) -> list[Path]:
     named = {p["point"] for p in spec.points}
     mine = [r for r in rows if r["point"] in named]
     ok = [r for r in mine if not r.get("error")]
-    metric, ylabel = _metric(ok)
+    metric, ylabel = _metric(ok, spec.units)
     files = []
     for axis, values in spec.axes.items():
         others = [a for a in spec.axes if a != axis]
@@ -812,7 +822,7 @@ def findings(spec: Spec, rows: list[dict]) -> list[str]:
     a, b = spec.compare
     axis = f"set.{spec.grid_keys[0]}"
     values = spec.axes.get(axis) or list(dict.fromkeys(r[axis] for r in rows))
-    metric, _ = _metric(rows)
+    metric, what = _metric(rows, spec.units)
     others = [x for x in spec.axes if x != axis]
     table: dict[tuple, dict] = {}
     for r in rows:
@@ -834,7 +844,7 @@ def findings(spec: Spec, rows: list[dict]) -> list[str]:
             changes = [f"{'starts' if q1 < 1 else 'stops'} paying at {axis[4:]} = {x1} (after {x0})"
                        for (x0, q0), (x1, q1) in zip(pairs, pairs[1:]) if (q0 < 1) != (q1 < 1)]
             verdict = f"{a} " + ", then ".join(changes)
-        out.append(f"{ctx[0]}, {where}: {verdict} ({a}/{b} {metric.replace('_', ' ')} ratio by {axis[4:]}: {ratios}).")
+        out.append(f"{ctx[0]}, {where}: {verdict} ({a}/{b} {what.split(' (')[0]} ratio by {axis[4:]}: {ratios}).")
     return out
 
 
@@ -853,7 +863,7 @@ def _cell(text: str) -> str:
 def results_table(spec: Spec, rows: list[dict]) -> list[str]:
     """The table's rows as Markdown, in spec order: what was timed, the swept coordinates, the
     metric and the cycles (or the point's error)."""
-    metric, label = _metric([r for r in rows if not r.get("error")] or rows)
+    metric, label = _metric([r for r in rows if not r.get("error")] or rows, spec.units)
     coords = ["variant", "cpu", "memory"] + (["repeat"] if any(r.get("repeat") for r in rows) else []) \
         + [f"set.{k}" for k in spec.grid_keys]
     coords = [c for c in coords if any(r.get(c) for r in rows)]

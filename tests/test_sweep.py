@@ -110,6 +110,21 @@ def test_a_snap_scene_sweeps_with_the_cycles_its_own_run_reports(tmp_path):
     assert slow != plain_cycles
 
 
+def test_a_sort_scene_sweep_says_cycles_per_key(tmp_path):
+    """A sort scene's unit of work is a key: the table and the findings say cycles per key, never
+    per pixel (its rows' `pixels` are keys)."""
+    from sim.sweep import findings, results_table
+
+    spec_path = tmp_path / "s.toml"
+    spec_path.write_text('[sweep]\nscenes = ["sort"]\nvariants = ["radix8", "quicksort"]\ncpus = ["k6-2-300"]\n'
+                         'compare = ["radix8", "quicksort"]\n[grid]\n"l1d.latency_cycles" = [1, 3]\n')
+    spec = load_spec(spec_path)
+    rows = run_sweep(spec, tmp_path / "out", "serial", plots=False).rows
+    assert not any(r["error"] for r in rows)
+    text = "\n".join(results_table(spec, rows) + findings(spec, rows))
+    assert "cycles per key" in text and "pixel" not in text, text
+
+
 def test_the_sweep_module_imports_without_the_command_line():
     """Dask workers import sim.sweep: it must not pull in click or rich (the CLI's libraries)."""
     import subprocess

@@ -46,6 +46,7 @@ class SceneKind:
     ``pixels`` (the units of work) and ``cpu_keys``."""
 
     name: str = ""
+    unit: str = "pixel"  # what the units of work are (Timing.pixels counts them): sweeps label by it
 
     def load(self, path: Path, text: str, doc: dict):
         """The scene of a parsed file of this kind (sim.scenes.registry.load_scene reads the file and

@@ -13,6 +13,7 @@ from sim.scenes.snap import scene
 
 class SnapKind(SceneKind):
     name = "snap"
+    unit = "vertex"
 
     def load(self, path: Path, text: str, doc: dict) -> scene.SnapScene:
         return scene.load(path, text, doc)

@@ -13,6 +13,7 @@ from sim.scenes.sort import report, runner, scene
 
 class SortKind(SceneKind):
     name = "sort"
+    unit = "key"
 
     def load(self, path: Path, text: str, doc: dict) -> scene.SortScene:
         return scene.load(path, text, doc)
