@@ -250,3 +250,22 @@ def test_the_terminal_summary_fits_80_columns(tiny):
     text = console.file.getvalue()
     assert "…" not in text and all(len(line.rstrip()) <= 80 for line in text.splitlines())
     assert "refused" in text and "pentium-mmx-" in text
+
+
+def test_the_terminal_summary_reads_a_claims_sentence_then_its_verdict(tiny, monkeypatch):
+    # a claim is a sentence ending in a period: "... branch.: mixed" misreads; the terminal says it
+    # as the Markdown report does, "claim. — verdict"
+    import io
+
+    from rich.console import Console
+
+    from sim.scenes.registry import summary_tables
+    from sim.scenes.sort import report
+
+    monkeypatch.setattr(report, "evaluate_claims", lambda result: [
+        {"text": "Branch-free code wins.", "verdict": "mixed: not reproduced on k6-2-300"}])
+    console = Console(width=80, file=io.StringIO(), color_system=None)
+    for part in summary_tables([tiny]):
+        console.print(part)
+    text = console.file.getvalue()
+    assert "Branch-free code wins. — mixed: not reproduced on k6-2-300" in text and ".:" not in text

@@ -597,5 +597,6 @@ def summary_tables(result: SortResult) -> list:
     if claims:
         held = sum(1 for c in claims if c["verdict"] == "reproduced")
         out.append(Padding(Text(f"claims: {held} of {len(claims)} reproduced"), (0, 0, 0, 1)))
-        out += [Padding(Text(f"- {c['text']}: {c['verdict']}"), (0, 0, 0, 3)) for c in claims if c["verdict"] != "reproduced"]
+        # "claim. — verdict", as the Markdown report has it (a claim is a sentence: "claim.: verdict" misreads)
+        out += [Padding(Text(f"- {c['text']} — {c['verdict']}"), (0, 0, 0, 3)) for c in claims if c["verdict"] != "reproduced"]
     return out

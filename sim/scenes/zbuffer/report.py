@@ -256,7 +256,7 @@ def summary_tables(r: SceneResult) -> list:
         lines = [f"claims: {held} of {len(claims)} reproduced" + (", the others:" if wrong else "")
                  + (f" ({len(unchecked)} not checked: their CPU was not run)" if unchecked else "")]
         out.append(Padding(Text(lines[0]), (0, 0, 0, 1)))
-        out += [Padding(Text(f"- {c['text']}: {c['verdict']}"), (0, 0, 0, 3)) for c in wrong]
+        out += [Padding(Text(f"- {c['text']} — {c['verdict']}"), (0, 0, 0, 3)) for c in wrong]  # as the .md
     return out
 
 
