@@ -244,3 +244,17 @@ def test_the_open_quote_is_found_past_escapes_and_comments(body, line, write_ker
     got = fails(["time", src])
     # write_kernel's header (.intel_syntax, .text, .globl f, f:) comes first: 4 lines
     assert got.startswith(f"{src}:{line + 4}: a string is not closed"), got
+
+
+# -- an unclosed /* comment: GNU as only warns and assembles nothing after it ----------------------
+def test_an_unclosed_block_comment_is_refused_at_its_line():
+    line = loop_fails("l: add eax, 1 /* closed */\n  add ebx, 2 /* never closed\ndec ecx\njnz l\n")
+    assert line.startswith("<stdin>:2:") and "comment is not closed" in line, line
+
+
+@pytest.mark.parametrize("body, line", [('nop\n.ascii "/*"\nnop # /* in a comment\nnop /* open\nret\n', 4),
+                                        ("nop /* a\nblock */ nop\n/* open\nret\n", 3)])
+def test_the_open_comment_is_found_past_strings_and_closed_comments(body, line, write_kernel):
+    src = write_kernel(body, entry="f")
+    got = fails(["time", src])
+    assert got.startswith(f"{src}:{line + 4}: a comment is not closed"), got  # 4 header lines, as above

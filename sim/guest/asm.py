@@ -284,6 +284,39 @@ def _unterminated_string_line(text: bytes | str) -> int:
     return len(text.splitlines())
 
 
+def _unclosed_comment_line(text: bytes | str) -> int:
+    """The line where a /* comment opens that is never closed (outside strings and # comments)."""
+    if isinstance(text, bytes):
+        text = text.decode("utf-8", errors="replace")
+    line, opened, i, n = 1, 0, 0, len(text)
+    in_string = in_line_comment = in_block = escaped = False
+    while i < n:
+        ch = text[i]
+        if ch == "\n":
+            line += 1
+            in_string = in_line_comment = escaped = False  # GNU as strings and # comments end with the line
+        elif in_block:
+            if text.startswith("*/", i):
+                in_block, i = False, i + 1
+        elif in_line_comment:
+            pass
+        elif in_string:
+            if escaped:
+                escaped = False
+            elif ch == "\\":
+                escaped = True
+            elif ch == '"':
+                in_string = False
+        elif ch == '"':
+            in_string = True
+        elif ch == "#":
+            in_line_comment = True
+        elif text.startswith("/*", i):
+            in_block, opened, i = True, line, i + 1
+        i += 1
+    return opened or line
+
+
 _UNSUPPORTED = re.compile(r"^(?P<where>.*?:\d+): `(?P<mnemonic>[^']+)' is not supported on `[^']+'(?P<rest>.*)$")
 
 
@@ -479,6 +512,10 @@ def assemble(source: str | os.PathLike, assembler: str | None = None, cpu: Guest
             # it into one symbol name: refuse it where the quote opened
             raise AssemblerError(f"{source}:{_unterminated_string_line(text)}: a string is not closed "
                                  "(no matching '\"')")
+        if b"end of file in comment" in stderr:
+            # the same: GNU as only warns, and every line after the /* is silently not assembled
+            raise AssemblerError(f"{source}:{_unclosed_comment_line(text)}: a comment is not closed "
+                                 "(no matching '*/')")
         manifest = _manifest(_dependencies(deps_tmp, source), source) if depfile else ""
         data = tmp.read_bytes()
         os.chmod(tmp, file_mode())
