@@ -30,10 +30,11 @@ def read_bounded(path: str | os.PathLike, max_bytes: int, kind: str, error: type
     except OSError as e:
         raise error(f"{where}: cannot read {kind}{named}: {e.strerror or e}") from None
     too_big = f"more than the {max_bytes >> 20} MB a {kind} may have"
+    st = os.fstat(fd)  # before fdopen, which refuses a folder with an error naming only the descriptor
+    if not stat.S_ISREG(st.st_mode):
+        os.close(fd)
+        raise error(f"{where}:{named} not a regular file (a device, pipe or folder)")
     with os.fdopen(fd, "rb") as f:
-        st = os.fstat(f.fileno())
-        if not stat.S_ISREG(st.st_mode):
-            raise error(f"{where}:{named} not a regular file (a device, pipe or folder)")
         if st.st_size > max_bytes:
             raise error(f"{where}:{named} {st.st_size:,} bytes, {too_big}")
         chunks, total = [], 0

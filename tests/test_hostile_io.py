@@ -243,3 +243,20 @@ def test_an_instruction_the_cpu_lacks_is_refused_before_the_fault_it_causes(writ
         line = fails(command, src, "--cpu", "pentium-pro-200")
         assert "fxsave is not available on pentium-pro-200" in line, line
     assert "guest fault" in fails("time", src, "--cpu", "pentium3-500")  # it has FXSR: the fault is the error
+
+
+@pytest.mark.parametrize("command", [["time"], ["explain"], ["run-kernel"], ["report"]])
+def test_a_folder_given_as_an_input_file_is_named_in_the_error(command, tmp_path):
+    # a folder opens read-only; the reader must refuse it by name ("x.S: not a regular file"), not
+    # let Python's fdopen say "3: Is a directory" (its descriptor number)
+    folder = tmp_path / ("scene.toml" if command == ["report"] else "kernel.S")
+    folder.mkdir()
+    line = fails(*command, str(folder))
+    assert line.startswith(f"retrosim: error: {folder}: ") and "not a regular file" in line, line
+
+
+def test_an_include_of_a_folder_is_named_in_the_error(write_kernel, tmp_path):
+    (tmp_path / "inc").mkdir()
+    src = write_kernel(f'.include "{tmp_path / "inc"}"\nret\n', entry="f")
+    line = fails("time", src)
+    assert str(tmp_path / "inc") in line and "not a regular file" in line, line
