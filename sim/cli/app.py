@@ -132,8 +132,8 @@ kernel_options = [
                  help="instruction budget (0 = unlimited; traces are still bounded by RETROSIM_TRACE_MB)"),
     click.option("--assembler", type=click.Choice(["gnu", "zig"]), help="assembler back end (default: GNU as)"),
     click.option("--syntax", type=click.Choice(["intel", "att"]), expose_value=False, callback=_set_syntax,
-                 help="syntax of a source without .intel_syntax/.att_syntax (default: detected from % register "
-                      "prefixes or PTR/[reg], else AT&T as GNU as)"),
+                 help="syntax of a source without .intel_syntax/.att_syntax (default: detected: % register "
+                      "prefixes mean AT&T, PTR or bare register names Intel; if both or neither, AT&T as GNU as)"),
 ]
 
 
