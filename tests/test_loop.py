@@ -170,6 +170,16 @@ def test_main_stalls_are_named_in_each_familys_words():
         "stall_rob": "window", "stall_dependency": "dependency"}
 
 
+@pytest.mark.parametrize("columns", ["80", "200"])
+def test_p5_tables_of_a_loop_speak_of_its_iterations_not_a_call(columns):
+    # a loop body is not called: its P5 table (the family's own columns, shared with explain) is
+    # titled by the measured iterations at any width
+    body = "top:\n  add eax, [esi]\n  add esi, 4\n  dec ecx\n  jnz top\n"
+    r = CliRunner().invoke(main, ["loop", "-", "--cpu", "pentium-mmx-233"], input=body, env={"COLUMNS": columns})
+    assert r.exit_code == 0, r.output
+    assert "last call" not in r.output and "pentium-mmx-233: per instruction, measured iterations" in r.output
+
+
 def test_fault_message_prints_the_whole_memory_operand(tmp_path):
     src = tmp_path / "null.s"
     src.write_text("top:\n  mul dword ptr [esi]\n  dec ecx\n  jnz top\n")

@@ -338,7 +338,8 @@ def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset
         for t in timings:
             if hasattr(t.result.model, "explain_cells"):  # a family with columns of its own (P5)
                 for part in views.explain_tables(t.result, console.width):
-                    part.title = f"{escape(t.cpu)}: {part.title}"  # several CPUs: each table names its own
+                    # several CPUs: each table names its own; a loop body has measured iterations, not calls
+                    part.title = f"{escape(t.cpu)}: {part.title.replace('last call', 'measured iterations')}"
                     console.print(part)
             else:
                 console.print(_loop_explain_table(t))

@@ -320,7 +320,7 @@ def _model_explain_tables(model, rows: list[dict], width: int) -> list[Table]:
     instr = [i for i, (name, _) in enumerate(cols) if name == "instruction"]
     text = [i for i, (name, _) in enumerate(cols) if name in ("alone because", "table row")]
     rest = [i for i in range(7, len(cols)) if i not in text]
-    return [build(list(range(min(7, len(cols)))), head + ": pipes"),
+    return [build(list(range(min(7, len(cols)))), "per instruction, last call: pipes"),  # no stall column here
             build(instr + rest, "stall cycles per execution"),
             build(instr + text, "why it ran alone, and the table row used")]
 
