@@ -209,6 +209,8 @@ def test_zbuffer_keys_are_built_when_asked_for(tmp_path, monkeypatch):
     (lambda t: t.replace("table_size = 16", "table_size = 0"), r"keys\.table_size: must be between 1 and 65,536"),
     (lambda t: t.replace("quicksort = 64", "quicksort = 16"), r"claims\[0\]: the scene does not run quicksort on uniform"),
     (lambda t: t.replace('expect = "faster"', 'expect = "quicker"'), r"claims\[0\]\.expect: unknown expectation 'quicker'"),
+    (lambda t: t.replace('distribution = "uniform"\nsize = 64', 'distribution = "unifrom"\nsize = 64'),
+     r"claims\[0\]\.distribution: unknown distribution 'unifrom'"),
 ])
 def test_bad_scenes_are_one_error_naming_file_line_and_field(tmp_path, edit, message):
     p = write(tmp_path)

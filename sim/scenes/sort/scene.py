@@ -281,6 +281,11 @@ def load(path: Path, text: str, doc: dict) -> SortScene:
         cdists = v.typed(c, "distributions", "strlist", "claims", i, f, default=dists)
         size = v.typed(c, "size", "int", "claims", i, f, default=table_size)
         csizes = _int_list(v, c, "sizes", "claims", i, f) or sizes
+        for key, given in (("distribution", [dist]), ("distributions", cdists)):  # a typo: say so, by name
+            for d in given:
+                if d not in K.DISTRIBUTIONS:
+                    v.fail(f"{f}.{key}", f"unknown distribution '{d}' (known: {', '.join(K.DISTRIBUTIONS)})",
+                           "claims", key, i)
         if expect in SHAPES:
             what, n_of = ("sizes", len(csizes)) if expect == "linear" else ("distributions", len(cdists))
             if n_of < 2:
