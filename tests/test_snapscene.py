@@ -141,3 +141,27 @@ def test_check_against_a_recorded_baseline(tmp_path, monkeypatch):
     path.write_text(json.dumps(recorded))
     r = runner.invoke(main, ["check", "vertex-snap", "--jobs", "1"])
     assert r.exit_code == 1 and "1 counter(s) differ" in r.output and "-1" in r.output
+
+
+def test_check_of_a_scene_with_no_baselines_says_so_in_one_line(tmp_path, monkeypatch):
+    """A scene the baselines file does not know (a new scene) is one line saying how to record it,
+    not a table row for every counter of every case; a changed count of a recorded case is still
+    named in full (its case name folded, not cut, at 80 columns)."""
+    path = tmp_path / "baselines.json"
+    recorded = json.loads((ROOT / "reports" / "baselines.json").read_text())
+    recorded.pop("vertex-snap", None)
+    path.write_text(json.dumps(recorded))
+    monkeypatch.setattr(baseline, "BASELINE_FILE", path)
+    runner = CliRunner()
+    r = runner.invoke(main, ["check", "vertex-snap", "--jobs", "1"], env={"COLUMNS": "80"})
+    assert r.exit_code == 1
+    assert "vertex-snap: no baselines recorded" in r.output and "check vertex-snap --update" in r.output
+    assert "differ" not in r.output and len(r.output.strip().splitlines()) <= 3, r.output
+    assert runner.invoke(main, ["check", "vertex-snap", "--update", "--jobs", "1"]).exit_code == 0
+    recorded = json.loads(path.read_text())
+    recorded["vertex-snap"]["portable-64@k6-2-300:sdram-pc100"]["cycles"] += 1
+    path.write_text(json.dumps(recorded))
+    r = runner.invoke(main, ["check", "vertex-snap", "--jobs", "1"], env={"COLUMNS": "80"})
+    assert r.exit_code == 1 and "…" not in r.output
+    case = "".join(line.split("│")[2].strip() for line in r.output.splitlines() if line.startswith("│"))
+    assert case == "portable-64@k6-2-300:sdram-pc100", r.output

@@ -197,7 +197,10 @@ def check_cmd(scenes, update, check_reports, jobs):
         baseline.save(baseline.update(baseline.load(), results))
         console.print(f"re-recorded {len(results)} scene(s) in {baseline.BASELINE_FILE}")
         return
-    drifts = baseline.compare(baseline.load(), results)
+    recorded = baseline.load()
+    # a scene with no baselines at all (a new scene) is one line, not a row per counter of every case
+    unrecorded = [r for r in results if r.scene.name not in recorded]
+    drifts = baseline.compare(recorded, [r for r in results if r.scene.name in recorded])
     stale = []
     if check_reports:
         import tempfile
@@ -214,15 +217,19 @@ def check_cmd(scenes, update, check_reports, jobs):
     if drifts:
         t = Table(title=f"{len(drifts)} counter(s) differ from reports/baselines.json")
         for col in ("scene", "case", "counter", "old", "new", "delta", "percent"):
-            t.add_column(col, justify="right" if col in ("old", "new", "delta", "percent") else "left")
+            t.add_column(col, justify="right" if col in ("old", "new", "delta", "percent") else "left",
+                         overflow="fold")  # a case's name in full (radix8/zbuffer@k6-2-300:sdram-pc100)
         for d in drifts:
             t.add_row(d.scene, d.case, d.counter, "-" if d.old is None else f"{d.old:,}",
                       "-" if d.new is None else f"{d.new:,}", "-" if d.delta is None else f"{d.delta:+,}",
                       "-" if d.percent is None else f"{d.percent:+.2f}%")
         console.print(t)
+    for r in unrecorded:
+        say(f"{r.scene.name}: no baselines recorded in {baseline.BASELINE_FILE} ({len(baseline.entries(r)):,} "
+            f"case(s) run; record them with `retrosim check {r.scene.name} --update`)")
     for p in stale:
         say(f"stale report: {p} (regenerate with `retrosim report`)")
-    if drifts or stale:
+    if drifts or stale or unrecorded:
         raise SystemExit(1)
     console.print(f"{sum(len(baseline.entries(r)) for r in results)} case(s) in {len(results)} scene(s) "
                   "match the baselines" + (" and the committed reports" if check_reports else ""))
