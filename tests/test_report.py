@@ -270,3 +270,16 @@ def test_work_precision_plot_names_every_point_and_nothing_collides(tmp_path):
             assert not boxes[i].overlaps(boxes[j]), (texts[i].get_text(), texts[j].get_text())
     assert min(t.get_fontsize() for t in texts) >= 9  # legible at the committed size
     plt.close(fig)
+
+
+def test_html_report_renders_the_markdowns_code_and_bold_spans():
+    # the reports write `kernels/sort/` and **reproduced**: the HTML page shows them as code and
+    # bold, not as backticks and asterisks, and still escapes what is not markup
+    from sim.reports.render import render_html
+
+    page = render_html("Variants (`kernels/sort/`), a < b:\n\n- a claim — **reproduced**\n  - on `k6-2-300`: x\n"
+                       "| variant | note |\n|---|---|\n| `radix8` | **1** |\n", None)
+    assert "`" not in page and "**" not in page
+    assert "<code>kernels/sort/</code>" in page and "a &lt; b" in page
+    assert "<strong>reproduced</strong>" in page and "<td><code>radix8</code></td>" in page
+    assert '<li style="margin-left:2em">on <code>k6-2-300</code>: x</li>' in page

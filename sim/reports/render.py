@@ -12,6 +12,7 @@ import base64
 import csv
 import html
 import io
+import re
 from pathlib import Path
 
 from sim import output
@@ -101,6 +102,15 @@ _CSS = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;line-heigh
         "text-align:right}td:first-child,th:first-child{text-align:left}img{max-width:100%}")
 
 
+_CODE = re.compile(r"`([^`]+)`")
+_BOLD = re.compile(r"\*\*(.+?)\*\*")
+
+
+def _inline(text: str) -> str:
+    """One line of Markdown text as HTML: escaped, with the reports' `code` and **bold** spans."""
+    return _BOLD.sub(r"<strong>\1</strong>", _CODE.sub(r"<code>\1</code>", html.escape(text)))
+
+
 def render_html(markdown: str, png: bytes | None) -> str:
     """The Markdown report as one self-contained HTML page (tables, headings, the inlined plot)."""
     body: list[str] = []
@@ -117,7 +127,7 @@ def render_html(markdown: str, png: bytes | None) -> str:
         if line.startswith("|"):
             if set(line.replace("|", "").strip()) <= {"-"}:
                 continue
-            table.append([html.escape(c.strip()) for c in line.strip().strip("|").split("|")])
+            table.append([_inline(c.strip()) for c in line.strip().strip("|").split("|")])
             continue
         flush()
         if line.startswith("### "):
@@ -130,10 +140,11 @@ def render_html(markdown: str, png: bytes | None) -> str:
             if png:
                 data = base64.b64encode(png).decode()
                 body.append(f'<p><img alt="work-precision plot" src="data:image/png;base64,{data}"></p>')
-        elif line.startswith("- "):
-            body.append(f"<li>{html.escape(line[2:])}</li>")
+        elif line.lstrip().startswith("- "):  # a list item; "  - " one level in (a claim's per-CPU lines)
+            nested = ' style="margin-left:2em"' if line.startswith(" ") else ""
+            body.append(f"<li{nested}>{_inline(line.lstrip()[2:])}</li>")
         elif line.strip():
-            body.append(f"<p>{html.escape(line)}</p>")
+            body.append(f"<p>{_inline(line)}</p>")
     flush()
     return ("<!DOCTYPE html><html><head><meta charset='utf-8'><title>retrosim report</title>"
             f"<style>{_CSS}</style></head><body>" + "\n".join(body) + "</body></html>\n")
