@@ -138,12 +138,18 @@ def read_source(path: Path, what: str) -> bytes:
     return read_bounded(path, MAX_SOURCE_BYTES, "kernel source", AssemblerError, where=what)
 
 
+# The checks an object passed before it was cached (the assembler's warnings that become errors:
+# unclosed strings and comments). Raising it re-assembles every cached object once, so a source
+# cached before a new check is checked too.
+OBJECT_CHECKS = 2
+
+
 def content_key(source: Path, asm: Assembler, march: str | None = None, depfile: bool = True) -> str:
     """Hash of everything the object depends on: the source, its .include files, the assembler
     and its flags (the CPU it assembles for included). `depfile`: the assembler reports what it
     read (checked on each cache hit); without it, an include the scan cannot follow is refused."""
     h = hashlib.sha256()
-    h.update(repr((asm.name, asm.version, _with_march(asm.command, march)[1:])).encode())
+    h.update(repr((OBJECT_CHECKS, asm.name, asm.version, _with_march(asm.command, march)[1:])).encode())
     seen: set[Path] = set()
     pending: list[tuple[Path, str, bool]] = [(source.resolve(), str(source), False)]  # (path, name, binary)
     while pending:
