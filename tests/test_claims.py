@@ -161,7 +161,7 @@ def test_make_model_overrides():
                                            "estimates.uop_queue": 8})
     assert m.params is not base.params and m.estimates["uop_queue"] == 8
     assert m.preset.l2.latency_cycles == 10
-    assert m.dram.lead_off == 32 and base.dram.lead_off == 72  # ceil((4 + 5) x 3.5), ceil((15.5 + 5) x 3.5)
+    assert m.dram.lead_off == 32 and base.dram.lead_off == 83  # ceil((4 + 5) x 3.5), ceil((18.5 + 5) x 3.5)
     assert make_model("pentium2-233").preset.l2.latency_cycles == 23  # the preset file is untouched
     assert "estimates.store_queue" in overridable("k6-233") and "l1d.latency_cycles" in overridable("k6-233")
 
