@@ -401,10 +401,10 @@ def walk_comparison() -> list[str]:
     out = ["| board (preset, memory) | linear 1 KB: measured / model | backward 128 B | random |",
            "|---|---|---|---|"]
     for r in measured()["latency"]:
-        if r.get("fit") != "calibrated":
+        if "walk_clks" not in r:
             continue
         m = {k: clks_per_load(e, r["preset"], r["memory_preset"]) for k, e in emus.items()}
-        out.append(f"| {r['system'].split(',')[0]} ({r['preset']}, {r['memory_preset']}) "
+        out.append(f"| {r['cpu'].split(' (')[0]} ({r['preset']}, {r['memory_preset']}) "
                    f"| {r['latency_clks']} / {m['linear']:.1f} | {r['walk_clks']} / {m['walk']:.1f} "
                    f"| {r['random_clks']} / {m['random']:.1f} |")
     return out
