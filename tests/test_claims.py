@@ -106,12 +106,12 @@ def test_robustness_reruns_the_trace_with_each_estimate_at_its_ends(tmp_path):
 
 def test_an_integer_board_overhead_is_varied_over_whole_clocks_the_preset_accepts():
     """The P5 presets' board overhead is a whole number of bus clocks carried over from another
-    system: its range (9 to 16.5) is widened to whole clocks, which make_model accepts."""
+    system: its range (9 to 19.5) is widened to whole clocks, which make_model accepts."""
     from sim.cpus import make_model
     from sim.scenes.claims import parameters
 
     (over,) = [p for p in parameters("pentium-mmx-166") if p.key == "memory.overhead_bus_clocks"]
-    assert (over.low, over.high) == (9, 17)
+    assert (over.low, over.high) == (9, 20)
     for value in (over.low, over.high):
         make_model("pentium-mmx-166", None, {over.key: value})
 
@@ -161,7 +161,7 @@ def test_make_model_overrides():
                                            "estimates.uop_queue": 8})
     assert m.params is not base.params and m.estimates["uop_queue"] == 8
     assert m.preset.l2.latency_cycles == 10
-    assert m.dram.lead_off == 32 and base.dram.lead_off == 72  # ceil((4 + 5) x 3.5), ceil((15.5 + 5) x 3.5)
+    assert m.dram.lead_off == 32 and base.dram.lead_off == 83  # ceil((4 + 5) x 3.5), ceil((18.5 + 5) x 3.5)
     assert make_model("pentium2-233").preset.l2.latency_cycles == 23  # the preset file is untouched
     assert "estimates.store_queue" in overridable("k6-233") and "l1d.latency_cycles" in overridable("k6-233")
 

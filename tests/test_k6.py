@@ -116,12 +116,15 @@ def test_scheduler_holds_six_opquads():
 
 
 def test_dram_beyond_the_board_cache():
-    # calibrated (k6-233.toml [memory] overhead_bus_clocks) on the measured K6-233: 62 clocks for a chase
-    # at 16 MB (k6-233.toml [memory] measured_latency_cycles)
+    # The k6-233 board overhead is calibrated on the measured K6-233's linear 1 KB walk (mostly DRAM
+    # page hits, tests/test_calibration.py). A random chase puts every load on another DRAM page, as
+    # the same dump's linear walk with a 4 KB stride does: 79 clocks at 16 MB
+    # (AuthenticAMD0000562_K6_MemLatX86 line 30), within 10 %. (Its random read, 88, also misses the
+    # TLB on every load; the model has no TLB.)
     r = time_kernel(KERNELS / "micro" / "memory.S", "chase", chase_setup(4 << 20), cpu="k6-233", repeat=1)
     c = r.last
     assert c["l2_misses"] >= 0.9 * c["l1d_loads"]
-    assert 61 <= c["cycles"] / c["l1d_loads"] <= 64
+    assert abs(c["cycles"] / c["l1d_loads"] - 79) <= 0.10 * 79
 
 
 def test_write_allocate_mode_decides_the_cost_of_a_store():
