@@ -171,7 +171,7 @@ def evaluate(result, explain_counters: list[str]) -> list[dict]:
             entry = {"cpu": key, "cycles_per_pixel": [round(ca, 4), round(cb, 4)], "ratio": round(ratio, 4),
                      "holds": verdict, "explanation": diffs}
             entry["robustness"] = _robustness(claim, result, key, a, b, verdict)
-            entry["verdict"] = _verdict(verdict, entry["robustness"])
+            entry["verdict"] = verdict_text(verdict, entry["robustness"])
             per_cpu.append(entry)
         verdicts = {e["verdict"] for e in per_cpu}
         overall = verdicts.pop() if len(verdicts) == 1 else "mixed (see each machine)" if per_cpu else "not checked"
@@ -183,8 +183,14 @@ def evaluate(result, explain_counters: list[str]) -> list[dict]:
 
 
 def _robustness(claim, result, key, a, b, verdict) -> list[dict] | None:
-    pa = result.sensitivity.get((a.variant, key))
-    pb = result.sensitivity.get((b.variant, key))
+    return robustness_rows(claim, result.sensitivity.get((a.variant, key)), result.sensitivity.get((b.variant, key)),
+                           key, verdict)
+
+
+def robustness_rows(claim, pa: dict | None, pb: dict | None, key: str, verdict: bool) -> list[dict] | None:
+    """A faster/slower/similar claim's ratio at both ends of each estimated parameter's range on
+    machine `key`: `pa`/`pb` map (parameter, value) to the two variants' counters there (None: not
+    re-timed). Shared by every scene kind with such claims."""
     if pa is None or pb is None:
         return None
     from sim.cpus.machine import MachineKey
@@ -204,7 +210,7 @@ def _robustness(claim, result, key, a, b, verdict) -> list[dict] | None:
     return rows
 
 
-def _verdict(verdict: bool, robustness: list[dict] | None) -> str:
+def verdict_text(verdict: bool, robustness: list[dict] | None) -> str:
     flips = [r["parameter"] for r in robustness or [] if not r["same_verdict"]]
     if flips:
         return "depends on " + ", ".join(flips)

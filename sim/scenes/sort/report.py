@@ -23,6 +23,7 @@ from pathlib import Path
 
 from sim.cpus.machine import MachineKey
 from sim.reports.render import FORMATS, md_table, png_bytes, render_html, write_payloads
+from sim.scenes.claims import holds, robustness_rows, verdict_text
 from sim.scenes.kind import BASELINE_COUNTERS
 from sim.scenes.sort import keys as K
 from sim.scenes.sort.runner import SortResult
@@ -60,40 +61,9 @@ def sorts(result: SortResult) -> list[str]:
 
 # -- claims ----------------------------------------------------------------------------------------
 def _robustness(result: SortResult, claim, a, b, key: str, verdict: bool) -> list[dict] | None:
-    from sim.scenes.claims import parameters
-
     dist, size = claim.distributions[0], claim.sizes[0]
-    pa = result.sensitivity.get((a, dist, size, key))
-    pb = result.sensitivity.get((b, dist, size, key))
-    if pa is None or pb is None:
-        return None
-    rows = []
-    machine = MachineKey.parse(key)
-    for p in parameters(machine.label, machine.memory or None):
-        ends = {}
-        for end, value in (("low", p.low), ("high", p.high)):
-            ca, cb = pa[(p.key, value)]["cycles"], pb[(p.key, value)]["cycles"]
-            ratio = ca / cb if cb else float("inf")
-            ends[end] = (value, round(ratio, 4), _holds(claim, ratio))
-        rows.append({"parameter": p.key, "model": p.nominal, "low": ends["low"][0], "high": ends["high"][0],
-                     "ratio_low": ends["low"][1], "ratio_high": ends["high"][1],
-                     "same_verdict": all(h == verdict for _, _, h in ends.values()), "why": p.why})
-    return rows
-
-
-def _holds(claim, ratio: float) -> bool:
-    if claim.expect == "faster":
-        return ratio < 1 - claim.tolerance
-    if claim.expect == "slower":
-        return ratio > 1 + claim.tolerance
-    return ratio <= 1 + claim.tolerance
-
-
-def _verdict(held: bool, robustness: list[dict] | None) -> str:
-    flips = [r["parameter"] for r in robustness or [] if not r["same_verdict"]]
-    if flips:
-        return "depends on " + ", ".join(flips)
-    return "reproduced" if held else "not reproduced"
+    return robustness_rows(claim, result.sensitivity.get((a, dist, size, key)),
+                           result.sensitivity.get((b, dist, size, key)), key, verdict)
 
 
 def _timed_claim(result: SortResult, claim, key: str) -> dict:
@@ -102,12 +72,12 @@ def _timed_claim(result: SortResult, claim, key: str) -> dict:
     ta, tb = result.timing(a, dist, size, key), result.timing(b, dist, size, key)
     ca, cb = ta.per_key("cycles"), tb.per_key("cycles")
     ratio = ca / cb if cb else float("inf")
-    held = _holds(claim, ratio)
+    held = holds(claim, ratio)
     diffs = {n: round(ta.per_key(n) - tb.per_key(n), 3) for n in EXPLAIN_COUNTERS
              if n in ta.counters and n in tb.counters and abs(ta.per_key(n) - tb.per_key(n)) >= 0.005}
     rob = _robustness(result, claim, a, b, key, held)
     return {"cpu": key, "cycles_per_key": [round(ca, 4), round(cb, 4)], "ratio": round(ratio, 4), "holds": held,
-            "explanation": diffs, "robustness": rob, "verdict": _verdict(held, rob)}
+            "explanation": diffs, "robustness": rob, "verdict": verdict_text(held, rob)}
 
 
 def marginal_costs(result: SortResult, variant: str, dist: str, sizes, key: str) -> list[tuple[int, int, float]]:
