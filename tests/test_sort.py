@@ -239,6 +239,16 @@ def test_report_writes_every_format(tmp_path):
     assert {c["text"] for c in data["claims"]} == {"radix beats quicksort", "CMOV clamp on every family"}
 
 
+def test_the_markdown_is_the_same_whichever_formats_are_written(tiny, tmp_path):
+    # `check --reports` writes md/json/csv only and compares them with what `report` committed
+    from sim.scenes.registry import write_reports
+
+    every = write_reports(tiny, tmp_path / "all")
+    three = write_reports(tiny, tmp_path / "three", formats=("md", "json", "csv"))
+    md = {p.parent.name: p.read_bytes() for p in every + three if p.suffix == ".md"}
+    assert md["all"] == md["three"] and b"## Plot" in md["three"]
+
+
 def test_the_terminal_summary_fits_80_columns(tiny):
     import io
 

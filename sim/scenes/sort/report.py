@@ -511,7 +511,9 @@ def png(result: SortResult) -> bytes | None:
 def write_reports(result: SortResult, out_dir: Path, formats: tuple[str, ...] = FORMATS) -> list[Path]:
     name = result.scene.name
     image = png(result) if ("png" in formats or "html" in formats) else None
-    md = to_markdown(result, f"{name}.png" if image is not None else None)
+    # the Markdown names its plot whichever formats are written: `check --reports` writes no PNG
+    # and must produce the same Markdown as `report`
+    md = to_markdown(result, f"{name}.png" if result.timings else None)
     payloads = {"md": md.encode(), "png": image,
                 "json": json_text(result).encode(),
                 "csv": to_csv(result).encode(), "html": render_html(md, image).encode()}
