@@ -85,6 +85,14 @@ def test_loop_html_and_json_come_from_one_run(tmp_path):
     assert [v["family"] for v in data["views"]] == ["p6", "k6"]
 
 
+def test_the_text_output_says_where_the_page_went(tmp_path):
+    out = tmp_path / "view.html"
+    r = CliRunner().invoke(main, ["loop", "-", "--cpu", "pentium2-233", "--iterations", "20", "--brief",
+                                  "--html", str(out)], input=TEXTURE)
+    assert r.exit_code == 0, r.output
+    assert f"wrote {out}" in r.stderr and out.is_file()
+
+
 def test_bad_html_path_fails_before_the_work(tmp_path):
     blocker = tmp_path / "file"
     blocker.write_text("")

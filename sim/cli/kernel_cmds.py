@@ -16,7 +16,7 @@ from sim.guest import kernels as catalogue_mod
 from sim.errors import ArgumentError, RetrosimError
 from sim.cli.app import (
     bounded, buffer_summary, choose_entry, console, cpu_choice, cpu_list, err_console, load_machine, main,
-    memory_option, parse_args, resolve_machine, set_option, with_kernel_options, with_timing_options,
+    memory_option, parse_args, resolve_machine, say, set_option, with_kernel_options, with_timing_options,
 )
 
 
@@ -212,6 +212,8 @@ def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat
         from sim.reports import pipeline_html
 
         atomic_write(html_out, pipeline_html.page(pipeline_html.explain_data(doc, result)).encode(), "--html")
+        if not as_json:  # where the page went (not with --json: its stdout is one document)
+            say(f"wrote {html_out} (open it in a browser)")
     if as_json:
         click.echo(json.dumps(doc, indent=2))
         return
@@ -331,6 +333,8 @@ def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset
         from sim.reports import pipeline_html
 
         atomic_write(html_out, pipeline_html.page(pipeline_html.loop_data(doc, timings, text)).encode(), "--html")
+        if not as_json:  # where the page went (not with --json: its stdout is one document)
+            say(f"wrote {html_out} (open it in a browser)")
     if as_json:
         click.echo(json.dumps(doc, indent=2))
         return
