@@ -210,6 +210,24 @@ def robustness_rows(claim, pa: dict | None, pb: dict | None, key: str, verdict: 
     return rows
 
 
+def robustness_text(rob: list[dict] | None) -> str:
+    """` Robustness: ...` after a machine's verdict: the parameters whose range flips it, with the
+    ratio at each end, then those it survives; "" when nothing was re-timed."""
+    if not rob:
+        return ""
+    flips = [r for r in rob if not r["same_verdict"]]
+    stable = [r for r in rob if r["same_verdict"]]
+    parts = []
+    if flips:
+        parts.append("verdict flips with " + "; ".join(
+            f"{r['parameter']} (ratio {r['ratio_low']:.3f} at {_n(r['low'])}, {r['ratio_high']:.3f} at "
+            f"{_n(r['high'])}; model {_n(r['model'])})" for r in flips))
+    if stable:
+        parts.append("same verdict over " + ", ".join(
+            f"{r['parameter']} {_n(r['low'])}..{_n(r['high'])}" for r in stable))
+    return " Robustness: " + "; ".join(parts) + "."
+
+
 def verdict_text(verdict: bool, robustness: list[dict] | None) -> str:
     flips = [r["parameter"] for r in robustness or [] if not r["same_verdict"]]
     if flips:
@@ -228,20 +246,7 @@ def sentence(c: dict, cpu_label, counter_label=lambda n: n.replace("_", " ")) ->
         line = (f"  - {cpu_label(e['cpu'])}: **{e['verdict']}** — {a} {e['cycles_per_pixel'][0]:.2f} vs {b} "
                 f"{e['cycles_per_pixel'][1]:.2f} cycles/pixel, ratio {e['ratio']:.3f}; per pixel, {a} minus {b}: "
                 f"{more or 'no counter differs'}.")
-        rob = e.get("robustness")
-        if rob is not None:
-            stable = [r for r in rob if r["same_verdict"]]
-            flips = [r for r in rob if not r["same_verdict"]]
-            parts = []
-            if flips:
-                parts.append("verdict flips with " + "; ".join(
-                    f"{r['parameter']} (ratio {r['ratio_low']:.3f} at {_n(r['low'])}, {r['ratio_high']:.3f} at "
-                    f"{_n(r['high'])}; model {_n(r['model'])})" for r in flips))
-            if stable:
-                parts.append("same verdict over " + ", ".join(
-                    f"{r['parameter']} {_n(r['low'])}..{_n(r['high'])}" for r in stable))
-            line += " Robustness: " + "; ".join(parts) + "."
-        lines.append(line)
+        lines.append(line + robustness_text(e.get("robustness")))
     for k in c["not_checked"]:
         lines.append(f"  - {cpu_label(k)}: not checked (CPU not in this run).")
     return "\n".join(lines)

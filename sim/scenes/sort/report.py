@@ -23,7 +23,7 @@ from pathlib import Path
 
 from sim.cpus.machine import MachineKey
 from sim.reports.render import FORMATS, md_table, png_bytes, render_html, write_payloads
-from sim.scenes.claims import holds, robustness_rows, verdict_text
+from sim.scenes.claims import holds, robustness_rows, robustness_text, verdict_text
 from sim.scenes.kind import BASELINE_COUNTERS
 from sim.scenes.sort import keys as K
 from sim.scenes.sort.runner import SortResult
@@ -152,21 +152,6 @@ def evaluate_claims(result: SortResult) -> list[dict]:
     return out
 
 
-def _robustness_text(rob: list[dict] | None) -> str:
-    if rob is None:
-        return ""
-    flips = [r for r in rob if not r["same_verdict"]]
-    stable = [r for r in rob if r["same_verdict"]]
-    parts = []
-    if flips:
-        parts.append("verdict flips with " + "; ".join(
-            f"{r['parameter']} (ratio {r['ratio_low']:.3f} at {r['low']:g}, {r['ratio_high']:.3f} at {r['high']:g}; "
-            f"model {r['model']:g})" for r in flips))
-    if stable:
-        parts.append("same verdict over " + ", ".join(f"{r['parameter']} {r['low']:g}..{r['high']:g}" for r in stable))
-    return " Robustness: " + "; ".join(parts) + "." if parts else ""
-
-
 def claim_sentence(c: dict) -> str:
     """The Markdown lines of one evaluated claim."""
     if c["expect"] in TIMED:
@@ -187,7 +172,7 @@ def claim_sentence(c: dict) -> str:
             more = ", ".join(f"{'+' if d > 0 else ''}{d:g} {n.replace('_', ' ')}" for n, d in e["explanation"].items())
             lines.append(f"  - {_label(e['cpu'])}: **{e['verdict']}** — {a} {e['cycles_per_key'][0]:.1f} vs {b} "
                          f"{e['cycles_per_key'][1]:.1f} cycles/key, ratio {e['ratio']:.3f}; per key, {a} minus {b}: "
-                         f"{more or 'no counter differs'}.{_robustness_text(e['robustness'])}")
+                         f"{more or 'no counter differs'}.{robustness_text(e['robustness'])}")
         else:
             parts = []
             for v, p in e["variants"].items():
