@@ -105,6 +105,7 @@ class P6Model(FamilyModel):
         P[core.P_STATIC_REDIRECT] = self.estimates["static_redirect"]
         P[core.P_RSB] = m["branch"]["return_stack_entries"]
         P[core.P_MSROM_RATE] = self.estimates["msrom_rate"]
+        P[core.P_BIND_TIE] = self.estimates["p01_tie_port"]
         P[core.P_EXIT_ADDR] = EXIT_ADDR
         return P
 

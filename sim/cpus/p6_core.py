@@ -10,7 +10,9 @@ only 1-uop instructions, in order), microcode sequencer for longer instructions
 (alone, MSROM_RATE uops per cycle), a decode group ends at a taken branch (plus a fetch bubble) and
 at a length-changing prefix (plus a penalty); a decoded-uop queue of QUEUE uops.
 Back end: RENAME uops per cycle into a ROB of ROB entries and an RS of RS entries; ports 0-4
-(bit masks per uop), one uop per port per cycle, oldest uop first; the uops of one instruction
+(bit masks per uop), one uop per port per cycle, oldest uop first; a uop that may use port 0 or 1
+is bound to one of them as it enters the RS, by the counts of uops waiting for each
+(:func:`_bind_port`, Intel patent US 5,689,674), and waits for that port; the uops of one instruction
 form a chain (each compute uop and the store data wait for the instruction's earlier loads and
 compute uops; see sim/cpus/lowering.py); non-pipelined resources held for a row's measured
 reciprocal throughput (divider, FP multiplier, microcoded instructions; counted in hundredths of a
@@ -72,8 +74,8 @@ from sim.cpus.shared_core import FW, WINDOW, book_port, btb_alloc, queued_store,
 (P_ROB, P_RS, P_RENAME, P_RETIRE, P_QUEUE, P_FETCH_BLOCK, P_L1_LAT, P_L2_LAT, P_DRAM_LAT, P_DRAM_LINE,
  P_DRAM_WB, P_MSHR, P_SB, P_MISPREDICT, P_TAKEN_BUBBLE, P_BTB_SETS, P_BTB_WAYS, P_HIST_BITS, P_PARTIAL_EXTRA,
  P_FWD_FAIL, P_LCP, P_STATIC_REDIRECT, P_HAS_L2, P_L2_BUS, P_RSB, P_MSROM_RATE, P_EXIT_ADDR, P_FWD_LAT,
- P_L2_MISS_DETECT, P_DRAM_LAT_HIT, P_DRAM_LINE_HIT, P_DRAM_WB_HIT) = range(32)
-NPARAMS = 32
+ P_L2_MISS_DETECT, P_DRAM_LAT_HIT, P_DRAM_LINE_HIT, P_DRAM_WB_HIT, P_BIND_TIE) = range(33)
+NPARAMS = 33
 
 # Loop-carried scalar state: kept in an int64 vector between calls, so a trace can be timed in
 # chunks (a streamed emulation) exactly as in one call (see :func:`new_state`).
@@ -81,8 +83,8 @@ NPARAMS = 32
  V_LAST_STA_DONE, V_BUS_FREE, V_L2BUS_FREE, V_FW_N, V_RSB_TOP, V_DEC_CYCLE, V_DEC_POS, V_DEC_LIMIT,
  V_FETCH_RESTART, V_FE_READY, V_LAST_ILINE, V_REN_CYCLE, V_REN_COUNT, V_RET_CYCLE, V_RET_COUNT, V_U_GLOBAL,
  V_ROB_POS, V_Q_POS, V_SEG, V_SEG_START_RETIRE, V_MAX_RETIRE, V_PREV_PC, V_REP_SID, V_REP_COUNT, V_REP_NEXT,
- V_REP_MODE, V_REP_ADDR) = range(35)
-NSTATE = 35
+ V_REP_MODE, V_REP_ADDR, V_BOUND0, V_BOUND1) = range(37)
+NSTATE = 37
 # V_REP_MODE bits: fast strings possible (kind, alignment, distance), direction seen forward / backward
 REP_CAPABLE, REP_FORWARD, REP_BACKWARD = 1, 2, 4
 FAST_MIN_COUNT = 64  # fast strings need ECX >= 64 (Intel SDM vol. 3 sec. 8.2.4; Agner Fog sec. 26.3)
@@ -113,8 +115,9 @@ def new_state(P: np.ndarray, units: int) -> tuple:
             np.zeros(NREGS, np.int64),            # reg_zeroed: upper bytes known zero (XOR/SUB idiom)
             np.zeros(int(P[P_ROB]), np.int64),    # rob_ring
             # RS occupancy: uops allocated but not yet dispatched, counted by dispatch cycle in a ring
-            # (exact, like a heap of dispatch times, but O(1) per uop: allocation times only move forward)
-            np.zeros(WINDOW, np.int64),           # rs_by_cycle
+            # (exact, like a heap of dispatch times, but O(1) per uop: allocation times only move forward);
+            # column 0 every uop, columns 1 and 2 those bound to port 0 and to port 1 (the binding counters)
+            np.zeros((WINDOW, 3), np.int64),      # rs_by_cycle
             np.zeros(max(int(P[P_QUEUE]), 1), np.int64),  # queue_ring
             np.full(WINDOW, -1 << 5, np.int64),   # book: port reservations
             np.zeros(units + 1, np.int64),        # unit_free: per resource, hundredths of a cycle
@@ -134,6 +137,37 @@ def new_state(P: np.ndarray, units: int) -> tuple:
 
 
 UNIT_FREE = 9  # position of unit_free in new_state's tuple
+P01 = 3  # the port mask of a uop that may use port 0 or port 1 (sim/cpus/lowering.py port_mask)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _rs_leave(rs_by_cycle, cycle, rs_pending, bound0, bound1):
+    """The uops that dispatch in `cycle` leave the RS: the occupancy and the two binding counters
+    drop by them (their ring slot is cleared for reuse). Returns (rs_pending, bound0, bound1)."""
+    slot = cycle & (WINDOW - 1)
+    rs_pending -= rs_by_cycle[slot, 0]
+    bound0 -= rs_by_cycle[slot, 1]
+    bound1 -= rs_by_cycle[slot, 2]
+    rs_by_cycle[slot, 0] = 0
+    rs_by_cycle[slot, 1] = 0
+    rs_by_cycle[slot, 2] = 0
+    return rs_pending, bound0, bound1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _bind_port(ports, bound0, bound1, tie):
+    """The port mask a uop is bound to when it enters the RS. Intel patent US 5,689,674 (Griffith,
+    Gupta, Hinton; filed 1995): a counter keeps the number of instructions pending dispatch from a
+    port, and an instruction is bound to a dispatch port when it is received, by that count
+    (docs/sources/p6.md, "Port choice for p01 uops"). A p01 uop goes to the port with fewer uops
+    bound to it and not yet dispatched (`bound0`, `bound1`, counted over every uop of the port);
+    on equal counts to port `tie` (estimates.p01_tie_port: no source says). It then waits for that
+    port even when the other is free. Other masks are a single port: returned as they are."""
+    if ports != P01:
+        return ports
+    if bound0 < bound1 or (bound0 == bound1 and tie == 0):
+        return 1
+    return 2
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -312,6 +346,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     fp_top = sv[V_FP_TOP]
     rs_pending = sv[V_RS_PENDING]  # uops in the RS at cycle rs_time (dispatch cycle > rs_time)
     rs_time = sv[V_RS_TIME]
+    bound0 = sv[V_BOUND0]  # of those, the uops bound to port 0 and to port 1 (_bind_port)
+    bound1 = sv[V_BOUND1]
+    bind_tie = P[P_BIND_TIE]
     nstores = sv[V_NSTORES]
     sb_pos = sv[V_SB_POS]  # nstores % sb_n, kept incrementally
     last_commit = sv[V_LAST_COMMIT]
@@ -610,16 +647,12 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             # RS entries are freed at dispatch; a full RS holds allocation until one leaves
             while rs_time < t:
                 rs_time += 1
-                slot = rs_time & (WINDOW - 1)
-                rs_pending -= rs_by_cycle[slot]
-                rs_by_cycle[slot] = 0
+                rs_pending, bound0, bound1 = _rs_leave(rs_by_cycle, rs_time, rs_pending, bound0, bound1)
             if rs_pending >= rs_n:
                 w = t
                 while rs_pending >= rs_n:
                     w += 1
-                    slot = w & (WINDOW - 1)
-                    rs_pending -= rs_by_cycle[slot]
-                    rs_by_cycle[slot] = 0
+                    rs_pending, bound0, bound1 = _rs_leave(rs_by_cycle, w, rs_pending, bound0, bound1)
                 rs_time = w
                 counters[seg, C_STALL_RS] += w - t
                 per_static[psid, S_STALL_WINDOW] += w - t
@@ -661,7 +694,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if u_ports[u] == 0:
                 disp, port = ready_unit, -1
             else:
-                disp, port = book_port(book, u_ports[u], ready_unit)
+                # a uop that may use port 0 or 1 was bound to one of them when it entered the RS
+                disp, port = book_port(book, _bind_port(u_ports[u], bound0, bound1, bind_tie), ready_unit)
             port_wait = disp - ready  # includes waiting for a busy non-pipelined unit
             if u_unit[u] != 0:
                 # a resource held for a fractional throughput (EMMS 5.67) averages it: the hold
@@ -746,8 +780,15 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             rob_pos = rob_pos + 1 if rob_pos + 1 < rob_n else 0
             # enter the RS (left at dispatch)
             if u_ports[u] != 0:
-                rs_by_cycle[disp & (WINDOW - 1)] += 1
+                slot = disp & (WINDOW - 1)
+                rs_by_cycle[slot, 0] += 1
                 rs_pending += 1
+                if port == 0:
+                    rs_by_cycle[slot, 1] += 1
+                    bound0 += 1
+                elif port == 1:
+                    rs_by_cycle[slot, 2] += 1
+                    bound1 += 1
             if port >= 0:
                 n_port0 += port == 0
                 n_port1 += port == 1
@@ -954,6 +995,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     sv[V_FP_TOP] = fp_top
     sv[V_RS_PENDING] = rs_pending
     sv[V_RS_TIME] = rs_time
+    sv[V_BOUND0] = bound0
+    sv[V_BOUND1] = bound1
     sv[V_NSTORES] = nstores
     sv[V_SB_POS] = sb_pos
     sv[V_LAST_COMMIT] = last_commit
