@@ -46,7 +46,8 @@ from sim.memory.cache import LOAD as CACHE_LOAD
 from sim.memory.cache import LRU, STORE as CACHE_STORE
 from sim.memory.hierarchy import (
     CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS, CFG_WRITE_BACK, memory_fill_page_hits,
-    memory_fills, memory_writeback_page_hits, memory_writebacks, served_level, service,
+    memory_fills, memory_writeback_page_hits, memory_writebacks, served_level, service, tlb_missed, tlb_probe,
+    walk_pde_level, walk_pte_level, walk_read_result,
 )
 from sim.memory.replay import LOG_OFF, LOG_RECORD, LOG_REPLAY, logged_service, record_hit, replayed_hit
 from sim.cpus.lowering import (
@@ -60,7 +61,7 @@ from sim.cpus.contract import (
     C_STALL_MISPREDICT, C_STALL_MEMORY, C_STALL_STORE_FORWARD, C_BRANCHES, C_MISPREDICTS, C_L1D_LOADS,
     C_L1D_LOAD_MISSES, C_L1D_STORES, C_L1D_STORE_MISSES, C_L2_ACCESSES, C_L2_MISSES, C_DRAM_FILLS,
     C_DRAM_WRITEBACKS, C_DRAM_BUS_CYCLES, C_L1I_MISSES, C_LCP_STALLS, C_STORE_FORWARDS, C_STALL_FETCH,
-    C_DRAM_PAGE_HITS, C_DRAM_PAGE_MISSES,
+    C_DRAM_PAGE_HITS, C_DRAM_PAGE_MISSES, C_DTLB_MISSES,
     S_NAMES, NS, S_EXECUTIONS, S_UOPS, S_DECODER0, S_DECODER1, S_DECODER2, S_MSROM, S_ISSUE_TO_RETIRE,
     S_STALL_DEPENDENCY, S_STALL_PORT, S_STALL_DECODE, S_STALL_PARTIAL, S_STALL_MEMORY, S_STALL_MISPREDICT,
     S_MISPREDICTS, S_PORT0, S_PORT1, S_PORT2, S_PORT3, S_PORT4, S_DECODE_TO_RETIRE, S_STALL_STORE_FORWARD,
@@ -72,8 +73,8 @@ from sim.cpus.shared_core import FW, WINDOW, book_port, btb_alloc, queued_store,
 (P_ROB, P_RS, P_RENAME, P_RETIRE, P_QUEUE, P_FETCH_BLOCK, P_L1_LAT, P_L2_LAT, P_DRAM_LAT, P_DRAM_LINE,
  P_DRAM_WB, P_MSHR, P_SB, P_MISPREDICT, P_TAKEN_BUBBLE, P_BTB_SETS, P_BTB_WAYS, P_HIST_BITS, P_PARTIAL_EXTRA,
  P_FWD_FAIL, P_LCP, P_STATIC_REDIRECT, P_HAS_L2, P_L2_BUS, P_RSB, P_MSROM_RATE, P_EXIT_ADDR, P_FWD_LAT,
- P_L2_MISS_DETECT, P_DRAM_LAT_HIT, P_DRAM_LINE_HIT, P_DRAM_WB_HIT) = range(32)
-NPARAMS = 32
+ P_L2_MISS_DETECT, P_DRAM_LAT_HIT, P_DRAM_LINE_HIT, P_DRAM_WB_HIT, P_TLB_WALK) = range(33)
+NPARAMS = 33
 
 # Loop-carried scalar state: kept in an int64 vector between calls, so a trace can be timed in
 # chunks (a streamed emulation) exactly as in one call (see :func:`new_state`).
@@ -137,15 +138,16 @@ UNIT_FREE = 9  # position of unit_free in new_state's tuple
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _l1_way(tags, addr, size, ob, row0, set_mask, ways):
-    """(row, way) of the first-level line holding [addr, addr + size), or (-1, -1) if it is not
-    there or the access crosses a line (the lookup of sim.memory.cache.lookup, without updates)."""
+def _l1_way(tags, config, work, addr, size, ob, row0, set_mask, ways):
+    """(row, way) of the first-level line holding [addr, addr + size) when the data TLB holds its
+    page too, or (-1, -1) if either is not there or the access crosses a line (the lookup of
+    sim.memory.cache.lookup, without its updates; a TLB hit is recorded as service would)."""
     line = addr >> ob
     if (addr + size - 1) >> ob == line:
         s = row0 + (line & set_mask)
         for w in range(ways):
             if tags[s, w] == line:
-                return s, w
+                return (s, w) if tlb_probe(config, work, addr) else (-1, -1)
     return -1, -1
 
 
@@ -153,14 +155,14 @@ REPLAYED_HIT = -2  # _logged_hit: a plain L1 hit read back from an access log (t
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _logged_hit(dlog, tags, addr, size, ob, row0, set_mask, ways):
+def _logged_hit(dlog, tags, config, work, addr, size, ob, row0, set_mask, ways):
     """_l1_way with an access log on (sim/memory/replay.py): (row, way) of a plain L1 hit (the
     caller makes service's updates; a log being recorded gets the entry service would have given
     it), (REPLAYED_HIT, 0) when a replayed log says the access was one (the caches are not
     touched in replay), or (-1, -1): the caller calls service through _access_slow."""
     if dlog[0] == LOG_REPLAY:
         return (REPLAYED_HIT, 0) if replayed_hit(dlog) else (-1, -1)
-    row, way = _l1_way(tags, addr, size, ob, row0, set_mask, ways)
+    row, way = _l1_way(tags, config, work, addr, size, ob, row0, set_mask, ways)
     if row >= 0 and dlog[0] == LOG_RECORD:
         record_hit(dlog)
     return row, way
@@ -175,17 +177,30 @@ def _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size,
     r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, is_write) if dlog[0] == LOG_OFF
          else logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, is_write))
     lvl = served_level(r)
+    levels = dconfig.shape[0]
     wait = 0
+    if tlb_missed(r):
+        # the page walk first: its fixed clocks, then the page-directory and page-table reads,
+        # each charged as a load served at its level; the access itself starts after it
+        counters[seg, C_DTLB_MISSES] += 1
+        t = start + P[P_TLB_WALK]
+        for wl in (walk_pde_level(r), walk_pte_level(r)):
+            if wl > 0:
+                extra, bus_free, l2bus_free = _miss_latency(walk_read_result(wl, levels), wl, levels, t, P, mshr,
+                                                            bus_free, l2bus_free, counters[seg])
+                t += extra
+        wait = t - start
     if lvl > 0:
-        levels = dconfig.shape[0]
         counters[seg, C_L1D_STORE_MISSES if is_write else C_L1D_LOAD_MISSES] += 1
         per_static[psid, S_L1D_MISSES] += 1
         if lvl == levels:
             per_static[psid, S_L2_MISSES] += 1
-        wait, bus_free, l2bus_free = _miss_latency(r, lvl, levels, start, P, mshr, bus_free, l2bus_free, counters[seg])
-        if not is_write:
-            counters[seg, C_STALL_MEMORY] += wait
-            per_static[psid, S_STALL_MEMORY] += wait
+        w, bus_free, l2bus_free = _miss_latency(r, lvl, levels, start + wait, P, mshr, bus_free, l2bus_free,
+                                                counters[seg])
+        wait += w
+    if wait > 0 and not is_write:
+        counters[seg, C_STALL_MEMORY] += wait
+        per_static[psid, S_STALL_MEMORY] += wait
     return wait, bus_free, l2bus_free
 
 
@@ -416,8 +431,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     else:
                         n_loads += 1
                     hit_row, hit_way = ((-1, -1) if w_ and not l1_write_back else
-                                        _l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
-                                        _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
+                                        _l1_way(dtags, dconfig, dclock, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
+                                        _logged_hit(dlog, dtags, dconfig, dclock, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
                     if hit_row >= 0:
                         if w_:
                             l1_store_hits += 1
@@ -681,8 +696,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     # store forwarding: newest older store still in the store buffer that overlaps
                     fwd = queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
                     n_loads += 1
-                    hit_row, hit_way = (_l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
-                                        _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
+                    hit_row, hit_way = (_l1_way(dtags, dconfig, dclock, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
+                                        _logged_hit(dlog, dtags, dconfig, dclock, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
                     if hit_row >= 0:
                         l1_load_hits += 1
                         if l1_lru:
@@ -820,8 +835,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 sz = np.int64(mem_size[acc])
                 n_stores += 1
                 hit_row, hit_way = ((-1, -1) if not l1_write_back else
-                                    _l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
-                                    _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
+                                    _l1_way(dtags, dconfig, dclock, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
+                                    _logged_hit(dlog, dtags, dconfig, dclock, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
                 if hit_row >= 0:
                     l1_store_hits += 1
                     if l1_lru:
