@@ -334,6 +334,7 @@ class P5Model(FamilyModel):
             ("DRAM", f"{s['dram_fills']:,}", f"line fills, {s['dram_writebacks']:,} writebacks, "
                                              f"{s['dram_bus_cycles']:,} bus-busy core cycles; fills on an open DRAM page "
                                              f"{s.get('dram_page_hits', 0):,}, page misses {s.get('dram_page_misses', 0):,}"),
+            ("data TLB", f"{s.get('dtlb_misses', 0):,}", "misses (each a page walk: two page-table reads through the data caches)"),
             ("L1I misses", f"{s['l1i_misses']:,}", ""),
             ("stall cycles", "", "  ".join(f"{k[6:].replace('_', ' ')} {v:,}" for k, v in stalls) or "none"),
         ]
