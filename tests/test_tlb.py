@@ -176,3 +176,23 @@ def test_the_4kb_stride_walk_at_16mb_reproduces_instlatx64(four_kb_walk, cpu, me
     assert abs(model - clks) <= 0.10 * clks, (cpu, model, clks, source)
     c = time_emulation(four_kb_walk, cpu, memory).last
     assert c["dtlb_misses"] >= 0.99 * c["l1d_loads"]
+
+
+@pytest.mark.parametrize("cpu", ["pentium-pro-200", "k6-233"])
+def test_a_walk_clocks_retiming_replays_the_logged_walks_exactly(rings, cpu):
+    """The claims' robustness pass re-times with the walk's clocks at each end of their range from
+    the nominal run's access log (the TLB's misses and the walks' levels are in the logged results):
+    the replay times exactly like a fresh run."""
+    from sim.memory.replay import AccessLogs
+    from sim.timing.kernel import time_emulation
+    est = families.family(make_model(cpu).family).estimates["tlb_walk_clocks"]
+    logs = AccessLogs(keep=4)
+    nominal = time_emulation(rings[256], make_model(cpu), access_logs=logs).last
+    for value in (est.low, est.high):
+        model = make_model(cpu, overrides={"estimates.tlb_walk_clocks": value})
+        replayed = time_emulation(rings[256], model, access_logs=logs).last
+        assert len(logs._logs) == 1  # read back, not recorded again
+        assert replayed == time_emulation(rings[256], make_model(cpu, overrides={"estimates.tlb_walk_clocks": value})).last
+        assert replayed["dtlb_misses"] == nominal["dtlb_misses"]
+    assert time_emulation(rings[256], make_model(cpu, overrides={"estimates.tlb_walk_clocks": est.high})).last["cycles"] \
+        > nominal["cycles"]

@@ -10,7 +10,8 @@ view, report and baseline reads, and the one way a family model is built.
 - The timeline schema (``T_NAMES``) and the stall causes (``CAUSES``) a timeline row names.
 - :class:`CoreRun`, the result of a model's ``run``; :func:`dram_cost`, memory behind the last
   cache level in core clocks; :class:`FamilyModel`, the base class that loads a family's machine
-  table, instruction table and estimates and builds its caches.
+  table, instruction table and estimates and builds its caches and data TLB (:func:`data_tlb`: the
+  machine table's ``[tlb] dtlb``).
 
 The compiled helpers the cores share (port calendar, BTB victim, store queue) are in
 :mod:`sim.cpus.shared_core`; the family records (name, marker, estimates, ...) in

@@ -28,7 +28,8 @@ Memory. L1D/L1I, the board cache (L2; on the K6-III the on-die L2, and the board
 DRAM through :mod:`sim.memory.hierarchy`. The board cache and DRAM share the Socket 7 front-side
 bus, serially; the K6-III's on-die L2 has its own port. Stores wait in a store queue of SQ entries
 and write L1 after retirement; a write miss either allocates (a line fill) or, when the write-allocate
-mode says no, becomes a single write on the bus. Loads take data from an overlapping older store in
+mode says no, becomes a single write on the bus. A data-TLB miss delays the access by its page walk
+(_k6_walk: TLB_WALK cycles, then each walk read that missed L1 charged as a load; a store's at commit). Loads take data from an overlapping older store in
 the queue with the ordinary load latency once the store has issued (trace addresses: perfect
 disambiguation). Reading a full register after a partial write costs PARTIAL extra clocks.
 

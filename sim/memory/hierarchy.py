@@ -19,6 +19,14 @@ and returns a packed result telling which level supplied the data and how much m
 access caused; :func:`simulate` runs a whole trace. Both take the arrays of
 :meth:`Hierarchy.arrays` and update them in place.
 
+A data TLB (:meth:`Hierarchy.set_tlb`; the family models give their machine table's ``[tlb]
+dtlb``): :func:`service` first translates the access's page; on a miss it walks the page tables
+(a page-directory and a page-table read, 4 bytes each, down these same caches as loads: the
+families cache paging entries in their data caches) and enters the page. The page tables lie at
+synthetic physical addresses above the guest's (PT_BASE, PD_BASE). The result tells the core the
+miss and the levels that served the two reads; the core charges the walk (docs/sources/memory.md,
+"The data TLB"). Not modelled: the instruction TLB, large pages, accessed/dirty-bit writes.
+
 Storage: all levels live in one ``tags``/``stamps``/``dirty`` array each, level k in rows
 ``row0 .. row0 + sets`` and its first ``ways`` columns (config columns CFG_ROW0/SETS/WAYS). One
 array per field, not a tuple of per-level arrays, because indexing a tuple of arrays with a run-time
