@@ -49,7 +49,7 @@ from sim.memory.cache import LOAD as CACHE_LOAD
 from sim.memory.cache import LRU, STORE as CACHE_STORE
 from sim.memory.hierarchy import (
     CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS, CFG_WRITE_BACK, memory_fill_page_hits,
-    memory_fills, memory_writeback_page_hits, memory_writebacks, served_level, service, tlb_missed, tlb_probe,
+    memory_fills, memory_writeback_page_hits, memory_writebacks, served_level, service, CFG_TLB_WAYS, TLB_LAST, TLB_PAGE_BITS, tlb_missed,
     walk_pde_level, walk_pte_level, walk_read_result,
 )
 from sim.memory.replay import LOG_OFF, LOG_RECORD, LOG_REPLAY, logged_service, record_hit, replayed_hit
@@ -141,16 +141,16 @@ UNIT_FREE = 9  # position of unit_free in new_state's tuple
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _l1_way(tags, config, work, addr, size, ob, row0, set_mask, ways):
-    """(row, way) of the first-level line holding [addr, addr + size) when the data TLB holds its
-    page too, or (-1, -1) if either is not there or the access crosses a line (the lookup of
-    sim.memory.cache.lookup, without its updates; a TLB hit is recorded as service would)."""
+def _l1_way(tags, addr, size, ob, row0, set_mask, ways):
+    """(row, way) of the first-level line holding [addr, addr + size), or (-1, -1) if it is not
+    there or the access crosses a line (the lookup of sim.memory.cache.lookup, without updates).
+    The caller takes this path only for the page it translated last (see tlb_page in simulate)."""
     line = addr >> ob
     if (addr + size - 1) >> ob == line:
         s = row0 + (line & set_mask)
         for w in range(ways):
             if tags[s, w] == line:
-                return (s, w) if tlb_probe(config, work, addr) else (-1, -1)
+                return s, w
     return -1, -1
 
 
@@ -158,14 +158,14 @@ REPLAYED_HIT = -2  # _logged_hit: a plain L1 hit read back from an access log (t
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _logged_hit(dlog, tags, config, work, addr, size, ob, row0, set_mask, ways):
+def _logged_hit(dlog, tags, addr, size, ob, row0, set_mask, ways):
     """_l1_way with an access log on (sim/memory/replay.py): (row, way) of a plain L1 hit (the
     caller makes service's updates; a log being recorded gets the entry service would have given
     it), (REPLAYED_HIT, 0) when a replayed log says the access was one (the caches are not
     touched in replay), or (-1, -1): the caller calls service through _access_slow."""
     if dlog[0] == LOG_REPLAY:
         return (REPLAYED_HIT, 0) if replayed_hit(dlog) else (-1, -1)
-    row, way = _l1_way(tags, config, work, addr, size, ob, row0, set_mask, ways)
+    row, way = _l1_way(tags, addr, size, ob, row0, set_mask, ways)
     if row >= 0 and dlog[0] == LOG_RECORD:
         record_hit(dlog)
     return row, way
@@ -368,6 +368,12 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     l1_lru = dconfig[0, CFG_REPLACEMENT] == LRU
     l1_write_back = dconfig[0, CFG_WRITE_BACK] != 0
     d_now = dclock[0]
+    # The data TLB: an access to the page the walk translated last takes the inline L1-hit path
+    # (that page is its set's most recent entry: service would change nothing in the TLB); any
+    # other goes through service, which translates it (a lookup, or a page walk on a miss). A
+    # replayed log says itself which accesses were plain hits (_logged_hit): no TLB state then.
+    has_tlb = dconfig[0, CFG_TLB_WAYS] > 0 and dlog[0] != LOG_REPLAY
+    tlb_page = dclock[TLB_LAST]
     log_off = dlog[0] == LOG_OFF  # a log, once on, stays on (it may only overflow: replay.logged_service)
     # GPRs whose last writer was partial (reg_pmask != 15), as bits, plus ALWAYS_SCAN
     partial_live = ALWAYS_SCAN
@@ -433,9 +439,10 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                         n_stores += 1
                     else:
                         n_loads += 1
-                    hit_row, hit_way = ((-1, -1) if w_ and not l1_write_back else
-                                        _l1_way(dtags, dconfig, dclock, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
-                                        _logged_hit(dlog, dtags, dconfig, dclock, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
+                    hit_row, hit_way = ((-1, -1) if (w_ and not l1_write_back) or (a >> TLB_PAGE_BITS != tlb_page
+                                                                                   and has_tlb) else
+                                        _l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
+                                        _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
                     if hit_row >= 0:
                         if w_:
                             l1_store_hits += 1
@@ -451,6 +458,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                                                                a, sz, w_, t, P, mshr, bus_free, l2bus_free, counters,
                                                                per_static, seg, psid)
                         d_now = dclock[0]
+                        tlb_page = dclock[TLB_LAST]
                         if w > wait:
                             wait = w  # the loop waits for its memory
                 rep_next += wait * OCC_SCALE
@@ -699,8 +707,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     # store forwarding: newest older store still in the store buffer that overlaps
                     fwd = queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
                     n_loads += 1
-                    hit_row, hit_way = (_l1_way(dtags, dconfig, dclock, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
-                                        _logged_hit(dlog, dtags, dconfig, dclock, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
+                    hit_row, hit_way = ((-1, -1) if a >> TLB_PAGE_BITS != tlb_page and has_tlb else
+                                        _l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
+                                        _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
                     if hit_row >= 0:
                         l1_load_hits += 1
                         if l1_lru:
@@ -714,6 +723,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                                                                       a, sz, False, disp, P, mshr, bus_free, l2bus_free,
                                                                       counters, per_static, seg, psid)
                         d_now = dclock[0]
+                        tlb_page = dclock[TLB_LAST]
                     if fwd >= 0:
                         if fw_addr[fwd] == a and sz <= fw_size[fwd]:
                             counters[seg, C_STORE_FORWARDS] += 1
@@ -837,9 +847,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 a = np.int64(mem_addr[acc])
                 sz = np.int64(mem_size[acc])
                 n_stores += 1
-                hit_row, hit_way = ((-1, -1) if not l1_write_back else
-                                    _l1_way(dtags, dconfig, dclock, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
-                                    _logged_hit(dlog, dtags, dconfig, dclock, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
+                hit_row, hit_way = ((-1, -1) if not l1_write_back or (a >> TLB_PAGE_BITS != tlb_page and has_tlb) else
+                                    _l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
+                                    _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
                 if hit_row >= 0:
                     l1_store_hits += 1
                     if l1_lru:
@@ -854,6 +864,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                                                            True, commit, P, mshr, bus_free, l2bus_free, counters,
                                                            per_static, seg, psid)
                     d_now = dclock[0]
+                    tlb_page = dclock[TLB_LAST]
                     commit += w
                 fw_n = remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_std, commit)
             sb_ring[sb_pos] = commit

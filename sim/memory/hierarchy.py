@@ -162,9 +162,9 @@ def walk_read_result(level, nlevels):
 @njit(cache=True, nogil=True, inline="always")
 def tlb_probe(config, work, addr):
     """Whether the data TLB holds ``addr``'s page (True with no TLB); a hit becomes the set's most
-    recently used entry, a miss changes nothing. Set = page mod sets; LRU within the set. Inline:
-    only the repeat of the last page (most accesses); the set lookup is a call (measured: inlining
-    it slows the P6's L1-hit path by about 8 %)."""
+    recently used entry, a miss changes nothing. Set = page mod sets; LRU within the set. The page
+    translated last needs no lookup (TLB_LAST); the set lookup is out of line. A core's inline
+    L1-hit path may skip the probe for that page alone (the P6's: sim/cpus/p6_core.py tlb_page)."""
     return work[TLB_LAST] == addr >> TLB_PAGE_BITS or _tlb_lookup(config, work, addr >> TLB_PAGE_BITS)
 
 
