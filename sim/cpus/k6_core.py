@@ -29,9 +29,9 @@ DRAM through :mod:`sim.memory.hierarchy`. The board cache and DRAM share the Soc
 bus, serially; the K6-III's on-die L2 has its own port. Stores wait in a store queue of SQ entries
 and write L1 after retirement; a write miss either allocates (a line fill) or, when the write-allocate
 mode says no, becomes a single write on the bus. A data-TLB miss delays the access by its page walk
-(_k6_walk: TLB_WALK cycles, then each walk read that missed L1 charged as a load; a store's at commit). Loads take data from an overlapping older store in
-the queue with the ordinary load latency once the store has issued (trace addresses: perfect
-disambiguation). Reading a full register after a partial write costs PARTIAL extra clocks.
+(_k6_walk: TLB_WALK cycles, then each walk read that missed L1 charged as a load; a store's at
+commit). Loads take data from an overlapping older store in the queue with the ordinary load
+latency once the store has issued (trace addresses: perfect disambiguation). Reading a full register after a partial write costs PARTIAL extra clocks.
 
 Counters, per-static columns, timeline and stall causes are the contract's (:mod:`sim.cpus.contract`),
 at the same indices, so views and reports read both models alike; the K6 fills what applies and adds

@@ -25,8 +25,9 @@ and those stalls are the counters. Per group:
   instructions' memory kinds (AF97-PAIR sec. 10.4: ADD [m],EAX / ADD [m2],EBX takes 5);
 - memory (data side of sim.memory): a load miss stalls the pipe for the board cache or DRAM
   latency, with the bus busy for the line; a data-TLB miss (load or store) stalls it for the page
-  walk first (TLB_WALK clocks, then each walk read that missed L1 as a load: _page_walk); a misaligned access costs MISALIGNED; a U/V pair whose
-  accesses touch one dword costs SAME_DWORD (both models, reads and writes, AF97-PAIR sec. 10.2),
+  walk first (TLB_WALK clocks, then each walk read that missed L1 as a load: _page_walk); a
+  misaligned access costs MISALIGNED; a U/V pair whose accesses touch one dword costs SAME_DWORD
+  (both models, reads and writes, AF97-PAIR sec. 10.2),
   one whose accesses hit the same 4-byte bank of different dwords one clock (P54C); both are counted
   as stall_bank (Agner's rule 10.3 extends 10.2 to the bank); a write that misses
   L1 (no allocation) takes a write buffer, which drains to the bus in WRITE_BUS clocks; the pipe

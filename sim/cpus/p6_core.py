@@ -22,8 +22,8 @@ store buffer of SB entries.
 Memory: the data hierarchy of sim.memory (L1D, L2 when present), a fill-buffer limit of MSHR
 outstanding misses, a backside-bus occupancy per L2 line and a front-side-bus occupancy per DRAM
 line fill and writeback; a data-TLB miss runs its page walk before the access (TLB_WALK cycles, then
-each walk read that missed L1 charged as a load, in _access_slow; the L1-hit path checks the TLB
-too; a store's walk at commit; walks are not serialised). Instruction fetch goes through its own
+each walk read that missed L1 charged as a load, in _access_slow; the inline L1-hit path takes only
+the page translated last; a store's walk at commit; walks are not serialised). Instruction fetch goes through its own
 L1I, which misses to the L2 (no instruction TLB).
 Branches: BTB of BTB_SETS x BTB_WAYS entries with HIST_BITS of local history and a table of 2-bit
 counters per entry (two-level adaptive); static prediction on a BTB miss (backward taken); a
@@ -49,8 +49,8 @@ from sim.memory.cache import LOAD as CACHE_LOAD
 from sim.memory.cache import LRU, STORE as CACHE_STORE
 from sim.memory.hierarchy import (
     CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS, CFG_WRITE_BACK, memory_fill_page_hits,
-    memory_fills, memory_writeback_page_hits, memory_writebacks, served_level, service, CFG_TLB_WAYS, TLB_LAST, TLB_PAGE_BITS, tlb_missed,
-    walk_pde_level, walk_pte_level, walk_read_result,
+    memory_fills, memory_writeback_page_hits, memory_writebacks, served_level, service, CFG_TLB_WAYS, TLB_LAST,
+    TLB_PAGE_BITS, tlb_missed, walk_pde_level, walk_pte_level, walk_read_result,
 )
 from sim.memory.replay import LOG_OFF, LOG_RECORD, LOG_REPLAY, logged_service, record_hit, replayed_hit
 from sim.cpus.lowering import (
