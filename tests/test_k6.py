@@ -100,10 +100,13 @@ def test_l1_miss_costs_the_next_level(cpu, level, size_kb):
     expected = (preset.l2 if level == "l2" else preset.board_cache).latency_cycles
     r = time_kernel(KERNELS / "micro" / "memory.S", "chase", chase_setup(size_kb * 1024), cpu=cpu, repeat=2)
     c = r.last
-    assert c["l1d_load_misses"] >= 0.95 * c["l1d_loads"] and c["dram_fills"] == 0
+    assert c["l1d_load_misses"] >= 0.95 * c["l1d_loads"]
+    # no memory traffic but a few page walks (512 KB is the whole 128-entry TLB: the stack's page
+    # shares a set with two of the chase's) and the data lines their entries evicted
+    assert c["dtlb_misses"] <= 0.001 * c["l1d_loads"] and c["dram_fills"] <= 4 * c["dtlb_misses"]
     assert expected - 0.5 <= c["cycles"] / c["l1d_loads"] <= expected + 1
     if level == "l3":
-        assert c["l2_misses"] >= 0.95 * c["l1d_loads"] and c["l3_misses"] == 0
+        assert c["l2_misses"] >= 0.95 * c["l1d_loads"] and c["l3_misses"] <= 4 * c["dtlb_misses"]
 
 
 def test_scheduler_holds_six_opquads():

@@ -213,8 +213,10 @@ def test_rdtsc_returns_simulated_cycles(write_kernel):
     r = time_kernel(src, "timed", lambda m: [200], cpu="pentium2-233", repeat=1)
     measured = r.run.rdtsc[1] - r.run.rdtsc[0]
     # 200 IMULs at latency 4, plus the loop-exit mispredict, the RDTSC microcode and, from a cold
-    # machine, a code line fetched from memory (~70-95 clocks with the calibrated DRAM latency)
-    assert 4 * 200 <= measured <= 4 * 200 + 120
+    # machine, a code line fetched from memory (~70-95 clocks with the calibrated DRAM latency),
+    # behind the cold stack page's data-TLB walk: the PUSH commits after the first RDTSC and its
+    # walk reads the directory and table entries from memory first (two more fills, ~2 x 95)
+    assert 4 * 200 <= measured <= 4 * 200 + 120 + 2 * 95
     # the kernel itself computed the same difference from the values RDTSC returned in the replay
     from sim.guest.emu import Machine
 

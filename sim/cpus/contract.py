@@ -10,7 +10,8 @@ view, report and baseline reads, and the one way a family model is built.
 - The timeline schema (``T_NAMES``) and the stall causes (``CAUSES``) a timeline row names.
 - :class:`CoreRun`, the result of a model's ``run``; :func:`dram_cost`, memory behind the last
   cache level in core clocks; :class:`FamilyModel`, the base class that loads a family's machine
-  table, instruction table and estimates and builds its caches.
+  table, instruction table and estimates and builds its caches and data TLB (:func:`data_tlb`: the
+  machine table's ``[tlb] dtlb``).
 
 The compiled helpers the cores share (port calendar, BTB victim, store queue) are in
 :mod:`sim.cpus.shared_core`; the family records (name, marker, estimates, ...) in
@@ -39,7 +40,7 @@ C_NAMES = ("cycles", "instructions", "uops", "decode_groups", "decoder0", "decod
            "stall_memory", "stall_store_forward", "branches", "mispredicts", "l1d_loads", "l1d_load_misses",
            "l1d_stores", "l1d_store_misses", "l2_accesses", "l2_misses", "dram_fills", "dram_writebacks",
            "dram_bus_cycles", "l1i_misses", "lcp_stalls", "store_forwards", "stall_fetch", "dram_page_hits",
-           "dram_page_misses")
+           "dram_page_misses", "dtlb_misses")
 NC = len(C_NAMES)
 # numba needs plain integer globals, not a dict
 C_CYCLES = 0
@@ -83,6 +84,7 @@ C_STORE_FORWARDS = 37
 C_STALL_FETCH = 38
 C_DRAM_PAGE_HITS = 39    # line fills whose DRAM row was open
 C_DRAM_PAGE_MISSES = 40  # the other line fills
+C_DTLB_MISSES = 41       # data accesses that missed the data TLB (each walked the page tables)
 
 # per-static-instruction columns (for explain)
 S_NAMES = ("executions", "uops", "decoder0", "decoder1", "decoder2", "msrom", "issue_to_retire", "stall_dependency",
@@ -186,6 +188,17 @@ def caches(preset: CpuPreset) -> tuple[Hierarchy, Hierarchy]:
     return dside, iside
 
 
+def data_tlb(machine: dict, family: str) -> tuple[int, int]:
+    """(entries, ways) of the family's data TLB for 4 KB pages: its machine table's ``[tlb] dtlb``."""
+    try:
+        d = machine["tlb"]["dtlb"]
+        if d["page"] != "4 KB":
+            raise ValueError(f"page = {d['page']!r}, the model has 4 KB pages only")
+        return int(d["entries"]), int(d["ways"])
+    except (KeyError, TypeError, ValueError) as e:
+        raise RetrosimError(f"{family}_machine.toml [tlb] dtlb: missing or bad field {e}") from None
+
+
 class FamilyModel:
     """What every family's timing model has: ``family`` (its key in :data:`sim.cpus.families.FAMILIES`),
     ``preset``, ``memory``, ``machine`` (its machine table), ``table`` (its instruction table),
@@ -208,6 +221,8 @@ class FamilyModel:
         self.dside, self.iside = caches(preset)
         if memory.pages is not None:  # the chipset's open DRAM pages, tracked by the data side's walk
             self.dside.set_dram_pages(memory.pages.page_bytes, memory.pages.open_pages)
+        entries, ways = data_tlb(self.machine, self.family)
+        self.dside.set_tlb(entries, ways)
 
     def reset(self) -> None:
         """Cold caches: each run starts from reset."""

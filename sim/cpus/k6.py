@@ -364,6 +364,7 @@ class K6Model(FamilyModel):
         P[core.P_DRAM_LAT_HIT] = self.dram.lead_off_hit
         P[core.P_DRAM_LINE_HIT] = self.dram.line_tenure_hit
         P[core.P_DRAM_WB_HIT] = self.dram.writeback_busy_hit
+        P[core.P_TLB_WALK] = self.estimates["tlb_walk_clocks"]
         P[core.P_BUS_WRITE] = core_clocks(self.estimates["bus_write_bus_clocks"], self.ratio)
         P[core.P_SQ] = self.estimates["store_queue"]
         P[core.P_MISPREDICT] = self.estimates["mispredict_restart"]

@@ -28,9 +28,10 @@ Memory. L1D/L1I, the board cache (L2; on the K6-III the on-die L2, and the board
 DRAM through :mod:`sim.memory.hierarchy`. The board cache and DRAM share the Socket 7 front-side
 bus, serially; the K6-III's on-die L2 has its own port. Stores wait in a store queue of SQ entries
 and write L1 after retirement; a write miss either allocates (a line fill) or, when the write-allocate
-mode says no, becomes a single write on the bus. Loads take data from an overlapping older store in
-the queue with the ordinary load latency once the store has issued (trace addresses: perfect
-disambiguation). Reading a full register after a partial write costs PARTIAL extra clocks.
+mode says no, becomes a single write on the bus. A data-TLB miss delays the access by its page walk
+(_k6_walk: TLB_WALK cycles, then each walk read that missed L1 charged as a load; a store's at
+commit). Loads take data from an overlapping older store in the queue with the ordinary load
+latency once the store has issued (trace addresses: perfect disambiguation). Reading a full register after a partial write costs PARTIAL extra clocks.
 
 Counters, per-static columns, timeline and stall causes are the contract's (:mod:`sim.cpus.contract`),
 at the same indices, so views and reports read both models alike; the K6 fills what applies and adds
@@ -48,6 +49,7 @@ from numba import njit
 
 from sim.memory.hierarchy import (
     S_FILLS, S_WRITEBACKS, memory_fill_page_hits, memory_fills, memory_writebacks, served_level, service,
+    tlb_missed, walk_l1_fills, walk_pde_level, walk_pte_level, walk_read_result,
 )
 from sim.memory.replay import LOG_OFF, LOGGED_HIT, logged_service, replayed_hit
 from sim.cpus.lowering import (
@@ -56,7 +58,7 @@ from sim.cpus.lowering import (
 )
 from sim.cpus.contract import (
     C_BRANCHES, C_DECODE_GROUPS, C_DECODER0, C_DRAM_BUS_CYCLES, C_DRAM_FILLS, C_DRAM_PAGE_HITS,
-    C_DRAM_PAGE_MISSES, C_DRAM_WRITEBACKS,
+    C_DRAM_PAGE_MISSES, C_DRAM_WRITEBACKS, C_DTLB_MISSES,
     C_INSTRUCTIONS, C_L1D_LOAD_MISSES, C_L1D_LOADS, C_L1D_STORE_MISSES, C_L1D_STORES, C_L1I_MISSES,
     C_L2_ACCESSES, C_L2_MISSES, C_LCP_STALLS, C_MISPREDICTS, C_MSROM_UOPS, C_NAMES as SHARED_C_NAMES, C_PORT0,
     C_STALL_DECODE, C_STALL_DEPENDENCY, C_STALL_FETCH, C_STALL_MEMORY, C_STALL_MISPREDICT,
@@ -75,8 +77,8 @@ __all__ = ["C_NAMES", "S_NAMES", "T_NAMES", "CAUSES", "NC", "NS", "NT", "simulat
 # parameter vector indices
 (P_QUADS, P_L1_LAT, P_ONDIE, P_L2_LAT, P_L2_BUS, P_BOARD_LEVEL, P_BOARD_LAT, P_BOARD_BUSY, P_DRAM_LAT,
  P_DRAM_LINE, P_DRAM_WB, P_BUS_WRITE, P_SQ, P_MISPREDICT, P_BTC, P_BTC_MISS, P_BHT, P_HIST_BITS, P_RSB,
- P_PARTIAL, P_IMISS, P_EXIT_ADDR, P_DRAM_LAT_HIT, P_DRAM_LINE_HIT, P_DRAM_WB_HIT) = range(25)
-NPARAMS = 25
+ P_PARTIAL, P_IMISS, P_EXIT_ADDR, P_DRAM_LAT_HIT, P_DRAM_LINE_HIT, P_DRAM_WB_HIT, P_TLB_WALK) = range(26)
+NPARAMS = 26
 
 # K6 execution resources behind the issue slots (u_unit of a lowered op)
 U_NONE, U_FPU, U_MMX_MUL, U_MMX_SHIFT, U_3DNOW, U_HOLD = range(6)
@@ -204,6 +206,19 @@ def _k6_miss(r, lvl, start, P, bus, wb1, wb2, counters, cs):
     counters[cs, C_DRAM_PAGE_HITS] += memory_fill_page_hits(r)
     counters[cs, C_DRAM_PAGE_MISSES] += fills - memory_fill_page_hits(r)
     return max(0, done - start)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _k6_walk(r, levels, start, P, bus, counters, cs):
+    """Extra cycles of a data-TLB miss's page walk, before the access itself: the walk's fixed
+    cycles, then its page-directory and page-table reads, each charged as a load served at its
+    level (_k6_miss: the board cache, the K6-III's L2, or a DRAM fill on a closed page)."""
+    counters[cs, C_DTLB_MISSES] += 1
+    t = start + P[P_TLB_WALK]
+    for wl in (walk_pde_level(r), walk_pte_level(r)):
+        if wl > 0:
+            t += _k6_miss(walk_read_result(wl, levels), wl, t, P, bus, 0, 0, counters, cs)
+    return t - start
 
 
 # Loop-carried scalar state, kept in an int64 vector between calls so that a trace can be timed in
@@ -386,7 +401,17 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                          logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, w_))
                     lvl = served_level(r)
                     counters[cs, C_L1D_STORES if w_ else C_L1D_LOADS] += 1
+                    walk = 0
+                    if tlb_missed(r):  # the walk's own L1 fills are not this access's
+                        l1_fill_seen += walk_l1_fills(r)
+                        walk = _k6_walk(r, d_levels, t, P, bus, counters, cs)
                     filled = dstats[0, S_FILLS] != l1_fill_seen
+                    if walk > 0 and not (lvl > 0 or filled):
+                        if not w_:
+                            counters[cs, C_STALL_MEMORY] += walk
+                            per_static[psid, S_STALL_MEMORY] += walk
+                        if walk > wait:
+                            wait = walk
                     if lvl > 0 or filled:
                         counters[cs, C_L1D_STORE_MISSES if w_ else C_L1D_LOAD_MISSES] += 1
                         per_static[psid, S_L1D_MISSES] += 1
@@ -396,9 +421,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                         wb2 = _new_writebacks(dstats, wb_seen, 1)
                         if not w_ or filled:
                             l1_fill_seen = dstats[0, S_FILLS]
-                            w = _k6_miss(r, max(lvl, 1), t, P, bus, wb1, wb2, counters, cs)
+                            w = walk + _k6_miss(r, max(lvl, 1), t + walk, P, bus, wb1, wb2, counters, cs)
                         else:  # a write not allocated: one write on the front-side bus
-                            b = max(t, bus[0])
+                            b = max(t + walk, bus[0])
                             extra = dram_busy(r, P[P_DRAM_LINE], P[P_DRAM_LINE_HIT], P[P_DRAM_WB], P[P_DRAM_WB_HIT])
                             bus[0] = b + P[P_BUS_WRITE] + extra + wb1 * P[P_BOARD_BUSY]
                             w = b + P[P_BUS_WRITE] - t
@@ -579,13 +604,21 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                          logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False))
                     lvl = served_level(r)
                     counters[cs, C_L1D_LOADS] += 1
+                    walk = 0
+                    if tlb_missed(r):  # the walk's own L1 fills are not this access's
+                        l1_fill_seen += walk_l1_fills(r)
+                        walk = _k6_walk(r, d_levels, disp, P, bus, counters, cs)
+                        mem_wait = walk
+                        if lvl == 0 and fwd_wait == 0:
+                            counters[cs, C_STALL_MEMORY] += walk
+                            per_static[psid, S_STALL_MEMORY] += walk
                     if lvl > 0:
                         counters[cs, C_L1D_LOAD_MISSES] += 1
                         per_static[psid, S_L1D_MISSES] += 1
                         wb1 = _new_writebacks(dstats, wb_seen, 0)
                         wb2 = _new_writebacks(dstats, wb_seen, 1)
                         l1_fill_seen = dstats[0, S_FILLS]
-                        mem_wait = _k6_miss(r, lvl, disp, P, bus, wb1, wb2, counters, cs)
+                        mem_wait = walk + _k6_miss(r, lvl, disp + walk, P, bus, wb1, wb2, counters, cs)
                         if lvl == d_levels:
                             per_static[psid, S_L2_MISSES] += 1
                         if fwd_wait == 0:
@@ -649,6 +682,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                      logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True))
                 lvl = served_level(r)
                 counters[cs, C_L1D_STORES] += 1
+                if tlb_missed(r):  # translated at commit (a simplification); the walk's L1 fills are not the store's
+                    l1_fill_seen += walk_l1_fills(r)
+                    commit += _k6_walk(r, d_levels, commit, P, bus, counters, cs)
                 if lvl > 0 or dstats[0, S_FILLS] != l1_fill_seen:
                     counters[cs, C_L1D_STORE_MISSES] += 1
                     per_static[psid, S_L1D_MISSES] += 1

@@ -276,6 +276,7 @@ class P5Model(FamilyModel):
         P[core.P_DRAM_LAT_HIT] = self.dram.lead_off_hit - l1
         P[core.P_DRAM_LINE_HIT] = self.dram.line_busy_hit
         P[core.P_DRAM_WB_HIT] = self.dram.writeback_busy_hit
+        P[core.P_TLB_WALK] = self.estimates["tlb_walk_clocks"]
         P[core.P_FMUL_SPACING] = mm["x87"]["fmul_spacing"]
         P[core.P_IMMDISP_MODE] = {"never": 0, "u-only": 1}[m["imm_disp_pairs"]]
         P[core.P_PFX_V] = int(bool(m["prefixed_pairs_in_v"]))
@@ -333,6 +334,7 @@ class P5Model(FamilyModel):
             ("DRAM", f"{s['dram_fills']:,}", f"line fills, {s['dram_writebacks']:,} writebacks, "
                                              f"{s['dram_bus_cycles']:,} bus-busy core cycles; fills on an open DRAM page "
                                              f"{s.get('dram_page_hits', 0):,}, page misses {s.get('dram_page_misses', 0):,}"),
+            ("data TLB", f"{s.get('dtlb_misses', 0):,}", "misses (each a page walk: two page-table reads through the data caches)"),
             ("L1I misses", f"{s['l1i_misses']:,}", ""),
             ("stall cycles", "", "  ".join(f"{k[6:].replace('_', ' ')} {v:,}" for k, v in stalls) or "none"),
         ]

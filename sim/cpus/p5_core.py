@@ -24,8 +24,10 @@ and those stalls are the counters. Per group:
   more for a read/modify/write in U with a read/modify(/write) in V: PAIR_CLOCKS by the two
   instructions' memory kinds (AF97-PAIR sec. 10.4: ADD [m],EAX / ADD [m2],EBX takes 5);
 - memory (data side of sim.memory): a load miss stalls the pipe for the board cache or DRAM
-  latency, with the bus busy for the line; a misaligned access costs MISALIGNED; a U/V pair whose
-  accesses touch one dword costs SAME_DWORD (both models, reads and writes, AF97-PAIR sec. 10.2),
+  latency, with the bus busy for the line; a data-TLB miss (load or store) stalls it for the page
+  walk first (TLB_WALK clocks, then each walk read that missed L1 as a load: _page_walk); a
+  misaligned access costs MISALIGNED; a U/V pair whose accesses touch one dword costs SAME_DWORD
+  (both models, reads and writes, AF97-PAIR sec. 10.2),
   one whose accesses hit the same 4-byte bank of different dwords one clock (P54C); both are counted
   as stall_bank (Agner's rule 10.3 extends 10.2 to the bank); a write that misses
   L1 (no allocation) takes a write buffer, which drains to the bus in WRITE_BUS clocks; the pipe
@@ -47,7 +49,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.memory.hierarchy import memory_fill_page_hits, memory_fills, memory_writebacks, served_level, service
+from sim.memory.hierarchy import (
+    memory_fill_page_hits, memory_fills, memory_writebacks, served_level, service, tlb_missed, walk_pde_level,
+    walk_pte_level, walk_read_result,
+)
 from sim.cpus.lowering import BR_COND, BR_NONE, BR_RET, REG_ST0
 from sim.cpus.shared_core import dram_busy, dram_lead_off
 from sim.cpus.shared_core import btb_alloc  # shared BTB victim choice (LRU by last use)
@@ -59,7 +64,8 @@ from sim.cpus.shared_core import btb_alloc  # shared BTB victim choice (LRU by l
 P_PAIR_CLOCKS = 22   # 3 x 3 clocks of a pair by the memory kinds of its U and V instructions (MK_*)
 P_PFX_SHADOW = 31    # 1: a multi-clock instruction hides later prefix decode clocks (P54C, AF97 sec. 13)
 P_DRAM_LAT_HIT, P_DRAM_LINE_HIT, P_DRAM_WB_HIT = 32, 33, 34  # the DRAM costs on an open page
-NPARAMS = 35
+P_TLB_WALK = 35      # a data-TLB miss's page walk: clocks besides its two reads' misses (p5_machine.toml [tlb])
+NPARAMS = 36
 # memory kinds of a pairable integer instruction (AF97-PAIR sec. 10.4's table)
 MK_PLAIN, MK_READ_MODIFY, MK_RMW = range(3)
 
@@ -85,7 +91,7 @@ C_NAMES = ("cycles", "instructions", "uops", "pairs", "u_pipe", "v_pipe", "alone
            "stall_mispredict", "branches", "mispredicts", "l1d_loads", "l1d_load_misses",
            "l1d_stores", "l1d_store_misses", "l2_accesses", "l2_misses", "dram_fills", "dram_writebacks",
            "dram_bus_cycles", "l1i_misses", "bus_writes") + tuple("alone_" + str(k) for k in range(NR)) + (
-           "dram_page_hits", "dram_page_misses")
+           "dram_page_hits", "dram_page_misses", "dtlb_misses")
 NC = len(C_NAMES)
 (C_CYCLES, C_INSTRUCTIONS, C_UOPS, C_PAIRS, C_U, C_V, C_ALONE, C_AGI, C_PREFIX, C_FPU, C_MEMORY, C_MISALIGNED,
  C_BANK, C_WB, C_FETCH, C_MISPREDICT, C_BRANCHES, C_MISPREDICTS, C_L1D_LOADS, C_L1D_LOAD_MISSES,
@@ -94,6 +100,7 @@ NC = len(C_NAMES)
 C_REASON0 = 29
 C_DRAM_PAGE_HITS = C_REASON0 + NR
 C_DRAM_PAGE_MISSES = C_DRAM_PAGE_HITS + 1
+C_DTLB_MISSES = C_DRAM_PAGE_MISSES + 1
 
 S_NAMES = ("executions", "u_pipe", "v_pipe", "paired_u", "group_cycles", "stall_agi", "stall_prefix", "stall_fpu",
            "stall_memory", "stall_misaligned", "stall_bank", "stall_write_buffer", "stall_mispredict", "mispredicts",
@@ -177,6 +184,20 @@ def _load_miss(r, lvl, now, P, bus_free, ctr):
         done = b + dram_lead_off(r, P[P_DRAM_LAT], P[P_DRAM_LAT_HIT])
         bus_free = b + busy
     return done - now, bus_free
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _page_walk(r, levels, now, P, bus_free, ctr):
+    """Extra clocks of a data-TLB miss's page walk (before the access itself), and the new bus_free:
+    the walk's fixed clocks, then its page-directory and page-table reads, each charged as a load
+    served at its level (_load_miss: the board cache, or a DRAM fill on a closed page)."""
+    ctr[C_DTLB_MISSES] += 1
+    t = now + P[P_TLB_WALK]
+    for lvl in (walk_pde_level(r), walk_pte_level(r)):
+        if lvl > 0:
+            extra, bus_free = _load_miss(walk_read_result(lvl, levels), lvl, t, P, bus_free, ctr)
+            t += extra
+    return t - now, bus_free
 
 
 # Loop-carried scalar state: kept in an int64 vector between calls, so a trace can be timed in
@@ -432,6 +453,11 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
                 if mem_write[q]:
                     r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, addr, sz, True)
                     counters[seg, C_L1D_STORES] += 1
+                    if tlb_missed(r):  # the pipe waits for the translation
+                        extra, bus_free = _page_walk(r, dconfig.shape[0], now, P, bus_free, counters[seg])
+                        mem += extra
+                        per_static[ps, S_MEMORY] += extra
+                        now += extra
                     if served_level(r) > 0:
                         counters[seg, C_L1D_STORE_MISSES] += 1
                         counters[seg, C_BUS_WRITES] += 1
@@ -448,6 +474,11 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
                     r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, addr, sz, False)
                     counters[seg, C_L1D_LOADS] += 1
                     lvl = served_level(r)
+                    if tlb_missed(r):
+                        extra, bus_free = _page_walk(r, dconfig.shape[0], now, P, bus_free, counters[seg])
+                        mem += extra
+                        per_static[ps, S_MEMORY] += extra
+                        now += extra
                     if lvl > 0:
                         counters[seg, C_L1D_LOAD_MISSES] += 1
                         per_static[ps, S_L1D_MISSES] += 1

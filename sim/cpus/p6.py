@@ -91,6 +91,7 @@ class P6Model(FamilyModel):
         P[core.P_DRAM_LAT_HIT] = self.dram.lead_off_hit
         P[core.P_DRAM_LINE_HIT] = self.dram.line_busy_hit
         P[core.P_DRAM_WB_HIT] = self.dram.writeback_busy_hit
+        P[core.P_TLB_WALK] = self.estimates["tlb_walk_clocks"]
         P[core.P_MSHR] = m["caches"]["l2_bus"]["concurrent_accesses"]
         P[core.P_SB] = m["store"]["store_buffer_entries"]
         P[core.P_MISPREDICT] = self.estimates["mispredict_restart"]

@@ -23,7 +23,10 @@ wait for a mismatching one to reach the cache. Stores commit to L1 after retirem
 store buffer of SB entries.
 Memory: the data hierarchy of sim.memory (L1D, L2 when present), a fill-buffer limit of MSHR
 outstanding misses, a backside-bus occupancy per L2 line and a front-side-bus occupancy per DRAM
-line fill and writeback. Instruction fetch goes through its own L1I, which misses to the L2.
+line fill and writeback; a data-TLB miss runs its page walk before the access (TLB_WALK cycles, then
+each walk read that missed L1 charged as a load, in _access_slow; the inline L1-hit path takes only
+the page translated last; a store's walk at commit; walks are not serialised). Instruction fetch goes through its own
+L1I, which misses to the L2 (no instruction TLB).
 Branches: BTB of BTB_SETS x BTB_WAYS entries with HIST_BITS of local history and a table of 2-bit
 counters per entry (two-level adaptive); static prediction on a BTB miss (backward taken); a
 return stack; the front end restarts MISPREDICT cycles after a mispredicted branch executes.
@@ -48,7 +51,8 @@ from sim.memory.cache import LOAD as CACHE_LOAD
 from sim.memory.cache import LRU, STORE as CACHE_STORE
 from sim.memory.hierarchy import (
     CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS, CFG_WRITE_BACK, memory_fill_page_hits,
-    memory_fills, memory_writeback_page_hits, memory_writebacks, served_level, service,
+    memory_fills, memory_writeback_page_hits, memory_writebacks, served_level, service, CFG_TLB_WAYS, TLB_LAST,
+    TLB_PAGE_BITS, tlb_missed, walk_pde_level, walk_pte_level, walk_read_result,
 )
 from sim.memory.replay import LOG_OFF, LOG_RECORD, LOG_REPLAY, logged_service, record_hit, replayed_hit
 from sim.cpus.lowering import (
@@ -62,7 +66,7 @@ from sim.cpus.contract import (
     C_STALL_MISPREDICT, C_STALL_MEMORY, C_STALL_STORE_FORWARD, C_BRANCHES, C_MISPREDICTS, C_L1D_LOADS,
     C_L1D_LOAD_MISSES, C_L1D_STORES, C_L1D_STORE_MISSES, C_L2_ACCESSES, C_L2_MISSES, C_DRAM_FILLS,
     C_DRAM_WRITEBACKS, C_DRAM_BUS_CYCLES, C_L1I_MISSES, C_LCP_STALLS, C_STORE_FORWARDS, C_STALL_FETCH,
-    C_DRAM_PAGE_HITS, C_DRAM_PAGE_MISSES,
+    C_DRAM_PAGE_HITS, C_DRAM_PAGE_MISSES, C_DTLB_MISSES,
     S_NAMES, NS, S_EXECUTIONS, S_UOPS, S_DECODER0, S_DECODER1, S_DECODER2, S_MSROM, S_ISSUE_TO_RETIRE,
     S_STALL_DEPENDENCY, S_STALL_PORT, S_STALL_DECODE, S_STALL_PARTIAL, S_STALL_MEMORY, S_STALL_MISPREDICT,
     S_MISPREDICTS, S_PORT0, S_PORT1, S_PORT2, S_PORT3, S_PORT4, S_DECODE_TO_RETIRE, S_STALL_STORE_FORWARD,
@@ -74,8 +78,8 @@ from sim.cpus.shared_core import FW, WINDOW, book_port, btb_alloc, queued_store,
 (P_ROB, P_RS, P_RENAME, P_RETIRE, P_QUEUE, P_FETCH_BLOCK, P_L1_LAT, P_L2_LAT, P_DRAM_LAT, P_DRAM_LINE,
  P_DRAM_WB, P_MSHR, P_SB, P_MISPREDICT, P_TAKEN_BUBBLE, P_BTB_SETS, P_BTB_WAYS, P_HIST_BITS, P_PARTIAL_EXTRA,
  P_FWD_FAIL, P_LCP, P_STATIC_REDIRECT, P_HAS_L2, P_L2_BUS, P_RSB, P_MSROM_RATE, P_EXIT_ADDR, P_FWD_LAT,
- P_L2_MISS_DETECT, P_DRAM_LAT_HIT, P_DRAM_LINE_HIT, P_DRAM_WB_HIT, P_BIND_TIE) = range(33)
-NPARAMS = 33
+ P_L2_MISS_DETECT, P_DRAM_LAT_HIT, P_DRAM_LINE_HIT, P_DRAM_WB_HIT, P_BIND_TIE, P_TLB_WALK) = range(34)
+NPARAMS = 34
 
 # Loop-carried scalar state: kept in an int64 vector between calls, so a trace can be timed in
 # chunks (a streamed emulation) exactly as in one call (see :func:`new_state`).
@@ -173,7 +177,8 @@ def _bind_port(ports, bound0, bound1, tie):
 @njit(cache=True, nogil=True, inline="always")
 def _l1_way(tags, addr, size, ob, row0, set_mask, ways):
     """(row, way) of the first-level line holding [addr, addr + size), or (-1, -1) if it is not
-    there or the access crosses a line (the lookup of sim.memory.cache.lookup, without updates)."""
+    there or the access crosses a line (the lookup of sim.memory.cache.lookup, without updates).
+    The caller takes this path only for the page it translated last (see tlb_page in simulate)."""
     line = addr >> ob
     if (addr + size - 1) >> ob == line:
         s = row0 + (line & set_mask)
@@ -209,17 +214,30 @@ def _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size,
     r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, is_write) if dlog[0] == LOG_OFF
          else logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, is_write))
     lvl = served_level(r)
+    levels = dconfig.shape[0]
     wait = 0
+    if tlb_missed(r):
+        # the page walk first: its fixed clocks, then the page-directory and page-table reads,
+        # each charged as a load served at its level; the access itself starts after it
+        counters[seg, C_DTLB_MISSES] += 1
+        t = start + P[P_TLB_WALK]
+        for wl in (walk_pde_level(r), walk_pte_level(r)):
+            if wl > 0:
+                extra, bus_free, l2bus_free = _miss_latency(walk_read_result(wl, levels), wl, levels, t, P, mshr,
+                                                            bus_free, l2bus_free, counters[seg])
+                t += extra
+        wait = t - start
     if lvl > 0:
-        levels = dconfig.shape[0]
         counters[seg, C_L1D_STORE_MISSES if is_write else C_L1D_LOAD_MISSES] += 1
         per_static[psid, S_L1D_MISSES] += 1
         if lvl == levels:
             per_static[psid, S_L2_MISSES] += 1
-        wait, bus_free, l2bus_free = _miss_latency(r, lvl, levels, start, P, mshr, bus_free, l2bus_free, counters[seg])
-        if not is_write:
-            counters[seg, C_STALL_MEMORY] += wait
-            per_static[psid, S_STALL_MEMORY] += wait
+        w, bus_free, l2bus_free = _miss_latency(r, lvl, levels, start + wait, P, mshr, bus_free, l2bus_free,
+                                                counters[seg])
+        wait += w
+    if wait > 0 and not is_write:
+        counters[seg, C_STALL_MEMORY] += wait
+        per_static[psid, S_STALL_MEMORY] += wait
     return wait, bus_free, l2bus_free
 
 
@@ -387,6 +405,12 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     l1_lru = dconfig[0, CFG_REPLACEMENT] == LRU
     l1_write_back = dconfig[0, CFG_WRITE_BACK] != 0
     d_now = dclock[0]
+    # The data TLB: an access to the page the walk translated last takes the inline L1-hit path
+    # (that page is its set's most recent entry: service would change nothing in the TLB); any
+    # other goes through service, which translates it (a lookup, or a page walk on a miss). A
+    # replayed log says itself which accesses were plain hits (_logged_hit): no TLB state then.
+    has_tlb = dconfig[0, CFG_TLB_WAYS] > 0 and dlog[0] != LOG_REPLAY
+    tlb_page = dclock[TLB_LAST]
     log_off = dlog[0] == LOG_OFF  # a log, once on, stays on (it may only overflow: replay.logged_service)
     # GPRs whose last writer was partial (reg_pmask != 15), as bits, plus ALWAYS_SCAN
     partial_live = ALWAYS_SCAN
@@ -452,7 +476,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                         n_stores += 1
                     else:
                         n_loads += 1
-                    hit_row, hit_way = ((-1, -1) if w_ and not l1_write_back else
+                    hit_row, hit_way = ((-1, -1) if (w_ and not l1_write_back) or (a >> TLB_PAGE_BITS != tlb_page
+                                                                                   and has_tlb) else
                                         _l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
                                         _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
                     if hit_row >= 0:
@@ -470,6 +495,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                                                                a, sz, w_, t, P, mshr, bus_free, l2bus_free, counters,
                                                                per_static, seg, psid)
                         d_now = dclock[0]
+                        tlb_page = dclock[TLB_LAST]
                         if w > wait:
                             wait = w  # the loop waits for its memory
                 rep_next += wait * OCC_SCALE
@@ -715,7 +741,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     # store forwarding: newest older store still in the store buffer that overlaps
                     fwd = queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
                     n_loads += 1
-                    hit_row, hit_way = (_l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
+                    hit_row, hit_way = ((-1, -1) if a >> TLB_PAGE_BITS != tlb_page and has_tlb else
+                                        _l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
                                         _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
                     if hit_row >= 0:
                         l1_load_hits += 1
@@ -730,6 +757,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                                                                       a, sz, False, disp, P, mshr, bus_free, l2bus_free,
                                                                       counters, per_static, seg, psid)
                         d_now = dclock[0]
+                        tlb_page = dclock[TLB_LAST]
                     if fwd >= 0:
                         if fw_addr[fwd] == a and sz <= fw_size[fwd]:
                             counters[seg, C_STORE_FORWARDS] += 1
@@ -860,7 +888,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 a = np.int64(mem_addr[acc])
                 sz = np.int64(mem_size[acc])
                 n_stores += 1
-                hit_row, hit_way = ((-1, -1) if not l1_write_back else
+                hit_row, hit_way = ((-1, -1) if not l1_write_back or (a >> TLB_PAGE_BITS != tlb_page and has_tlb) else
                                     _l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
                                     _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
                 if hit_row >= 0:
@@ -877,6 +905,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                                                            True, commit, P, mshr, bus_free, l2bus_free, counters,
                                                            per_static, seg, psid)
                     d_now = dclock[0]
+                    tlb_page = dclock[TLB_LAST]
                     commit += w
                 fw_n = remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_std, commit)
             sb_ring[sb_pos] = commit

@@ -19,6 +19,14 @@ and returns a packed result telling which level supplied the data and how much m
 access caused; :func:`simulate` runs a whole trace. Both take the arrays of
 :meth:`Hierarchy.arrays` and update them in place.
 
+A data TLB (:meth:`Hierarchy.set_tlb`; the family models give their machine table's ``[tlb]
+dtlb``): :func:`service` first translates the access's page; on a miss it walks the page tables
+(a page-directory and a page-table read, 4 bytes each, down these same caches as loads: the
+families cache paging entries in their data caches) and enters the page. The page tables lie at
+synthetic physical addresses above the guest's (PT_BASE, PD_BASE). The result tells the core the
+miss and the levels that served the two reads; the core charges the walk (docs/sources/memory.md,
+"The data TLB"). Not modelled: the instruction TLB, large pages, accessed/dirty-bit writes.
+
 Storage: all levels live in one ``tags``/``stamps``/``dirty`` array each, level k in rows
 ``row0 .. row0 + sets`` and its first ``ways`` columns (config columns CFG_ROW0/SETS/WAYS). One
 array per field, not a tuple of per-level arrays, because indexing a tuple of arrays with a run-time
@@ -47,9 +55,11 @@ POLICIES_FILE = Path(__file__).with_name("policies.toml")
 # every row; level 0's is read): log2 of the page (row) size in bytes, and the number of open pages
 # the chipset tracks minus one (a power of two; 0 with no page model: every page is a miss). Part of
 # the config so that a replay log (keyed on the config) is never reused across memories.
+# The next two are the data TLB's geometry (sets, ways; 0 ways = no TLB), also in every row and
+# read from row 0, for the same reason: a replay log is never reused across TLB geometries.
 (CFG_OFFSET_BITS, CFG_WRITE_ALLOCATE, CFG_WRITE_BACK, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS,
- CFG_PAGE_SHIFT, CFG_PAGE_MASK) = range(9)
-NCFG = 9
+ CFG_PAGE_SHIFT, CFG_PAGE_MASK, CFG_TLB_SETS, CFG_TLB_WAYS) = range(11)
+NCFG = 11
 
 # Columns of the counts array [levels + 1, NSTATS]; the last row is memory. A request of kind k
 # (LOAD/STORE/WRITEBACK = 0/1/2) is counted in column 2k, and its hit in column 2k + 1. For memory,
@@ -58,11 +68,16 @@ NCFG = 9
  S_EVICTIONS, S_WRITEBACKS, S_FORWARDED, S_COMPULSORY, S_CAPACITY, S_CONFLICT) = range(13)
 NSTATS = 13
 
-# Packed result of service(): the level that supplied the data (levels = memory) in bits 0-7, then
-# 8-bit counts of the memory traffic the access caused, the lines touched (2 bits: 1 or 2), and
-# 3-bit counts of the line fills and line writebacks that hit an open DRAM page. All below bit 40
-# (the replay log keeps its own fields above).
-SERVED_MASK = 0xFF
+# Packed result of service(): the level that supplied the data (levels = memory) in bits 0-2, a
+# data-TLB miss in bit 3 and the levels that served the miss's page walk (the page-directory entry
+# in bits 4-5, the page-table entry in bits 6-7; levels <= 3), then 8-bit counts of the memory
+# traffic the access caused, the lines touched (2 bits: 1 or 2), and 3-bit counts of the line
+# fills and line writebacks that hit an open DRAM page. All below bit 40 (the replay log keeps its
+# own fields above). The walk's own line fills are not in the traffic counts: the core charges
+# each walk read as a load served at its level (its writebacks and partial writes are).
+SERVED_MASK = 0x7
+TLB_MISS = 1 << 3
+PDE_LEVEL_SHIFT, PTE_LEVEL_SHIFT = 4, 6
 MEM_FILL_SHIFT, MEM_WRITEBACK_SHIFT, MEM_PARTIAL_SHIFT, LINES_SHIFT = 8, 16, 24, 32
 FILL_PAGE_HIT_SHIFT, WB_PAGE_HIT_SHIFT = 34, 37
 
@@ -76,8 +91,27 @@ STACK_BASE = FILL_PAGE_BASE + MAX_LEVELS
 # the walk is the only place that sees the address of each request that reaches memory.
 MAX_OPEN_PAGES = 16
 OPEN_PAGE_BASE = 32
-WORK_SIZE = OPEN_PAGE_BASE + MAX_OPEN_PAGES
+# After the open pages: the data TLB (machine state too, for the same reason): its LRU clock, the
+# page translated last (-1 = none: it is the most recently used entry of its set, so a repeat needs
+# no lookup and no re-stamping), then the tags (linear page numbers, -1 = empty) and stamps of up to
+# MAX_TLB_ENTRIES entries, set s in slots s * ways .. s * ways + ways - 1.
+MAX_TLB_ENTRIES = 256
+TLB_CLOCK = OPEN_PAGE_BASE + MAX_OPEN_PAGES
+TLB_LAST = TLB_CLOCK + 1
+TLB_TAGS = TLB_LAST + 1
+TLB_STAMPS = TLB_TAGS + MAX_TLB_ENTRIES
+WORK_SIZE = TLB_STAMPS + MAX_TLB_ENTRIES
 
+# The page tables the walk reads (an assumption: the kernels run under Linux-like 4 KB paging, two
+# levels, no large pages). Their physical addresses are synthetic and lie above every guest address
+# (the guest's are 32-bit), so they never share a line with guest data: the page-table entry of a
+# linear page p at PT_BASE + 4p (one flat 4 MB array of every page table, as if the page tables of
+# consecutive 4 MB regions were consecutive pages), the page-directory entry of p at
+# PD_BASE + 4 (p >> 10). The caches and the DRAM page model see these addresses like any other
+# (cache.VICTIM_SHIFT: addresses below 2**33).
+TLB_PAGE_BITS = 12
+PT_BASE = 1 << 32
+PD_BASE = PT_BASE + (1 << 22)
 # Rows of the miss-classification shadow array [levels, 4, distinct lines].
 SH_SEEN, SH_IN, SH_PREV, SH_NEXT = range(4)
 # Columns of the shadow meta array [levels, 4]: the fully-associative LRU list.
@@ -90,6 +124,83 @@ def served_level(result):
     for a split access, the slower of its two lines. For a write that no level allocated: where it
     was absorbed."""
     return result & SERVED_MASK
+
+
+@njit(cache=True, nogil=True, inline="always")
+def tlb_missed(result):
+    """1 if the access missed the data TLB (its page walk ran before the data access), else 0."""
+    return (result >> 3) & 1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def walk_pde_level(result):
+    """Level that supplied the page-directory entry of a TLB miss's walk (as served_level)."""
+    return (result >> PDE_LEVEL_SHIFT) & 0x3
+
+
+@njit(cache=True, nogil=True, inline="always")
+def walk_pte_level(result):
+    """Level that supplied the page-table entry of a TLB miss's walk (as served_level)."""
+    return (result >> PTE_LEVEL_SHIFT) & 0x3
+
+
+@njit(cache=True, nogil=True, inline="always")
+def walk_l1_fills(result):
+    """L1 line fills the walk made: each walk read that missed L1 filled it (reads allocate)."""
+    if not result & TLB_MISS:
+        return 0
+    return (1 if walk_pde_level(result) > 0 else 0) + (1 if walk_pte_level(result) > 0 else 0)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def walk_read_result(level, nlevels):
+    """A packed result standing for one walk read served at ``level``, for a core to charge as a
+    load's: one line, one memory fill (on a closed DRAM page) if it came from memory."""
+    return level | ((1 << MEM_FILL_SHIFT) if level == nlevels else 0) | (1 << LINES_SHIFT)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def tlb_probe(config, work, addr):
+    """Whether the data TLB holds ``addr``'s page (True with no TLB); a hit becomes the set's most
+    recently used entry, a miss changes nothing. Set = page mod sets; LRU within the set. The page
+    translated last needs no lookup (TLB_LAST); the set lookup is out of line. A core's inline
+    L1-hit path may skip the probe for that page alone (the P6's: sim/cpus/p6_core.py tlb_page)."""
+    return work[TLB_LAST] == addr >> TLB_PAGE_BITS or _tlb_lookup(config, work, addr >> TLB_PAGE_BITS)
+
+
+@njit(cache=True, nogil=True)
+def _tlb_lookup(config, work, page):
+    ways = config[0, CFG_TLB_WAYS]
+    if ways == 0:
+        return True
+    base = (page & (config[0, CFG_TLB_SETS] - 1)) * ways
+    for w in range(ways):
+        if work[TLB_TAGS + base + w] == page:
+            now = work[TLB_CLOCK] + 1
+            work[TLB_CLOCK] = now
+            work[TLB_STAMPS + base + w] = now
+            work[TLB_LAST] = page
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _tlb_fill(config, work, page):
+    """Enter ``page`` in its set in place of an empty entry or the least recently used one."""
+    ways = config[0, CFG_TLB_WAYS]
+    base = (page & (config[0, CFG_TLB_SETS] - 1)) * ways
+    victim = 0
+    for w in range(ways):
+        if work[TLB_TAGS + base + w] == -1:
+            victim = w
+            break
+        if work[TLB_STAMPS + base + w] < work[TLB_STAMPS + base + victim]:
+            victim = w
+    now = work[TLB_CLOCK] + 1
+    work[TLB_CLOCK] = now
+    work[TLB_TAGS + base + victim] = page
+    work[TLB_STAMPS + base + victim] = now
+    work[TLB_LAST] = page
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -270,17 +381,49 @@ def _account(result, e, code, nlevels):
 
 
 @njit(**HOT)
+def _walk_read(tags, stamps, dirty, config, work, stats, addr):
+    """One 4-byte page-table read of a walk, down the data caches like a load. Returns the level
+    that served it and the memory traffic it caused, its line fills (and their page hits) left out."""
+    ob = config[0, CFG_OFFSET_BITS]
+    r = 0
+    sp = _push(work, STACK_BASE, (addr >> ob) << ob, 0, LOAD, 1)
+    while sp > STACK_BASE:
+        sp, e, code = _step(tags, stamps, dirty, config, work, stats, sp)
+        r = _account(r, e, code, config.shape[0])
+    return r & SERVED_MASK, r & ~(SERVED_MASK | (0xFF << MEM_FILL_SHIFT) | (0x7 << FILL_PAGE_HIT_SHIFT))
+
+
+@njit(**HOT)
+def _page_walk(tags, stamps, dirty, config, work, stats, page):
+    """The data TLB missed ``page``: read its page-directory entry, then its page-table entry,
+    through the caches (both families cache paging entries in their data caches), enter the page
+    in the TLB, and return the packed walk bits and the walk's memory traffic (see service). The
+    walk's line fills do not count as the K6 write-allocate rule's last fill (left as it was)."""
+    keep0, keep1, keep2 = work[FILL_PAGE_BASE], work[FILL_PAGE_BASE + 1], work[FILL_PAGE_BASE + 2]
+    pde, t1 = _walk_read(tags, stamps, dirty, config, work, stats, PD_BASE + ((page >> 10) << 2))
+    pte, t2 = _walk_read(tags, stamps, dirty, config, work, stats, PT_BASE + (page << 2))
+    work[FILL_PAGE_BASE], work[FILL_PAGE_BASE + 1], work[FILL_PAGE_BASE + 2] = keep0, keep1, keep2
+    _tlb_fill(config, work, page)
+    return TLB_MISS | (pde << PDE_LEVEL_SHIFT) | (pte << PTE_LEVEL_SHIFT), t1 + t2
+
+
+@njit(**HOT)
 def service(tags, stamps, dirty, config, work, stats, addr, size, is_write):
     """One CPU data access of ``size`` bytes at ``addr`` (read, or write if ``is_write``).
 
     ``tags``/``stamps``/``dirty`` (all levels in one array each), ``config`` int64
-    ``[levels, NCFG]`` and ``work`` int64 ``[WORK_SIZE]`` (the LRU clock and the walk's stack)
-    are as given by :meth:`Hierarchy.arrays`; ``stats`` int64 ``[levels + 1, NSTATS]`` gets the
-    counts added (:meth:`Hierarchy.new_counts`).
+    ``[levels, NCFG]`` and ``work`` int64 ``[WORK_SIZE]`` (the LRU clock, the walk's stack, the
+    open DRAM pages and the data TLB) are as given by :meth:`Hierarchy.arrays`; ``stats`` int64
+    ``[levels + 1, NSTATS]`` gets the counts added (:meth:`Hierarchy.new_counts`).
+
+    With a data TLB (:meth:`Hierarchy.set_tlb`), a page the TLB does not hold is walked first
+    (:func:`_page_walk`: two reads through the same caches, counted in ``stats`` like any request).
 
     Returns a packed int64: ``served_level(r)`` (0 = L1 hit, ``levels`` = memory; for an access
     that crosses a line boundary, the slower line), ``memory_fills(r)``, ``memory_writebacks(r)``,
-    ``memory_partial_writes(r)`` and ``lines_touched(r)``.
+    ``memory_partial_writes(r)``, ``lines_touched(r)``, and for a TLB miss ``tlb_missed(r)``,
+    ``walk_pde_level(r)`` and ``walk_pte_level(r)`` (an access that crosses into a second missing
+    page: one miss, each walk read at the slower of its two levels).
     """
     nlevels = config.shape[0]
     ob = config[0, CFG_OFFSET_BITS]
@@ -288,6 +431,17 @@ def service(tags, stamps, dirty, config, work, stats, addr, size, is_write):
     kind = STORE if is_write else LOAD
     served = 0
     traffic = 0
+    if config[0, CFG_TLB_WAYS] > 0:
+        for page in range(addr >> TLB_PAGE_BITS, ((addr + size - 1) >> TLB_PAGE_BITS) + 1):
+            if not tlb_probe(config, work, page << TLB_PAGE_BITS):
+                bits, t = _page_walk(tags, stamps, dirty, config, work, stats, page)
+                traffic += t
+                if served & TLB_MISS:  # a second walk: keep the slower level of each read
+                    bits = (TLB_MISS | (max(walk_pde_level(bits), walk_pde_level(served)) << PDE_LEVEL_SHIFT)
+                            | (max(walk_pte_level(bits), walk_pte_level(served)) << PTE_LEVEL_SHIFT))
+                served = bits
+    walk = served
+    served = 0
     for line in range(first, last + 1):
         r = 0
         sp = _push(work, STACK_BASE, line << ob, 0, kind, 1)
@@ -296,7 +450,7 @@ def service(tags, stamps, dirty, config, work, stats, addr, size, is_write):
             r = _account(r, e, code, nlevels)
         served = max(served, r & SERVED_MASK)
         traffic += r & ~SERVED_MASK
-    return served | traffic | ((last - first + 1) << LINES_SHIFT)
+    return served | walk | traffic | ((last - first + 1) << LINES_SHIFT)
 
 
 @njit(cache=True, nogil=True)
@@ -503,7 +657,7 @@ class Hierarchy:
         for g in geometries:
             view = np.s_[row0:row0 + g.sets, :g.ways]
             states.append(CacheState(g, (self.tags[view], self.stamps[view], self.dirty[view])))
-            config.append([g.offset_bits, g.allocate_id, g.write_back, g.replacement_id, row0, g.sets, g.ways, 0, 0])
+            config.append([g.offset_bits, g.allocate_id, g.write_back, g.replacement_id, row0, g.sets, g.ways, 0, 0, 0, 0])
             row0 += g.sets
         self.states = tuple(states)
         self.config = np.array(config, dtype=np.int64)
@@ -529,7 +683,8 @@ class Hierarchy:
         self.dirty.fill(0)
         self.work.fill(0)
         self.work[FILL_PAGE_BASE:FILL_PAGE_BASE + MAX_LEVELS] = -1
-        self.work[OPEN_PAGE_BASE:] = -1
+        self.work[OPEN_PAGE_BASE:OPEN_PAGE_BASE + MAX_OPEN_PAGES] = -1
+        self.work[TLB_LAST:TLB_TAGS + MAX_TLB_ENTRIES] = -1
 
     def set_dram_pages(self, page_bytes: int, open_pages: int) -> None:
         """Track open DRAM pages below the last level: ``open_pages`` banks (one open row each) of
@@ -540,6 +695,20 @@ class Hierarchy:
                 raise ValueError(f"{what} must be a power of two up to {top}, got {n}")
         self.config[:, CFG_PAGE_SHIFT] = page_bytes.bit_length() - 1
         self.config[:, CFG_PAGE_MASK] = open_pages - 1
+
+    def set_tlb(self, entries: int, ways: int) -> None:
+        """Translate every access through a data TLB of ``entries`` 4 KB-page entries in sets of
+        ``ways`` (LRU), walking the page tables through these caches on a miss (see :func:`service`).
+        Without this call there is no TLB (every page is mapped)."""
+        if not 0 < ways <= entries <= MAX_TLB_ENTRIES or entries % ways:
+            raise ValueError(f"a data TLB has 1 to {MAX_TLB_ENTRIES} entries in whole sets of its ways, "
+                             f"got {entries} entries, {ways} ways")
+        sets = entries // ways
+        if sets & (sets - 1):
+            raise ValueError(f"a data TLB's sets must be a power of two, got {entries} / {ways} = {sets}")
+        self.config[:, CFG_TLB_SETS] = sets
+        self.config[:, CFG_TLB_WAYS] = ways
+        self.work[TLB_LAST:TLB_TAGS + MAX_TLB_ENTRIES] = -1
 
     def run(self, trace, *, classify: bool = False, cold: bool = True) -> HierarchyStats:
         """Simulate ``trace`` (anything with ``mem_addr``/``mem_size``/``mem_write`` arrays, e.g. a
@@ -635,4 +804,6 @@ __all__ = [
     "Hierarchy", "HierarchyStats", "LevelStats", "MemoryStats", "service", "simulate",
     "simulate_classified", "served_level", "memory_fills", "memory_writebacks",
     "memory_partial_writes", "lines_touched", "memory_fill_page_hits", "memory_writeback_page_hits", "NSTATS", "family_policies",
+    "tlb_missed", "walk_pde_level", "walk_pte_level", "walk_l1_fills", "tlb_probe",
+    "walk_read_result",
 ]

@@ -1,7 +1,8 @@
 """Recorded data-cache results, so that re-timing one trace on the same caches skips the cache walk.
 
-Which level serves each data access depends only on the order of the accesses and the caches'
-geometry and policies, never on when the accesses happen: the cores call the hierarchy in program
+Which level serves each data access (and whether it missed the data TLB, and where its page walk's
+reads were served) depends only on the order of the accesses and the caches' and TLB's geometry and
+policies (all in the configuration array a log is keyed by), never on when the accesses happen: the cores call the hierarchy in program
 order (an instruction's loads, then its store), whatever the cycle. A model re-timed with only its
 latencies or estimates changed (the claims' robustness pass, sim/scenes/claims.py) therefore sees the same
 results again. The first such run records every packed :func:`sim.memory.hierarchy.service` result

@@ -94,6 +94,7 @@ def summary_table(result: TimingResult) -> Table:
     t.add_row("DRAM", f"{s['dram_fills']:,}", f"line fills, {s['dram_writebacks']:,} writebacks, "
                                              f"{s['dram_cycles']:,} bus-busy core cycles; fills on an open DRAM page "
                                              f"{s.get('dram_page_hits', 0):,}, page misses {s.get('dram_page_misses', 0):,}")
+    t.add_row("data TLB", f"{s.get('dtlb_misses', 0):,}", "misses (each a page walk: two page-table reads through the data caches)")
     t.add_row("L1I misses", f"{s['l1i_misses']:,}", "")
     return t
 
