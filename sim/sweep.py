@@ -38,8 +38,9 @@ counters: the scene (by name: two scene files of one name are refused) and varia
 that name one machine twice (a grid's `128` and `128.0`, a CPU listed twice, a [[point]] equal to a
 grid point) are refused, as are non-finite numbers. Beside the id, a row's `fingerprint` column holds
 a hash of the files' contents that determine its counters: the scene file's bytes, or the kernel
-source with its includes (as the assembler cache hashes them, sim.guest.asm.content_key), and the
-CPU and memory preset files. A stored point whose fingerprint differs from the current one (or a
+source with its includes (as the assembler cache hashes them, sim.guest.asm.content_key), the
+CPU and memory preset files, and the model itself (every .py and .toml file of the sim package:
+a model change makes every stored point stale). A stored point whose fingerprint differs from the current one (or a
 row without one, from a table written before fingerprints) is recomputed on resume, and the
 command says how many were; the id itself is unchanged, so older tables stay resumable. Resuming merges only into a table this module
 wrote: an unreadable or altered Parquet file (or a CSV without its Parquet file) is refused with
@@ -127,7 +128,7 @@ def fingerprint(subject: dict, cpu: str, memory: str | None, cache: dict | None 
     """Hash of the contents of the files that determine a point's counters besides its id: the
     scene file (a scene), or the kernel source and the includes the assembler cache follows
     (sim.guest.asm.content_key, a kernel); the CPU preset file; the memory preset file (the
-    preset's own when `memory` is None). "" when a file cannot be read: the point is then always
+    preset's own when `memory` is None); the model (:func:`model_hash`). "" when a file cannot be read: the point is then always
     recomputed, and fails with that file's error. `cache`: per-file hashes shared between points."""
     from sim.cpus import presets
     from sim.memory.dram import MEMORY_PRESETS_DIR
@@ -161,7 +162,23 @@ def fingerprint(subject: dict, cpu: str, memory: str | None, cache: dict | None 
     mem_hash = once(("memory", mem), lambda: file_hash(MEMORY_PRESETS_DIR / f"{mem}.toml")) if mem else ""
     if not (what and cpu_hash and mem_hash):
         return ""
-    return hashlib.sha256(f"{what} {cpu_hash} {mem_hash}".encode()).hexdigest()
+    model = once(("model",), model_hash)
+    return hashlib.sha256(f"{what} {cpu_hash} {mem_hash} {model}".encode()).hexdigest()
+
+
+MODEL_DIR = Path(__file__).resolve().parent  # the sim package: the code and tables that time a point
+
+
+def model_hash(root: Path | None = None) -> str:
+    """Hash of the timing model itself: every .py and .toml file of the sim package (the cores,
+    the instruction and machine tables, the memory model, the scene code), by path and content.
+    A stored point timed by another version of the model is stale even when its scene and presets
+    are unchanged (a sweep resumed after a model change would otherwise keep old counters)."""
+    root = MODEL_DIR if root is None else root
+    h = hashlib.sha256()
+    for path in sorted(p for p in root.rglob("*") if p.suffix in (".py", ".toml") and p.is_file()):
+        h.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
+    return h.hexdigest()
 
 
 def load_spec(path: str | Path, max_points: int = MAX_POINTS) -> Spec:

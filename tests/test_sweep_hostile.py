@@ -380,3 +380,18 @@ def test_editing_a_scene_file_or_a_preset_changes_its_points_fingerprint(tmp_pat
     preset = tmp_path / "presets" / "pentium2-233.toml"
     preset.write_text(preset.read_text() + "\n# edited\n")
     assert all(p["fingerprint"] != after[p["point"]] for p in sweep.load_spec(spec).points)
+
+
+def test_a_model_change_makes_stored_points_stale(tmp_path):
+    # the counters depend on the model's code and tables, not only on the scene and presets: a
+    # sweep resumed after a model change must recompute (it once kept the old counters)
+    model = tmp_path / "sim"
+    shutil.copytree(sweep.MODEL_DIR, model, ignore=shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc"))
+    before = sweep.model_hash(model)
+    assert before == sweep.model_hash(model)  # deterministic
+    table = model / "cpus" / "tables" / "p6_machine.toml"
+    table.write_text(table.read_text().replace("entries = 40", "entries = 41", 1))
+    assert sweep.model_hash(model) != before
+    (model / "notes.txt").write_text("not part of the model")
+    table.write_text(table.read_text().replace("entries = 41", "entries = 40", 1))
+    assert sweep.model_hash(model) == before
