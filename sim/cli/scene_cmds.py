@@ -279,7 +279,7 @@ def sweep_cmd(spec, out, scheduler, retry_failed, max_points, jobs):
     for path in result.files:
         err_console.print(f"wrote {path}")
     changed = (f" ({result.changed} of them recomputed because their input files changed, or the table did not record them: the scene or kernel "
-               "source, an include, or a preset)") if result.changed else ""
+               "source, an include, a preset, or the model itself)") if result.changed else ""
     console.print(f"{len(result.rows)} point(s): {result.computed} computed now{changed}, "
                   f"{len(result.rows) - result.computed} from {base.with_suffix('.parquet')}, {result.failed} failed")
     if result.failed:  # the first few reasons here; every one is in the table's error column
