@@ -41,6 +41,20 @@ def write_payloads(out_dir: Path, name: str, payloads: dict, formats: tuple[str,
     return written
 
 
+def wants_image(formats: tuple[str, ...]) -> bool:
+    """Whether the plot is needed: it is written as the PNG and embedded in the HTML page."""
+    return "png" in formats or "html" in formats
+
+
+def write_report_set(out_dir: Path, name: str, md: str, image: bytes | None, json_text: str, csv_text: str,
+                     formats: tuple[str, ...] = FORMATS) -> list[Path]:
+    """A scene's report files: `name`.md/.png/.json/.csv and the HTML page of the Markdown with the
+    plot embedded (`image` None: no PNG and no plot in the page), for each of `formats`."""
+    payloads = {"md": md.encode(), "png": image, "json": json_text.encode(), "csv": csv_text.encode(),
+                "html": render_html(md, image).encode()}
+    return write_payloads(out_dir, name, payloads, formats)
+
+
 def md_table(header: list[str], rows: list[list[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
     lines += ["| " + " | ".join(r) + " |" for r in rows]

@@ -46,7 +46,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from sim.cpus.machine import MachineKey
-from sim.reports.render import FORMATS, add_label_column, console_label, md_table, render_html, timings_csv, write_payloads
+from sim.reports.render import FORMATS, add_label_column, console_label, md_table, timings_csv, wants_image, write_report_set
 from sim.scenes.kind import BASELINE_COUNTERS, Timing
 from sim.scenes.schema import CpuChoice, Validator, show
 from sim.scenes.snap import workload as snap
@@ -516,12 +516,10 @@ def png(result: SnapResult) -> bytes | None:
 
 def write_reports(result: SnapResult, out_dir: Path, formats: tuple[str, ...] = FORMATS) -> list[Path]:
     name = result.scene.name
-    image = png(result) if ("png" in formats or "html" in formats) else None
+    image = png(result) if wants_image(formats) else None
     md = to_markdown(result, f"{name}.png" if result.timings else None)
-    payloads = {"md": md.encode(), "png": image,
-                "json": (json.dumps(to_json(result), indent=2) + "\n").encode(),
-                "csv": to_csv(result).encode(), "html": render_html(md, image).encode()}
-    return write_payloads(out_dir, name, payloads, formats)
+    return write_report_set(out_dir, name, md, image, json.dumps(to_json(result), indent=2) + "\n", to_csv(result),
+                            formats)
 
 
 def baseline_entries(result: SnapResult) -> dict[str, dict[str, int]]:

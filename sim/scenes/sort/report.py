@@ -22,7 +22,7 @@ import json
 from pathlib import Path
 
 from sim.cpus.machine import MachineKey
-from sim.reports.render import FORMATS, md_table, png_bytes, render_html, write_payloads
+from sim.reports.render import FORMATS, md_table, png_bytes, wants_image, write_report_set
 from sim.scenes.claims import holds, robustness_rows, robustness_text, verdict_text
 from sim.scenes.kind import BASELINE_COUNTERS
 from sim.scenes.sort import keys as K
@@ -495,14 +495,11 @@ def png(result: SortResult) -> bytes | None:
 
 def write_reports(result: SortResult, out_dir: Path, formats: tuple[str, ...] = FORMATS) -> list[Path]:
     name = result.scene.name
-    image = png(result) if ("png" in formats or "html" in formats) else None
+    image = png(result) if wants_image(formats) else None
     # the Markdown names its plot whichever formats are written: `check --reports` writes no PNG
     # and must produce the same Markdown as `report`
     md = to_markdown(result, f"{name}.png" if result.timings else None)
-    payloads = {"md": md.encode(), "png": image,
-                "json": json_text(result).encode(),
-                "csv": to_csv(result).encode(), "html": render_html(md, image).encode()}
-    return write_payloads(out_dir, name, payloads, formats)
+    return write_report_set(out_dir, name, md, image, json_text(result), to_csv(result), formats)
 
 
 def baseline_entries(result: SortResult) -> dict[str, dict[str, int]]:

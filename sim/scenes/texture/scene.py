@@ -58,7 +58,7 @@ from sim.cpus.machine import MachineKey
 from sim.cpus.families import FAMILIES, order as family_order
 from sim.errors import RetrosimError
 from sim.guest.kernels import kernels_root
-from sim.reports.render import FORMATS, add_label_column, console_label, md_table, render_html, write_payloads
+from sim.reports.render import FORMATS, add_label_column, console_label, md_table, wants_image, write_report_set
 from sim.scenes.schema import CpuChoice, Validator, show
 from sim.scenes.texture import frame as F
 
@@ -789,12 +789,10 @@ def write_reports(result: TextureResult, out_dir: Path, formats: tuple[str, ...]
     import json
 
     name = result.scene.name
-    png = error_cycles_png(result) if ("png" in formats or "html" in formats) else None
+    png = error_cycles_png(result) if wants_image(formats) else None
     md = to_markdown(result, f"{name}.png")
-    payloads = {"md": md.encode(), "png": png,
-                "json": (json.dumps(to_json(result), indent=2) + "\n").encode(),
-                "csv": to_csv(result).encode(), "html": render_html(md, png).encode()}
-    return write_payloads(out_dir, name, payloads, formats)
+    return write_report_set(out_dir, name, md, png, json.dumps(to_json(result), indent=2) + "\n", to_csv(result),
+                            formats)
 
 
 def summary_tables(result: TextureResult) -> list:

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from sim.cpus.machine import MachineKey
-from sim.reports.render import FAMILY_MARKERS, FORMATS, add_label_column, console_label, finish_rows, md_table, png_bytes, render_html, row_offset, timings_csv, write_payloads
+from sim.reports.render import FAMILY_MARKERS, FORMATS, add_label_column, console_label, finish_rows, md_table, png_bytes, row_offset, timings_csv, wants_image, write_report_set
 from sim.scenes.zbuffer.frames import VARIANT_LABELS
 
 if TYPE_CHECKING:
@@ -363,13 +363,7 @@ def _precision_md(precision: dict) -> str:
 def write_reports(result: SceneResult, out_dir: Path, formats: tuple[str, ...] = FORMATS) -> list[Path]:
     name = result.scene.name
     has_plot = any(a.visibility for a in result.accuracy.values())
-    png = work_precision_png(result) if has_plot and ("png" in formats or "html" in formats) else None
+    png = work_precision_png(result) if has_plot and wants_image(formats) else None
     md = to_markdown(result, f"{name}.png" if has_plot else None, findings(result))
-    payloads = {
-        "md": md.encode(),
-        "png": png,
-        "json": (json.dumps(to_json(result), indent=2, sort_keys=False) + "\n").encode(),
-        "csv": to_csv(result).encode(),
-        "html": render_html(md, png).encode(),
-    }
-    return write_payloads(out_dir, name, payloads, formats)
+    return write_report_set(out_dir, name, md, png, json.dumps(to_json(result), indent=2, sort_keys=False) + "\n",
+                            to_csv(result), formats)
