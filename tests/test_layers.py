@@ -2,7 +2,8 @@
 cycles among sim modules, and no module importing from a layer above its own.
 
 Layers, low to high (a module may import its own layer and the ones below):
-base (sim.errors, sim.output, sim.reference, sim.inputfile, sim.tomlfile) < sim.guest < sim.memory < sim.cpus
+base (sim.errors, sim.output, sim.reference, sim.inputfile, sim.tomlfile, sim.stats,
+sim.portable_math) < sim.guest < sim.memory < sim.cpus
 < sim.timing and sim.parallel < sim.reports < sim.scenes < sim.sweep < sim.cli.
 """
 
@@ -18,6 +19,7 @@ SIM = Path(__file__).resolve().parents[1] / "sim"
 # (prefix, layer): the longest matching prefix names a module's layer
 LAYERS = [
     ("sim.errors", 0), ("sim.output", 0), ("sim.reference", 0), ("sim.inputfile", 0), ("sim.tomlfile", 0),
+    ("sim.stats", 0), ("sim.portable_math", 0),
     ("sim.guest", 1), ("sim.memory", 2), ("sim.cpus", 3),
     ("sim.timing", 4), ("sim.parallel", 4),
     ("sim.reports", 5), ("sim.scenes", 6), ("sim.sweep", 7), ("sim.cli", 8),

@@ -22,6 +22,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from sim import stats
 from sim.timing import loop
 from sim.reports import views
 from sim.errors import RetrosimError
@@ -231,7 +232,7 @@ class FamilyResult:
 
     def mape(self, subset=None) -> float:
         rs = self.timed if subset is None else subset
-        return 100 * sum(r.rel_error for r in rs) / len(rs) if rs else float("nan")
+        return 100 * stats.mean([r.rel_error for r in rs], float("nan"))  # exact, as every report statistic
 
     def within_one(self, subset=None) -> float:
         rs = self.timed if subset is None else subset

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim import portable_math
 from sim.guest.emu import Machine
 
 KERNEL = Path(__file__).resolve().parents[3] / "kernels" / "snap" / "snap.S"
@@ -72,9 +73,9 @@ def workload(name: str, vertices: int, width: int, height: int, seed: int) -> np
     elif name == "negative":
         v = -rng.uniform(0, 1, n) * span
     elif name == "tiny":
-        v = 10.0 ** rng.uniform(-45, -2, n) * rng.choice([-1.0, 1.0], n)
+        v = portable_math.power(10.0, rng.uniform(-45, -2, n)) * rng.choice([-1.0, 1.0], n)
     elif name == "huge":
-        v = 10.0 ** rng.uniform(5.5, 9, n) * rng.choice([-1.0, 1.0], n)
+        v = portable_math.power(10.0, rng.uniform(5.5, 9, n)) * rng.choice([-1.0, 1.0], n)
     elif name == "limit":
         steps = np.arange(-128, 129) / 32
         edges = np.concatenate([e + steps for e in (2.0 ** 18, -(2.0 ** 18), 2.0 ** 19, -(2.0 ** 19))])
