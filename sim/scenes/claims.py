@@ -134,6 +134,26 @@ def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, say=lambd
     return out
 
 
+# -- what a claim names --------------------------------------------------------------------------
+
+def unrun(cpus, families, memories, machines) -> list[str]:
+    """What a claim names that the scene does not run, so that its verdict would silently skip it:
+    each ``cpus`` entry (a preset, or ``preset:memory``) and each family that no machine of the
+    scene (``machines``: objects with .preset and .memory) matches, within ``memories`` when the
+    claim narrows them. The loaders refuse such a claim (sim.scenes.schema.Validator.require_cover)."""
+    from sim.cpus import family_of
+
+    ran = [(m.preset, m.memory, family_of(m.preset)) for m in machines
+           if not memories or m.memory in memories]
+    out = []
+    for entry in cpus:
+        preset, _, memory = entry.partition(":")
+        if not any(p == preset and (not memory or mem == memory) for p, mem, _ in ran):
+            out.append(entry)
+    out += [f"every {f.upper()} preset" for f in families if not any(fam == f for _, _, fam in ran)]
+    return out
+
+
 # -- verdicts ------------------------------------------------------------------------------------
 
 def holds(claim, ratio: float) -> bool:

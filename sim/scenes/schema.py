@@ -176,13 +176,23 @@ class Validator:
                 self.fail(f"{field}.families", f"unknown family '{fam}' (known: {', '.join(FAMILIES)})",
                           "claims", "families", index)
 
-    def require_cover(self, field: str, index: int, machines: list, covers) -> None:
-        """A claim must cover at least one of the scene's machines: covers(preset, memory, family)."""
+    def require_cover(self, field: str, index: int, machines: list, covers, cpus=(), families=(),
+                      memories=()) -> None:
+        """A claim must cover at least one of the scene's machines (covers(preset, memory, family)),
+        and the scene must run every machine it names (its `cpus`, `families`, within `memories`):
+        otherwise part of the claim would go unchecked without a word (sim.scenes.claims.unrun)."""
         from sim.cpus import family_of
+        from sim.scenes.claims import unrun
 
         if not any(covers(m.preset, m.memory, family_of(m.preset)) for m in machines):
             self.fail(field, f"covers none of run.cpus ({', '.join(m.label for m in machines)})", "claims", None,
                       index)
+        missing = unrun(cpus, families, memories, machines)
+        if missing:
+            within = f" with memory {', '.join(memories)}" if memories else ""
+            self.fail(field, f"names {', '.join(missing)}{within}, which the scene does not run (run: "
+                      f"{', '.join(f'{m.preset}:{m.memory}' for m in machines)}); run it or drop it from the claim",
+                      "claims", None, index)
 
     def claim_tables(self, doc: dict) -> list[dict]:
         """The [[claims]] tables of a scene (none: an empty list)."""

@@ -190,7 +190,8 @@ def load(path: Path, text: str, doc: dict) -> SnapScene:
         if expect in TIMED:
             if not ccpus and not families:
                 v.fail(f, "names no CPU: give cpus = [...] and/or families = [...]", "claims", None, i)
-            v.require_cover(f, i, machines, lambda preset, memory, family: claim.covers(preset, family))
+            v.require_cover(f, i, machines, lambda preset, memory, family: claim.covers(preset, family),
+                            claim.cpus, claim.families)
         claims.append(claim)
     return SnapScene(path, name, description, tuple(names), vertices, seed, width, height, tuple(variants),
                      tuple(machines), timing_workload, tuple(claims))

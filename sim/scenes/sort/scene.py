@@ -304,7 +304,8 @@ def load(path: Path, text: str, doc: dict) -> SortScene:
         claim = SortClaim(text, expect, tuple(names), tuple(ccpus), tuple(families),
                           tuple(cdists) if expect == "distribution-independent" else (dist,),
                           tuple(csizes) if expect == "linear" else (size,), tolerance)
-        v.require_cover(f, i, machines, lambda preset, memory, family: claim.covers(preset, family))
+        v.require_cover(f, i, machines, lambda preset, memory, family: claim.covers(preset, family),
+                        claim.cpus, claim.families)
         claims.append(claim)
     return SortScene(path, name, description, tuple(dists), seed, zscene, table_size, tuple(sizes), tuple(sweep),
                      (lo, hi), tuple(variants), tuple(machines), max_size, limits, tuple(claims))

@@ -274,7 +274,8 @@ def load(path: Path, text: str, doc: dict) -> TextureScene:
         v.families(field_, families, i)
         claim = TextureClaim(text, quantity, tuple(pair), expect, value, tolerance, within,
                              rng if expect == "between" else None, tuple(cover), tuple(families))
-        v.require_cover(field_, i, machines, lambda preset, memory, family: claim.covers(preset, family))
+        v.require_cover(field_, i, machines, lambda preset, memory, family: claim.covers(preset, family),
+                        claim.cpus, claim.families)
         claims.append(claim)
 
     scene = TextureScene(path, name, description, width, height, seed,

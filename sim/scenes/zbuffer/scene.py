@@ -563,7 +563,7 @@ def load(path: Path, text: str, doc: dict) -> Scene:
         if not 0 <= tolerance < 1:
             v.fail(f"{field}.tolerance", f"must be in [0, 1), got {tolerance}", "claims", "tolerance", i)
         claim = Claim(text, (pair[0], pair[1]), expect, tolerance, tuple(cover), tuple(families), tuple(memories))
-        v.require_cover(field, i, machines, claim.covers)
+        v.require_cover(field, i, machines, claim.covers, claim.cpus, claim.families, claim.memories)
         claims.append(claim)
 
     return Scene(path, name, description, width, height, geometry,
