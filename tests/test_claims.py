@@ -182,3 +182,54 @@ def test_make_model_overrides():
 def test_make_model_refuses_bad_overrides(overrides, message):
     with pytest.raises(RetrosimError, match=message):
         make_model("pentium2-233", None, overrides)
+
+
+def test_a_claim_naming_machines_the_scene_does_not_run_is_refused(tmp_path):
+    """Issue 33: "every P5 preset, every K6 preset" on a scene without a P5 checked only the K6 half,
+    silently. Each such claim is refused on loading, with one line naming the file and the claim."""
+    both = FAMILY_CLAIM.replace('families = ["k6"]', 'families = ["p5", "k6"]')
+    with pytest.raises(SceneError) as e:
+        scene(tmp_path, claims=both)
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith(str(tmp_path / "claims-test.toml") + ":")
+    assert "claims[0]: names every P5 preset, which the scene does not run" in msg
+    assert scene(tmp_path, cpus='["pentium-166", "k6-233"]', claims=both).claims[0].families == ("p5", "k6")
+    named = FAMILY_CLAIM.replace('families = ["k6"]', 'cpus = ["k6-2-300", "pentium3-500"]')
+    with pytest.raises(SceneError, match=r"claims\[0\]: names pentium3-500, which the scene does not run"):
+        scene(tmp_path, claims=named)
+    narrowed = FAMILY_CLAIM + 'memories = ["sdram-pc100"]\n'  # k6-233 runs on PC66 only, k6-2-300 on PC100
+    assert scene(tmp_path, claims=narrowed).claims[0].memories == ("sdram-pc100",)
+    with pytest.raises(SceneError, match=r"names k6-233 with memory sdram-pc100, which the scene does not run"):
+        scene(tmp_path, claims=narrowed.replace('families = ["k6"]', 'cpus = ["k6-233", "k6-2-300"]'))
+
+
+def test_the_article_scene_runs_every_machine_its_claims_name():
+    """The Z-buffer article's BSR claim covers P5 machines it runs; the SDRAM claim its three P6s."""
+    from sim.cpus import family_of
+
+    s = load_scene("scenes/zbuffer-article.toml")
+    bsr = next(c for c in s.claims if c.families == ("p5", "k6"))
+    covered = {m.preset.split("{")[0] for m in s.run.cpus if bsr.covers(m.preset, m.memory, family_of(m.preset))}
+    assert {"pentium-166", "pentium-mmx-233", "k6-2-300", "k6-3-450", "k6-233"} <= covered
+    sdram = next(c for c in s.claims if c.memories == ("sdram-pc100",))
+    assert {m.preset for m in s.run.cpus if sdram.covers(m.preset, m.memory, family_of(m.preset))} == \
+        set(sdram.cpus)
+
+
+def test_a_report_opens_with_its_verdicts(tmp_path):
+    """Issue 33: one line per claim first (verdict, machines, ratio range), then a reading, then the
+    detail; the HTML page the same."""
+    result = run_scene(scene(tmp_path), robustness=False)
+    (c,) = report.evaluate_claims(result)
+    report.write_reports(result, tmp_path / "out", formats=("md", "html"))
+    md = (tmp_path / "out" / "claims-test.md").read_text().splitlines()
+    assert md[:4] == ["# claims-test", "", "## Verdicts", ""]
+    ratios = [e["ratio"] for e in c["per_cpu"]]
+    line = md[4]
+    assert line.startswith(f"- **{c['verdict'].split(' (')[0]}** — BSR is exorbitant on the K6 family — ")
+    assert all(report._cpu_label(e["cpu"]) in line for e in c["per_cpu"]) and "pentium2-233" not in line
+    assert f"cycles fp16z/z32 {min(ratios):.3f}..{max(ratios):.3f}" in line
+    assert md.index("## The article's claims, checked") > md.index("## Verdicts")
+    assert md[6] == f"1 claim(s): 1 {c['verdict']}."
+    page = (tmp_path / "out" / "claims-test.html").read_text()
+    assert page.index("<h2>Verdicts</h2>") < page.index("<h2>Cycles per pixel</h2>")

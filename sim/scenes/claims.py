@@ -142,8 +142,9 @@ def unrun(cpus, families, memories, machines) -> list[str]:
     scene (``machines``: objects with .preset and .memory) matches, within ``memories`` when the
     claim narrows them. The loaders refuse such a claim (sim.scenes.schema.Validator.require_cover)."""
     from sim.cpus import family_of
+    from sim.cpus.machine import MachineKey
 
-    ran = [(m.preset, m.memory, family_of(m.preset)) for m in machines
+    ran = [(MachineKey(m.preset).preset, m.memory, family_of(m.preset)) for m in machines  # overrides aside
            if not memories or m.memory in memories]
     out = []
     for entry in cpus:
@@ -270,3 +271,71 @@ def sentence(c: dict, cpu_label, counter_label=lambda n: n.replace("_", " ")) ->
     for k in c["not_checked"]:
         lines.append(f"  - {cpu_label(k)}: not checked (CPU not in this run).")
     return "\n".join(lines)
+
+
+# -- the verdict summary a scene report opens with ----------------------------------------------
+
+def _entry_verdict(e: dict) -> str:
+    return e.get("verdict") or ("reproduced" if e.get("held", e.get("holds")) else "not reproduced")
+
+
+def _measure(e: dict) -> tuple[str, float] | None:
+    """The number a machine's verdict rests on: the cycle ratio of a faster/slower/similar claim, the
+    measured quantity of a figure claim, the largest spread of a shape claim."""
+    if e.get("ratio") is not None:
+        return "ratio", e["ratio"]
+    if e.get("measured") is not None:
+        return "measured", e["measured"]
+    if e.get("variants"):
+        return "spread", max(p["spread"] for p in e["variants"].values())
+    return None
+
+
+def _overall(c: dict) -> str:
+    """A claim's verdict without the detail the summary gives per machine ("mixed: ...", "(see ...)")."""
+    return c["verdict"].split(" (")[0].split(":")[0]
+
+
+def verdict_summary(claims: list[dict], cpu_label, reading: list[str]) -> list[str]:
+    """The Markdown lines a scene report opens with, shared by every scene kind: one line per
+    evaluated claim (its verdict, the machines grouped by their verdict, the range of the number the
+    verdicts rest on, the estimates a verdict depends on), then `reading`, a few sentences on the
+    numbers. The detail follows in the report's own sections."""
+    if not claims and not reading:
+        return []
+    lines = ["## Verdicts", ""]
+    for c in claims:
+        per = c.get("per_cpu")
+        if per is None:  # a claim about results, not timings: the same on every machine
+            lines.append(f"- **{c['verdict']}** — {c['text']} (independent of the machine)")
+            continue
+        groups: dict[str, list[str]] = {}
+        for e in per:
+            groups.setdefault(_entry_verdict(e), []).append(cpu_label(e["cpu"]))
+        if len(groups) == 1:
+            where = "on " + ", ".join(next(iter(groups.values())))
+        else:
+            where = "; ".join(f"{v} on {', '.join(ms)}" for v, ms in groups.items()) or "no machine of this run"
+        measures = [m for m in map(_measure, per) if m is not None]
+        span = ""
+        if measures:
+            lo, hi = min(x for _, x in measures), max(x for _, x in measures)
+            name = measures[0][0]
+            if name == "ratio" and len(c.get("variants") or ()) == 2:
+                name = "cycles {0}/{1}".format(*c["variants"])
+            span = f"; {name} {lo:.3f}" + (f"..{hi:.3f}" if hi != lo else "")
+        estimates = list(dict.fromkeys(r["parameter"] for e in per for r in e.get("robustness") or []
+                                       if not r["same_verdict"]))
+        depends = f"; depends on {', '.join(estimates)}" if estimates else ""
+        unchecked = len(c.get("not_checked") or ()) + len(c.get("refused") or ())
+        skipped = f"; {unchecked} covered machine(s) not timed" if unchecked else ""
+        lines.append(f"- **{_overall(c)}** — {c['text']} — {where}{span}{depends}{skipped}.")
+    counts: dict[str, int] = {}
+    for c in claims:
+        key = "depends on an estimate" if _overall(c).startswith("depends on") else _overall(c)
+        counts[key] = counts.get(key, 0) + 1
+    if claims:
+        lines += ["", f"{len(claims)} claim(s): " + ", ".join(f"{n} {v}" for v, n in counts.items()) + "."]
+    for sentence in reading:
+        lines += ["", sentence]
+    return lines + [""]
