@@ -42,18 +42,38 @@ def timings():
 
 
 def test_stage_words_name_every_mark_of_each_familys_timeline(timings):
+    """Every mark the family's timeline draws (views.timeline_text: D, R, =, E, -, C, as its rows
+    need them) has a word in the view, and the word is not the mark itself."""
+    seen = set()
     for t in timings:
-        marks = [m for m, _ in pipeline_html.view(t.result)["stages"]]
-        assert {"D", "R", "E", "C"} <= set(marks), (t.cpu, marks)
+        stages = dict(pipeline_html.view(t.result)["stages"])
+        width = 72
+        chart = [line[:width] for line in views.timeline_text(t.result, width=width).splitlines()[1:]]
+        drawn = set("".join(chart)) - {" "}
+        assert drawn, t.cpu
+        for mark in drawn:
+            assert stages.get(mark, "").strip() not in ("", mark), (t.cpu, mark, stages)
+        seen |= drawn
+    assert {"=", "-"} & seen  # the loops make some instruction wait or finish before it retires
 
 
 def test_every_stall_cause_a_row_shows_is_explained(timings):
+    """A cause's help is an explanation in words, not the cause's own name (the view once fell back
+    to the name, so every cause seemed explained)."""
+    shown = 0
     for t in timings:
         v = pipeline_html.view(t.result)
         helps = dict(v["causes"])
         for row in views.timeline_rows(t.result):
-            assert row["cause"] in helps
-            assert row["cause"] == "none" or helps[row["cause"]], (t.cpu, row["cause"])
+            cause = row["cause"]
+            assert cause in helps
+            if cause == "none" and v["family"] != "p5":  # the P5's "none" means paired: explained too
+                continue
+            text = helps[cause].strip()
+            assert text and text not in (cause, cause.replace("_", " ")), (t.cpu, cause, text)
+            assert len(text.split()) >= 3, (t.cpu, cause, text)  # a phrase, not a label
+            shown += 1
+    assert shown  # the loops stall for some reason on some CPU
 
 
 def test_p5_lanes_agree_with_the_models_pipe_counters(timings):

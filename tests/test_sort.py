@@ -219,10 +219,21 @@ def test_bad_scenes_are_one_error_naming_file_line_and_field(tmp_path, edit, mes
         load_scene(p)
 
 
-def test_sweep_emulation_is_the_table_run(tmp_path):
-    s = load_scene(write(tmp_path))
-    emulation, units = KINDS["sort"].sweep_emulation(s, "radix8")
-    assert units == 16 and emulation.entry == "radix8_sort" and len(emulation.bounds) == 2
+def test_sweep_emulation_is_the_table_run(tiny):
+    """A sweep point of a sort variant times what the scene's table times: the same emulation (first
+    distribution, table size, the copy then the sort) gives the table's counters on every machine."""
+    from sim.cpus import make_model
+    from sim.cpus.machine import MachineKey
+    from sim.timing.kernel import time_emulation
+
+    s = tiny.scene
+    for variant in ("quicksort", "radix8"):  # quicksort's work depends on the keys, radix8's on the size
+        emulation, units = KINDS["sort"].sweep_emulation(s, variant)
+        assert units == s.table_size and len(emulation.bounds) == 2
+        for key in tiny.cpu_keys:
+            m = MachineKey.parse(key)
+            swept = time_emulation(emulation, make_model(m.label, m.memory)).last
+            assert swept == tiny.timing(variant, s.distributions[0], s.table_size, key).counters, (variant, key)
 
 
 def test_report_writes_every_format(tmp_path):

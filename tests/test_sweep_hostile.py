@@ -356,8 +356,25 @@ def test_a_table_without_fingerprints_stays_readable_and_its_points_are_recomput
 
 
 def test_the_committed_l2_sweep_table_is_still_readable():
-    rows = sweep.read_rows(Path(__file__).resolve().parent.parent / "sweeps" / "l2-size")
-    assert rows and all(r["point"] for r in rows)
+    """This version reads the committed table as its own: one row per point of the spec beside it,
+    each with the coordinates its id names, no error, whole-number counters and their per-pixel
+    figure, and the CSV copy saying the same."""
+    import csv
+
+    root = Path(__file__).resolve().parent.parent / "sweeps"
+    rows = sweep.read_rows(root / "l2-size")
+    spec = sweep.load_spec(root / "l2-size.toml")
+    assert sorted(r["point"] for r in rows) == sorted(p["point"] for p in spec.points)
+    points = {p["point"]: p for p in spec.points}
+    for r in rows:
+        coords = points[r["point"]]["coords"]
+        assert {k: str(r[k]) for k in coords} == {k: str(v) for k, v in coords.items()}, r["point"]
+        assert not r["error"] and r["fingerprint"] and r["machine"].startswith(r["cpu"] + "{")
+        assert isinstance(r["cycles"], int) and r["cycles"] > 0 and r["pixels"] > 0
+        assert r["cycles_per_pixel"] == r["cycles"] / r["pixels"]
+    with open(root / "l2-size.csv", newline="") as f:
+        copy = list(csv.DictReader(f))
+    assert [(c["point"], int(c["cycles"])) for c in copy] == [(r["point"], r["cycles"]) for r in rows]
 
 
 def test_editing_a_scene_file_or_a_preset_changes_its_points_fingerprint(tmp_path, monkeypatch):
@@ -382,7 +399,7 @@ def test_editing_a_scene_file_or_a_preset_changes_its_points_fingerprint(tmp_pat
     assert all(p["fingerprint"] != after[p["point"]] for p in sweep.load_spec(spec).points)
 
 
-def test_a_model_change_makes_stored_points_stale(tmp_path):
+def test_a_model_change_makes_stored_points_stale(tmp_path, monkeypatch):
     # the counters depend on the model's code and tables, not only on the scene and presets: a
     # sweep resumed after a model change must recompute (it once kept the old counters)
     model = tmp_path / "sim"
@@ -395,3 +412,14 @@ def test_a_model_change_makes_stored_points_stale(tmp_path):
     (model / "notes.txt").write_text("not part of the model")
     table.write_text(table.read_text().replace("entries = 41", "entries = 40", 1))
     assert sweep.model_hash(model) == before
+    # a point stored by one model is recomputed by another, not served from the table
+    path = kernel_spec(tmp_path, kernels=(50,))
+    first = _run(tmp_path, path)
+    assert first.computed == 1 and not first.rows[0]["error"]
+    assert _run(tmp_path, path).computed == 0  # the same model: served
+    table.write_text(table.read_text().replace("entries = 40", "entries = 41", 1))
+    monkeypatch.setattr(sweep, "MODEL_DIR", model)  # the edited copy is the model now
+    again = _run(tmp_path, path)
+    assert (again.computed, again.changed) == (1, 1)
+    assert again.rows[0]["fingerprint"] != first.rows[0]["fingerprint"]
+    assert _run(tmp_path, path).computed == 0
