@@ -26,7 +26,12 @@ STALL_COLUMNS = [("stall_dependency", "dep"), ("stall_port", "port"), ("stall_de
                  ("stall_partial_register", "partial"), ("stall_memory", "memory"),
                  ("stall_store_forward", "fwd"), ("stall_mispredict", "branch")]
 EXPLAIN_COUNTERS = ["uops", "msrom_uops", "decode_groups", "l1d_load_misses", "l1d_store_misses", "l2_misses", "dram_bus_cycles",
-                    "stall_memory", "stall_partial_register", "mispredicts"]
+                    "stall_memory", "stall_partial_register", "mispredicts",
+                    # the P5's (no other family counts them): 0F instructions such as BSR and SHRD pair on
+                    # neither pipe of the P54C and cost it a prefix decode clock (docs/sources/p5.md:
+                    # INTEL-PAIR, AF97-PFX)
+                    "alone", "pairs", "stall_prefix", "stall_write_buffer"]
+COUNTER_WORDS = {"alone": "instructions issued alone", "pairs": "pairs issued", "stall_prefix": "prefix stall"}
 
 
 def _f(x: float, digits: int = 2) -> str:
@@ -50,7 +55,7 @@ def evaluate_claims(result: SceneResult) -> list[dict]:
 def _claim_sentence(c: dict) -> str:
     from sim.scenes.claims import sentence
 
-    return sentence(c, _cpu_label)
+    return sentence(c, _cpu_label, lambda n: COUNTER_WORDS.get(n, n.replace("_", " ")))
 
 
 def checked_claims(result: SceneResult) -> tuple[list[dict], list[dict]]:
