@@ -51,7 +51,9 @@ Format::
     cpus = ["k6-2-300", "pentium2-233:edo"]   # the machines its words cover: presets (any memory)
     families = ["k6"]               # ... and/or whole families (p5 p6 k6)
     memories = ["sdram-pc100"]      # optional: only with these memory presets
-    # (cpu = "..." is accepted as a one-entry cpus). At least one covered machine must be in run.cpus.
+    # (cpu = "..." is accepted as a one-entry cpus). Every entry of cpus and families must match a
+    # machine of run.cpus or run.machine (within memories): a claim naming one the scene does not
+    # run is refused, so no part of it goes unchecked (sim.scenes.claims.unrun).
 
 Generators are those of sim.scenes.raster (random_scene, coplanar_far_scene, ...) with the keys above as
 their arguments. Metrics: "visibility" (wrong winners), "depth_error" (stored vs exact depth),
