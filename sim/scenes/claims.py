@@ -303,7 +303,7 @@ def verdict_summary(claims: list[dict], cpu_label, reading: list[str]) -> list[s
     numbers. The detail follows in the report's own sections."""
     if not claims and not reading:
         return []
-    lines = ["## Verdicts", ""]
+    lines = ["## Verdicts" if claims else "## In short", ""]  # a scene without claims: the reading alone
     for c in claims:
         per = c.get("per_cpu")
         if per is None:  # a claim about results, not timings: the same on every machine
