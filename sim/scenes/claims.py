@@ -337,5 +337,5 @@ def verdict_summary(claims: list[dict], cpu_label, reading: list[str]) -> list[s
     if claims:
         lines += ["", f"{len(claims)} claim(s): " + ", ".join(f"{n} {v}" for v, n in counts.items()) + "."]
     for sentence in reading:
-        lines += ["", sentence]
+        lines += ([] if lines[-1] == "" else [""]) + [sentence]
     return lines + [""]
