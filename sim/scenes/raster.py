@@ -146,10 +146,11 @@ def _unit_triangles(rng: np.random.Generator, n: int) -> np.ndarray:
     base = np.array([0.0, 2 * np.pi / 3, 4 * np.pi / 3])
     ang = base + rng.uniform(-0.45, 0.45, (n, 3)) + rng.uniform(0, 2 * np.pi, (n, 1))
     rad = rng.uniform(0.6, 1.0, (n, 3))
-    pts = np.stack([rad * np.cos(ang), rad * np.sin(ang)], axis=-1)
+    sin_a, cos_a = portable_math.sin_cos(ang)
+    pts = np.stack([rad * cos_a, rad * sin_a], axis=-1)
     stretch = rng.uniform(1.0, 3.0, n)
     theta = rng.uniform(0, np.pi, n)
-    c, s = np.cos(theta), np.sin(theta)
+    s, c = portable_math.sin_cos(theta)
     u = pts[..., 0] * c[:, None] + pts[..., 1] * s[:, None]
     v = -pts[..., 0] * s[:, None] + pts[..., 1] * c[:, None]
     u = u * stretch[:, None]
@@ -168,7 +169,7 @@ def _plane_depths(rng, xy, centre_depth, variation, z_range) -> np.ndarray:
     rel = xy - centre[:, None, :]
     radius = np.sqrt((rel ** 2).sum(-1)).max(axis=1)
     phi = rng.uniform(0, 2 * np.pi, len(xy))
-    g = np.stack([np.cos(phi), np.sin(phi)], -1) * (variation / (2 * np.maximum(radius, 1e-9)))[:, None]
+    g = portable_math.unit_vectors(phi) * (variation / (2 * np.maximum(radius, 1e-9)))[:, None]
     z = centre_depth[:, None] + (rel * g[:, None, :]).sum(-1)
     lo, hi = z_range
     return np.clip(z, lo, np.nextafter(hi, 0.0))
@@ -199,7 +200,7 @@ def random_scene(width: int, height: int, triangles: int, depth_complexity: floa
     rng = np.random.default_rng(seed)
     n = triangles
     shapes = _unit_triangles(rng, n)
-    rel_area = rng.lognormal(0.0, 1.0, n)
+    rel_area = portable_math.exp_array(rng.normal(0.0, 1.0, n))
     rel_area /= rel_area.sum()
     centres = np.stack([rng.uniform(-0.1 * width, 1.1 * width, n),
                         rng.uniform(-0.1 * height, 1.1 * height, n)], -1)
@@ -235,7 +236,7 @@ def coplanar_far_scene(width: int, height: int, pairs: int = 40, seed: int = 0, 
         raise ValueError(f"pairs must be 1..{MAX_TRIANGLES // 2}")
     rng = np.random.default_rng(seed)
     shapes = _unit_triangles(rng, pairs)
-    side = np.sqrt(rng.lognormal(0.0, 0.5, pairs) * 1.5 * width * height / pairs)
+    side = np.sqrt(portable_math.exp_array(rng.normal(0.0, 0.5, pairs)) * 1.5 * width * height / pairs)
     centres = np.stack([rng.uniform(0.1 * width, 0.9 * width, pairs),
                         rng.uniform(0.1 * height, 0.9 * height, pairs)], -1)
     far_xy = centres[:, None, :] + shapes * side[:, None, None]
@@ -245,7 +246,7 @@ def coplanar_far_scene(width: int, height: int, pairs: int = 40, seed: int = 0, 
     variation = rng.uniform(0.0, 0.2, pairs) * (hi - lo)
     phi = rng.uniform(0, 2 * np.pi, pairs)
     radius = np.sqrt(((far_xy - centres[:, None, :]) ** 2).sum(-1)).max(axis=1)
-    g = np.stack([np.cos(phi), np.sin(phi)], -1) * (variation / (2 * radius))[:, None]
+    g = portable_math.unit_vectors(phi) * (variation / (2 * radius))[:, None]
 
     def plane(xy):
         return centre_depth[:, None] + ((xy - centres[:, None, :]) * g[:, None, :]).sum(-1)
@@ -309,7 +310,7 @@ def near_far_scene(width: int, height: int, triangles: int = 200, seed: int = 0)
     rng = np.random.default_rng(seed)
     n = triangles
     shapes = _unit_triangles(rng, n)
-    side = np.sqrt(rng.lognormal(0.0, 0.7, n) * 3.0 * width * height / n / portable_math.exp(0.245))
+    side = np.sqrt(portable_math.exp_array(rng.normal(0.0, 0.7, n)) * 3.0 * width * height / n / portable_math.exp(0.245))
     centres = np.stack([rng.uniform(-0.05 * width, 1.05 * width, n),
                         rng.uniform(-0.05 * height, 1.05 * height, n)], -1)
     xy = centres[:, None, :] + shapes * side[:, None, None]
@@ -341,7 +342,7 @@ def tiny_scene(width: int, height: int, triangles: int = 2000, seed: int = 0) ->
         length = rng.uniform(1.5, 6.0, m)
         thick = rng.uniform(0.01, 0.2, m)
         ang = rng.uniform(0, np.pi, m)
-        d = np.stack([np.cos(ang), np.sin(ang)], -1)
+        d = portable_math.unit_vectors(ang)
         nrm = np.stack([-d[:, 1], d[:, 0]], -1)
         base = xy[sliver, 0]
         xy[sliver] = np.stack([base, base + d * length[:, None], base + nrm * thick[:, None]], 1)

@@ -15,7 +15,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from sim import reference as ref
-from sim import stats
+from sim import portable_math, stats
 from sim.scenes.raster import CLEAR_VALUE, VARIANTS, Spans, expand_spans, stored_depth
 
 FORMATS = ("fp16z", "z16", "z32")  # the fixed-point formats fp16_precision tabulates
@@ -256,7 +256,7 @@ def fp16_precision(depth_lo: float, depth_hi: float, bins: int, spacing: str = "
     if bins < 1:
         raise ValueError("bins must be >= 1")
     if spacing == "log":
-        edges = np.geomspace(depth_lo, depth_hi, bins + 1)
+        edges = portable_math.geomspace(depth_lo, depth_hi, bins + 1)
         mid = np.sqrt(edges[:-1] * edges[1:])
     else:
         edges = np.linspace(depth_lo, depth_hi, bins + 1)
@@ -271,7 +271,7 @@ def fp16_precision(depth_lo: float, depth_hi: float, bins: int, spacing: str = "
             w = quantization_step(lo, f) / lo
         if f == "fp16z":
             # the step doubles at each power of two from 2^11 units (2^-21) up: step/depth = 2^-11 there
-            e_lo = np.floor(np.log2(np.maximum(lo, 2.0 ** -21)))
+            e_lo = (np.frexp(np.maximum(lo, 2.0 ** -21))[1] - 1).astype(np.float64)  # floor(log2), exactly
             has_boundary = (2.0 ** (e_lo + 1) < hi) | ((2.0 ** e_lo == lo) & (lo >= 2.0 ** -21))
             w = np.where(has_boundary, np.maximum(w, 2.0 ** -11), w)
         worst[f] = tuple(w.tolist())
