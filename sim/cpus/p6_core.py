@@ -58,6 +58,7 @@ from sim.memory.replay import LOG_OFF, LOG_RECORD, LOG_REPLAY, logged_service, r
 from sim.cpus.lowering import (
     BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, DEC_SIMPLE, LOAD, NREGS, OCC_SCALE,
     R_ELEMENT, R_FAST, R_FAST_START, R_KIND, R_START, REG_FLAGS, REG_ST0, REP_FAST, REP_NONE, SIDE, STA, STD,
+    REG_X87_ORDER,
 )
 from sim.cpus.contract import (
     C_NAMES, NC, C_CYCLES, C_INSTRUCTIONS, C_UOPS, C_DECODE_GROUPS, C_DECODER0, C_DECODER1, C_DECODER2,
@@ -785,6 +786,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 rid = u_dst[u, j, 0]
                 if rid == REG_ST0:
                     rid = REG_ST0 + ((top_after + u_dst[u, j, 1]) & 7)
+                elif rid == REG_X87_ORDER and reg_ready[rid] > complete:
+                    continue  # the order token: ready when every x87 writer is (lowering.py)
                 reg_ready[rid] = complete
             if u_swap[u] != 0:
                 # FXCH: done in the register renamer (AF29n note f), it swaps which stack slot holds
