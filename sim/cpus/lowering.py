@@ -30,7 +30,9 @@ length-changing-prefix decode of an LCP instruction. When the row's throughput e
 instruction's first compute uop (else its first uop) holds a non-pipelined resource for the row's
 throughput: the next instruction of the same mnemonic using the same port waits for it (the
 divider: DIV 37; FMUL 2; LOOP 8; EMMS 5.67; CMP 1.0), other instructions are not held. Fractions
-are kept (the core counts the resource in hundredths of a cycle), so EMMS averages 5.67.
+are kept (the core counts the resource in hundredths of a cycle), so EMMS averages 5.67. A row
+whose measured throughput another mechanism of the machine explains says so (`throughput_by`) and
+holds nothing: CMP/TEST r,r and MOVD between MMX and integer registers (the register read stall).
 """
 
 from __future__ import annotations
@@ -247,7 +249,10 @@ def p6_uops(rec: InsnRecord, match: Match, load_latency: int, limits: P6Limits |
         kinds[i] = SIDE
     chain = [i for i in compute if i not in side]
     holder, occ = -1, 0
-    if row.throughput and row.throughput > natural_throughput(rec, row, kinds, ports, limits) + 1e-9:
+    # `throughput_by = "register_read"`: the machine's register read stall sets the measured rate
+    # (p6_machine.toml [rob.register_read]), not a unit the instruction holds
+    if row.throughput and not row.extra.get("throughput_by") and \
+            row.throughput > natural_throughput(rec, row, kinds, ports, limits) + 1e-9:
         holder = compute[0] if compute else 0
         occ = int(round(row.throughput * OCC_SCALE))
     out = []
