@@ -88,3 +88,47 @@ def test_loading_the_control_word_before_each_divide_costs_its_sourced_clocks(ke
     if fdiv is not None:
         assert without == pytest.approx(fdiv, abs=0.5)
     assert with_ - without == pytest.approx(fldcw, abs=0.5)
+
+
+# ---- issue 36: the x87 stack carries the dependencies the control word's rule relies on ----------
+# The rule (sim/cpus/lowering.py fpcw_sources, P6 only): FLDCW waits for every older x87 instruction
+# and every later one that rounds waits for it. In the issue's loop the FDIVP's result is discarded
+# by FSTP ST(0) (or FFREE ST(0) + FINCSTP, or FFREEP ST(0)); the next FLDCW must still wait for the
+# divide. Expected figures are the sum of the table rows' latencies along that chain, taken from the
+# model's own table (not from a run): the FLDCW's compute after its load, an FLD1, the second FLD1
+# a clock later (both rows are port-0 only and wait for the same FLDCW), the FDIVP at 24 bits (the
+# loop's control word is the zero word at [ESI]: precision control 00), then the discarding
+# instruction's chain to the next FLDCW. Before issue 36, the loop ran at the FDIVP's throughput.
+
+ISSUE_LOOP = """top:
+    fldcw [esi]
+    fld1
+    fld1
+    fdivp st(1), st
+    {discard}
+    dec ecx
+    jnz top
+"""
+
+
+def row_latency(table, mnemonic: str, signature: str, precision: int | None = None) -> int:
+    match = table.lookup(mnemonic, signature)
+    if precision is not None:
+        match = match.at_precision(precision)
+    row = match.row
+    return int(row.latency) if row.latency is not None else row.uops  # lowering: 1 per compute uop
+
+
+@pytest.mark.parametrize("cpu", ["pentium2-233", "pentium3-500"])
+@pytest.mark.parametrize("discard", ["fstp st(0)", "ffreep st(0)", "ffree st(0)\n    fincstp"])
+def test_fldcw_waits_for_a_divide_whose_result_was_discarded(cpu, discard):
+    from sim.cpus import make_model
+    from sim.timing import loop
+    model = make_model(cpu)
+    table = model.table
+    chain = (row_latency(table, "fldcw", "m16") - model.l1_latency + row_latency(table, "fld1", "") + 1
+             + row_latency(table, "fdivp", "sti,st", precision=0))
+    if discard == "fstp st(0)":  # FSTP ST(0) reads the quotient: the next FLDCW waits for it too
+        chain += row_latency(table, "fstp", "sti")
+    cycles = loop.time_body(ISSUE_LOOP.format(discard=discard), [cpu])[0].cycles_per_iteration
+    assert cycles == pytest.approx(chain, abs=0.05)

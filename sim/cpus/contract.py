@@ -40,7 +40,7 @@ C_NAMES = ("cycles", "instructions", "uops", "decode_groups", "decoder0", "decod
            "stall_memory", "stall_store_forward", "branches", "mispredicts", "l1d_loads", "l1d_load_misses",
            "l1d_stores", "l1d_store_misses", "l2_accesses", "l2_misses", "dram_fills", "dram_writebacks",
            "dram_bus_cycles", "l1i_misses", "lcp_stalls", "store_forwards", "stall_fetch", "dram_page_hits",
-           "dram_page_misses", "dtlb_misses")
+           "dram_page_misses", "dtlb_misses", "stall_register_read")
 NC = len(C_NAMES)
 # numba needs plain integer globals, not a dict
 C_CYCLES = 0
@@ -85,6 +85,7 @@ C_STALL_FETCH = 38
 C_DRAM_PAGE_HITS = 39    # line fills whose DRAM row was open
 C_DRAM_PAGE_MISSES = 40  # the other line fills
 C_DTLB_MISSES = 41       # data accesses that missed the data TLB (each walked the page tables)
+C_STALL_REGISTER_READ = 42  # P6: rename held by reads of completed registers (rob.register_read)
 
 # per-static-instruction columns (for explain)
 S_NAMES = ("executions", "uops", "decoder0", "decoder1", "decoder2", "msrom", "issue_to_retire", "stall_dependency",

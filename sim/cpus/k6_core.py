@@ -86,7 +86,8 @@ NUNITS = 6
 # issue-slot bits (u_ports of a lowered op): the contract's "port" counters 0-4
 X, Y, LOAD_SLOT, STORE_SLOT, BRANCH_SLOT = 1, 2, 4, 8, 16
 
-# the contract's counters first (same indices), then the K6's own
+# the contract's counters first (same indices), then the K6's own (numba's cache keys on this file's
+# text, not the contract's: a counter added to the contract needs an edit here to recompile)
 C_NAMES = SHARED_C_NAMES + ("fpu_ops", "vector_cycles", "nop_slots", "l3_accesses", "l3_misses", "bus_writes")
 NC = len(C_NAMES)
 C_FPU_OPS = len(SHARED_C_NAMES)

@@ -30,7 +30,9 @@ length-changing-prefix decode of an LCP instruction. When the row's throughput e
 instruction's first compute uop (else its first uop) holds a non-pipelined resource for the row's
 throughput: the next instruction of the same mnemonic using the same port waits for it (the
 divider: DIV 37; FMUL 2; LOOP 8; EMMS 5.67; CMP 1.0), other instructions are not held. Fractions
-are kept (the core counts the resource in hundredths of a cycle), so EMMS averages 5.67.
+are kept (the core counts the resource in hundredths of a cycle), so EMMS averages 5.67. A row
+whose measured throughput another mechanism of the machine explains says so (`throughput_by`) and
+holds nothing: CMP/TEST r,r and MOVD between MMX and integer registers (the register read stall).
 """
 
 from __future__ import annotations
@@ -58,10 +60,13 @@ DECODER_NAMES = {"simple": DEC_SIMPLE, "complex": DEC_COMPLEX, "msrom": DEC_MSRO
                  "short": DEC_SIMPLE, "long": DEC_COMPLEX, "vector": DEC_MSROM}
 
 # register ids: GPRs 0-7, flags 8, x87 stack slots 9-16 (physical, via TOP), fpsw 17, fpcw 18, mm 19-26,
-# xmm 27-34, anything else 35
+# xmm 27-34, anything else 35, and the x87 order token 36: written by every x87 instruction where
+# the control word is not renamed (the P6), ready when ALL its writers are done, not the newest
+# (a core keeps the latest completion), so that a control-word writer waits for every older x87
+# instruction even when a later one overwrote its stack slot (FFREE, FSTP ST(i), a reused slot)
 GPRS = ("eax", "ecx", "edx", "ebx", "esp", "ebp", "esi", "edi")
-REG_FLAGS, REG_ST0, REG_FPSW, REG_FPCW, REG_MM0, REG_XMM0, REG_OTHER = 8, 9, 17, 18, 19, 27, 35
-NREGS = 36
+REG_FLAGS, REG_ST0, REG_FPSW, REG_FPCW, REG_MM0, REG_XMM0, REG_OTHER, REG_X87_ORDER = 8, 9, 17, 18, 19, 27, 35, 36
+NREGS = 37
 PART_MASK = {"low8": 1, "high8": 2, "word": 3, "dword": 15, "full": 15}
 FLAG_BITS = {"CF": 1, "PF": 2, "AF": 4, "ZF": 8, "SF": 16, "OF": 32, "DF": 64, "IF": 128, "TF": 256}
 
@@ -142,7 +147,7 @@ class StaticProgram:
     s_nsrc: np.ndarray
     s_src: np.ndarray      # [n, MAX_OPS, 4]: reg id, mask, uop offset, x87 relative index (-1)
     s_ndst: np.ndarray
-    s_dst: np.ndarray      # same layout
+    s_dst: np.ndarray      # same layout; an x87 index is relative to TOP after the instruction
     u_kind: np.ndarray
     u_ports: np.ndarray
     u_lat: np.ndarray
@@ -244,7 +249,10 @@ def p6_uops(rec: InsnRecord, match: Match, load_latency: int, limits: P6Limits |
         kinds[i] = SIDE
     chain = [i for i in compute if i not in side]
     holder, occ = -1, 0
-    if row.throughput and row.throughput > natural_throughput(rec, row, kinds, ports, limits) + 1e-9:
+    # `throughput_by = "register_read"`: the machine's register read stall sets the measured rate
+    # (p6_machine.toml [rob.register_read]), not a unit the instruction holds
+    if row.throughput and not row.extra.get("throughput_by") and \
+            row.throughput > natural_throughput(rec, row, kinds, ports, limits) + 1e-9:
         holder = compute[0] if compute else 0
         occ = int(round(row.throughput * OCC_SCALE))
     out = []
@@ -266,6 +274,14 @@ def p6_uops(rec: InsnRecord, match: Match, load_latency: int, limits: P6Limits |
     return out
 
 
+def after_pop(rel: int, delta: int) -> int:
+    """A destination's x87 index relative to TOP after the instruction, as the cores map
+    destinations. The decoder names a popping instruction's destination before the pop (FADDP
+    ST(1),ST writes st1, which is ST(0) afterwards; FSTP ST(0) writes the slot the pop frees, ST(7)
+    afterwards) and a pushing one's after the push (FLD writes st0)."""
+    return (rel + delta) & 7 if delta < 0 else rel
+
+
 # x87 instructions that neither round nor compute: the control word does not concern them
 _NO_CONTROL_WORD = frozenset("fxch ffree ffreep fincstp fdecstp fnop fnclex fnstsw wait".split())
 
@@ -274,14 +290,13 @@ def fpcw_sources(rec: InsnRecord) -> list[tuple[int, int]]:
     """Extra (register id, x87 relative index) sources where the x87 control word is not renamed
     (the P6: Intel's optimization manual, "On the Pentium III processor, the FLDCW instruction is
     an expensive operation"; docs/sources/p6.md "x87 control word"). An instruction that writes
-    the control word (FLDCW, FLDENV, FRSTOR, FNINIT) waits for every older x87 instruction: for
-    the status word they all write and for the eight stack slots; every x87 instruction that
-    reads the control word (its rounding and precision) waits for the newest write of it."""
+    the control word (FLDCW, FLDENV, FRSTOR, FNINIT) waits for every older x87 instruction (the
+    order token every x87 instruction writes, REG_X87_ORDER); every x87 instruction that reads
+    the control word (its rounding and precision) waits for the newest write of it."""
     written = {r.full for r in rec.regs_written}
     read = {r.full for r in rec.regs_read}
-    if "fpcw" in written:  # what it does not read already (FNSAVE reads them all)
-        return ([(REG_FPSW, -1)] if "fpsw" not in read else []) + \
-            [(REG_ST0, k) for k in range(8) if f"st{k}" not in read]
+    if "fpcw" in written:
+        return [(REG_X87_ORDER, -1)]
     if "fpcw" in read:
         return []  # FNSTCW/FNSTENV/FNSAVE already read it
     if rec.mnemonic in _NO_CONTROL_WORD:
@@ -375,10 +390,14 @@ def lower(records: list[InsnRecord], table: InstructionTable, load_latency: int 
         dsts = []
         for ref in rec.regs_written:
             rid, rel = reg_id(ref.name, ref.full)
+            if rel >= 0:
+                rel = after_pop(rel, rec.fpu_stack_delta)
             w = sides[0] if (sides and ref.full == "esp") else writer  # the stack-pointer adder
             dsts.append((rid, PART_MASK.get(ref.part, 15), w, rel))
         if rec.flags_written:
             dsts.append((REG_FLAGS, flag_mask(rec.flags_written), writer, -1))
+        if fpcw_serializes and rec.is_x87:  # done when its last uop is (fpcw_sources)
+            dsts.append((REG_X87_ORDER, 15, len(us) - 1, -1))
         if len(srcs) > MAX_OPS or len(dsts) > MAX_OPS:
             raise LoweringError(f"pc {rec.pc:#010x} ({rec.mnemonic} {rec.op_str}): {len(srcs)} register sources "
                                 f"and {len(dsts)} destinations, more than the {MAX_OPS} the timing cores track")

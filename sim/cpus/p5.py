@@ -195,7 +195,8 @@ def p6_aliases(c: dict[str, int]) -> dict[str, int]:
     operand waits are dependency stalls, prefix and fetch clocks decode stalls, write-buffer waits
     store-buffer stalls; what the P5 does not have (ports 2-4, microcode, rename stalls) is 0."""
     zero = ("port2", "port3", "port4", "decoder2", "msrom_uops", "stall_rob", "stall_rs", "stall_partial_register",
-            "stall_partial_flags", "stall_port", "stall_store_forward", "lcp_stalls", "store_forwards")
+            "stall_partial_flags", "stall_port", "stall_store_forward", "lcp_stalls", "store_forwards",
+            "stall_register_read")
     a = {name: 0 for name in zero}
     a.update(decode_groups=c["pairs"] + c["alone"], port0=c["u_pipe"], port1=c["v_pipe"], decoder0=c["u_pipe"],
              decoder1=c["v_pipe"], stall_dependency=c["stall_agi"] + c["stall_fpu"],

@@ -107,6 +107,8 @@ class P6Model(FamilyModel):
         P[core.P_RSB] = m["branch"]["return_stack_entries"]
         P[core.P_MSROM_RATE] = self.estimates["msrom_rate"]
         P[core.P_BIND_TIE] = self.estimates["p01_tie_port"]
+        P[core.P_RRF_READS] = m["rob"]["register_read"]["max_completed_register_reads_per_cycle"]
+        P[core.P_RRF_RECENT] = m["rob"]["register_read"]["recent_groups"]
         P[core.P_EXIT_ADDR] = EXIT_ADDR
         return P
 

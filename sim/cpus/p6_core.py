@@ -58,6 +58,7 @@ from sim.memory.replay import LOG_OFF, LOG_RECORD, LOG_REPLAY, logged_service, r
 from sim.cpus.lowering import (
     BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, DEC_SIMPLE, LOAD, NREGS, OCC_SCALE,
     R_ELEMENT, R_FAST, R_FAST_START, R_KIND, R_START, REG_FLAGS, REG_ST0, REP_FAST, REP_NONE, SIDE, STA, STD,
+    REG_X87_ORDER, REG_FPSW, REG_MM0, REG_OTHER,
 )
 from sim.cpus.contract import (
     C_NAMES, NC, C_CYCLES, C_INSTRUCTIONS, C_UOPS, C_DECODE_GROUPS, C_DECODER0, C_DECODER1, C_DECODER2,
@@ -66,7 +67,7 @@ from sim.cpus.contract import (
     C_STALL_MISPREDICT, C_STALL_MEMORY, C_STALL_STORE_FORWARD, C_BRANCHES, C_MISPREDICTS, C_L1D_LOADS,
     C_L1D_LOAD_MISSES, C_L1D_STORES, C_L1D_STORE_MISSES, C_L2_ACCESSES, C_L2_MISSES, C_DRAM_FILLS,
     C_DRAM_WRITEBACKS, C_DRAM_BUS_CYCLES, C_L1I_MISSES, C_LCP_STALLS, C_STORE_FORWARDS, C_STALL_FETCH,
-    C_DRAM_PAGE_HITS, C_DRAM_PAGE_MISSES, C_DTLB_MISSES,
+    C_DRAM_PAGE_HITS, C_DRAM_PAGE_MISSES, C_DTLB_MISSES, C_STALL_REGISTER_READ,
     S_NAMES, NS, S_EXECUTIONS, S_UOPS, S_DECODER0, S_DECODER1, S_DECODER2, S_MSROM, S_ISSUE_TO_RETIRE,
     S_STALL_DEPENDENCY, S_STALL_PORT, S_STALL_DECODE, S_STALL_PARTIAL, S_STALL_MEMORY, S_STALL_MISPREDICT,
     S_MISPREDICTS, S_PORT0, S_PORT1, S_PORT2, S_PORT3, S_PORT4, S_DECODE_TO_RETIRE, S_STALL_STORE_FORWARD,
@@ -78,8 +79,9 @@ from sim.cpus.shared_core import FW, WINDOW, book_port, btb_alloc, queued_store,
 (P_ROB, P_RS, P_RENAME, P_RETIRE, P_QUEUE, P_FETCH_BLOCK, P_L1_LAT, P_L2_LAT, P_DRAM_LAT, P_DRAM_LINE,
  P_DRAM_WB, P_MSHR, P_SB, P_MISPREDICT, P_TAKEN_BUBBLE, P_BTB_SETS, P_BTB_WAYS, P_HIST_BITS, P_PARTIAL_EXTRA,
  P_FWD_FAIL, P_LCP, P_STATIC_REDIRECT, P_HAS_L2, P_L2_BUS, P_RSB, P_MSROM_RATE, P_EXIT_ADDR, P_FWD_LAT,
- P_L2_MISS_DETECT, P_DRAM_LAT_HIT, P_DRAM_LINE_HIT, P_DRAM_WB_HIT, P_BIND_TIE, P_TLB_WALK) = range(34)
-NPARAMS = 34
+ P_L2_MISS_DETECT, P_DRAM_LAT_HIT, P_DRAM_LINE_HIT, P_DRAM_WB_HIT, P_BIND_TIE, P_TLB_WALK, P_RRF_READS,
+ P_RRF_RECENT) = range(36)
+NPARAMS = 36
 
 # Loop-carried scalar state: kept in an int64 vector between calls, so a trace can be timed in
 # chunks (a streamed emulation) exactly as in one call (see :func:`new_state`).
@@ -87,8 +89,8 @@ NPARAMS = 34
  V_LAST_STA_DONE, V_BUS_FREE, V_L2BUS_FREE, V_FW_N, V_RSB_TOP, V_DEC_CYCLE, V_DEC_POS, V_DEC_LIMIT,
  V_FETCH_RESTART, V_FE_READY, V_LAST_ILINE, V_REN_CYCLE, V_REN_COUNT, V_RET_CYCLE, V_RET_COUNT, V_U_GLOBAL,
  V_ROB_POS, V_Q_POS, V_SEG, V_SEG_START_RETIRE, V_MAX_RETIRE, V_PREV_PC, V_REP_SID, V_REP_COUNT, V_REP_NEXT,
- V_REP_MODE, V_REP_ADDR, V_BOUND0, V_BOUND1) = range(37)
-NSTATE = 37
+ V_REP_MODE, V_REP_ADDR, V_BOUND0, V_BOUND1, V_RR_MASK, V_RR_N, V_RR_GROUP) = range(40)
+NSTATE = 40
 # V_REP_MODE bits: fast strings possible (kind, alignment, distance), direction seen forward / backward
 REP_CAPABLE, REP_FORWARD, REP_BACKWARD = 1, 2, 4
 FAST_MIN_COUNT = 64  # fast strings need ECX >= 64 (Intel SDM vol. 3 sec. 8.2.4; Agner Fog sec. 26.3)
@@ -113,7 +115,7 @@ def new_state(P: np.ndarray, units: int) -> tuple:
     rsb[0] = P[P_EXIT_ADDR]  # the harness's call into the kernel: its return is predictable
     sv[V_RSB_TOP] = 1
     return (sv,
-            np.zeros(NREGS, np.int64),            # reg_ready
+            np.zeros(2 * NREGS, np.int64),        # reg_ready; then each register's writer's rename group
             np.full(NREGS, 15, np.int64),         # reg_pmask: bytes written by the last (partial) writer
             np.zeros(NREGS, np.int64),            # reg_pretire: its retire cycle
             np.zeros(NREGS, np.int64),            # reg_zeroed: upper bytes known zero (XOR/SUB idiom)
@@ -327,6 +329,25 @@ def _operand_lists(s_nuops, s_uop0, s_nsrc, s_src, s_ndst, s_dst, u_ports, nuops
     return u_nsrc, u_src, u_ndst, u_dst, u_swap, p_nsrc, p_src, p_ndst, p_dst, p_gpr_bits, p_flags_read
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _register_reads(u, u_nsrc, u_src, top, reg_ready, t, old_group, mask, n):
+    """Add uop u's reads of completed registers to a rename group's set (`mask`, `n` distinct):
+    integer, flags, x87 and MMX/XMM registers, as Agner Fog counts them (the status and control
+    words and other pseudo-registers do not count). A register whose writer was renamed in a
+    group after `old_group` (reg_ready[NREGS + rid]) or has not completed by cycle t is free."""
+    for j in range(u_nsrc[u]):
+        rid = u_src[u, j, 0]
+        if rid == REG_ST0:
+            rid = REG_ST0 + ((top + u_src[u, j, 1]) & 7)
+        if (rid < REG_FPSW or REG_MM0 <= rid < REG_OTHER) and reg_ready[rid] <= t and \
+                reg_ready[NREGS + rid] <= old_group:
+            bit = np.int64(1) << rid
+            if mask & bit == 0:
+                mask |= bit
+                n += 1
+    return mask, n
+
+
 # error_model="numpy": no zero-divisor checks on the loop's divisions (every divisor is a machine
 # size that lowering or new_state has already divided by or indexed with); measurably faster
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -367,6 +388,10 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     bound0 = sv[V_BOUND0]  # of those, the uops bound to port 0 and to port 1 (_bind_port)
     bound1 = sv[V_BOUND1]
     bind_tie = P[P_BIND_TIE]
+    rr_mask = sv[V_RR_MASK]  # completed registers the current rename group reads (_register_reads)
+    rr_n = sv[V_RR_N]
+    rr_group = sv[V_RR_GROUP]  # rename groups so far
+    rrf_reads, rrf_recent = P[P_RRF_READS], P[P_RRF_RECENT]
     nstores = sv[V_NSTORES]
     sb_pos = sv[V_SB_POS]  # nstores % sb_n, kept incrementally
     last_commit = sv[V_LAST_COMMIT]
@@ -504,6 +529,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 rid = s_dst[sid, j, 0]
                 if rid < NREGS and rid != REG_ST0:
                     reg_ready[rid] = done
+                    reg_ready[NREGS + rid] = rr_group
             if done > ret_cycle:
                 ret_cycle = done
                 ret_count = 0
@@ -689,6 +715,18 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 counters[seg, C_STALL_STORE_BUFFER] += sb_ring[sb_pos] - t
                 t = sb_ring[sb_pos]
                 cause_alloc = max(cause_alloc, 2)
+            if rrf_reads > 0 and u_swap[u] == 0:
+                # register read stall (p6_machine.toml [rob.register_read]): a rename group reads at
+                # most rrf_reads completed registers per clock, so the next group waits for the rest
+                if t > ren_cycle:
+                    hold = ren_cycle + (rr_n + rrf_reads - 1) // rrf_reads
+                    if hold > t:
+                        counters[seg, C_STALL_REGISTER_READ] += hold - t
+                        t = hold
+                    rr_mask, rr_n = 0, 0
+                    rr_group += 1
+                rr_mask, rr_n = _register_reads(u, u_nsrc, u_src, top_before, reg_ready, t, rr_group - rrf_recent,
+                                                rr_mask, rr_n)
             if t > ren_cycle:
                 ren_cycle = t
                 ren_count = 0
@@ -785,7 +823,10 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 rid = u_dst[u, j, 0]
                 if rid == REG_ST0:
                     rid = REG_ST0 + ((top_after + u_dst[u, j, 1]) & 7)
+                elif rid == REG_X87_ORDER and reg_ready[rid] > complete:
+                    continue  # the order token: ready when every x87 writer is (lowering.py)
                 reg_ready[rid] = complete
+                reg_ready[NREGS + rid] = rr_group
             if u_swap[u] != 0:
                 # FXCH: done in the register renamer (AF29n note f), it swaps which stack slot holds
                 # which value without waiting for either: each value keeps its own ready time
@@ -1041,6 +1082,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     sv[V_FE_READY] = fe_ready
     sv[V_LAST_ILINE] = last_iline
     sv[V_REN_CYCLE] = ren_cycle
+    sv[V_RR_MASK] = rr_mask
+    sv[V_RR_N] = rr_n
+    sv[V_RR_GROUP] = rr_group
     sv[V_REN_COUNT] = ren_count
     sv[V_RET_CYCLE] = ret_cycle
     sv[V_RET_COUNT] = ret_count

@@ -218,6 +218,21 @@ def _source(rows: list[TimingRow], instlat: bool = False) -> tuple[str, dict[int
             thr = [f"clc\n    {t}" for t in thr]
         if row.mnemonic == "bswap":
             thr = [f"bswap {_REGS['r32'][k % 5]}" for k in range(2 * COPIES)]
+        if row.mnemonic in ("cmp", "test") and row.signature.split(",")[-1] in _IMM and not _has_mem(row) \
+                and not instlat:
+            # CMP/TEST r,imm write no register: copies rotating over registers nothing writes would
+            # add the P6 register read stall (three distinct per triplet of uops) to a figure that is
+            # the port bound (AF29); the copies read one register (P6 only: the K6 has no such stall and
+            # its rows are InstLatX64's, whose copies the K6 harness keeps)
+            thr = [f"{row.mnemonic} {_REGS[row.signature.split(',')[0]][-1]}, {_IMM[row.signature.split(',')[-1]]}"
+                   for _ in range(2 * COPIES)]
+        if row.extra.get("throughput_by") == "register_read" and not _has_mem(row):
+            # the measured rate is the P6 register read stall (p6_machine.toml [rob.register_read]):
+            # as in InstLatX64's copies, each copy reads its own register (CMP EAX,EAX / CMP EBX,EBX;
+            # MOVD MM0,EAX / MOVD MM1,EBX), which nothing in the loop writes
+            toks = row.signature.split(",")
+            thr = [f"{row.mnemonic} " + ", ".join(_REGS[t][k % (len(_REGS[t]) - 1)] for t in toks)
+                   for k in range(2 * COPIES)]
         # each benchmark at COPIES and 2*COPIES per iteration: the difference is COPIES*ITERATIONS
         # instructions with the loop overhead and the call cancelled out
         n = COPIES

@@ -19,7 +19,7 @@ from sim.timing.kernel import TimingResult
 
 STALLS = ("stall_decode", "stall_fetch", "stall_mispredict", "stall_rob", "stall_rs", "stall_store_buffer",
           "stall_partial_register", "stall_partial_flags", "stall_dependency", "stall_port", "stall_memory",
-          "stall_store_forward")
+          "stall_store_forward", "stall_register_read")
 
 
 def summary(result: TimingResult) -> dict:
@@ -52,11 +52,14 @@ _SUMMARY_STALLS = (("stall_dependency", "dependency", "dependency"), ("stall_por
                    ("stall_mispredict", "branch", "mispredict"), ("stall_rob", "window", "window"),
                    ("stall_rs", "window (RS)", "window"), ("stall_store_buffer", "store buffer", None),
                    ("stall_partial_register", "partial", "partial"), ("stall_partial_flags", "partial flags", None),
-                   ("stall_memory", "memory", "memory"), ("stall_store_forward", "forward", "store_forward"))
+                   ("stall_memory", "memory", "memory"), ("stall_store_forward", "forward", "store_forward"),
+                   ("stall_register_read", "register read", None))
 _OTHER_STALL_HELP = {"stall_fetch": "decoders idle for instruction bytes (L1I miss, branch-target miss)",
                      "stall_store_buffer": "waiting for a free store-buffer entry",
                      "stall_partial_flags": "reading flags after an instruction that writes only some of them",
-                     "stall_rs": "waiting for a free reservation-station entry"}
+                     "stall_rs": "waiting for a free reservation-station entry",
+                     "stall_register_read": "renaming held: more than two reads per clock of registers not "
+                                            "written recently (P6 permanent register file)"}
 
 
 def summary_table(result: TimingResult) -> Table:
