@@ -21,6 +21,15 @@ class UnknownSymbol(LoadError):
     """An entry point or data symbol that the object does not define."""
 
 
+class UntranslatableCode(LoadError):
+    """Code the emulator is known to crash on (see sim.guest.emu._x87_run_start); refused before it runs.
+    `count` instructions in a row at `offset` bytes into the code region."""
+
+    def __init__(self, message: str, offset: int, count: int):
+        super().__init__(message)
+        self.offset, self.count = offset, count
+
+
 class GuestFault(RetrosimError):
     """The guest touched unmapped memory or executed an invalid instruction."""
 

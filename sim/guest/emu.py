@@ -23,7 +23,7 @@ from unicorn import (UC_ARCH_X86, UC_ERR_EXCEPTION, UC_ERR_FETCH_PROT, UC_ERR_FE
 from unicorn import x86_const as X
 from unicorn.unicorn_py3.unicorn import uclib
 
-from sim.errors import ArgumentError, GuestFault, LoadError, RunawayKernel
+from sim.errors import ArgumentError, GuestFault, LoadError, RunawayKernel, UntranslatableCode
 from sim.guest import asm
 from sim.guest import elf
 from sim.guest.cpu import GuestCpu
@@ -146,6 +146,42 @@ class Arena:
         return self.top - self.base
 
 
+# x87 register-stack forms that Unicorn 2.1 cannot translate in long unbroken runs: about 235 of
+# them back to back (with no other instruction between) crash the process while translating one
+# block (measured: 230 FXCH ST(1) run, 240 crash; the same with FADD ST(1),ST). Any other instruction
+# between them avoids it. The second bytes, per first byte: D9 C8-CF FXCH; DC C0-CF, E0-FF the
+# arithmetic ST(i),ST forms; DD C0-D7 FFREE, FXCH4, FST ST(i); DF C8-CF FXCH7.
+_UNTRANSLATABLE_RUN = 200
+X87_RUN_WORDS = "x87 register-stack instructions in a row (FXCH, FST ST(i), FFREE, FADD ST(i),ST and the like)"
+X87_RUN_LIMIT_WORDS = (f"the emulator (Unicorn 2.1) crashes translating about 235 of them in a row, so more than "
+                       f"{_UNTRANSLATABLE_RUN} are refused: put another instruction among them")
+_X87_RUN_FORMS = {0xD9: range(0xC8, 0xD0), 0xDC: [*range(0xC0, 0xD0), *range(0xE0, 0x100)],
+                  0xDD: range(0xC0, 0xD8), 0xDF: range(0xC8, 0xD0)}
+
+
+def _x87_run_start(code: bytes, limit: int = _UNTRANSLATABLE_RUN) -> tuple[int, int] | None:
+    """(offset, length) of the first run of more than `limit` back-to-back two-byte x87 forms of
+    _X87_RUN_FORMS in `code`, or None. A byte scan (both alignments): real code holds no such run by
+    accident, and the scan costs microseconds where a disassembly of a large wrapper costs seconds."""
+    b = np.frombuffer(code, dtype=np.uint8)
+    if len(b) < 2 * (limit + 1):
+        return None
+    hit = np.zeros(len(b) - 1, dtype=bool)
+    for first, seconds in _X87_RUN_FORMS.items():
+        second = np.zeros(256, dtype=bool)
+        second[list(seconds)] = True
+        hit |= (b[:-1] == first) & second[b[1:]]
+    for parity in (0, 1):
+        h = hit[parity::2].astype(np.int8)
+        edges = np.flatnonzero(np.diff(np.concatenate(([0], h, [0]))))
+        starts, ends = edges[::2], edges[1::2]
+        long = np.flatnonzero(ends - starts > limit)
+        if long.size:
+            k = long[0]
+            return parity + 2 * int(starts[k]), int(ends[k] - starts[k])
+    return None
+
+
 class Machine:
     """One guest: a loaded kernel object, a stack, an arena, and the Unicorn engine that runs them."""
 
@@ -167,6 +203,10 @@ class Machine:
                 raise MemoryError(NO_MEMORY.format(what="guest emulator")) from None
             raise
         self.arena = Arena(uc, elf.ARENA_BASE, arena_size)
+        run = _x87_run_start(bytes(image.code[1]))
+        if run is not None:
+            raise UntranslatableCode(f"{image.path}: the code at {self.where(image.code[0] + run[0])} holds {run[1]} "
+                                     f"{X87_RUN_WORDS}; {X87_RUN_LIMIT_WORDS}", *run)
         self.reset_fpu()
         self._fault: tuple[str, int] | None = None
         self._interrupt: int | None = None

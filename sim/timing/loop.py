@@ -41,8 +41,8 @@ from sim.guest.cpu import GuestCpu
 from sim.guest import isa
 from sim.cpus import make_model
 from sim.guest.decode import Decoder
-from sim.guest.emu import Machine
-from sim.errors import ArgumentError, AssemblerError, GuestFault, RetrosimError
+from sim.guest.emu import X87_RUN_LIMIT_WORDS, X87_RUN_WORDS, Machine
+from sim.errors import ArgumentError, AssemblerError, GuestFault, RetrosimError, UntranslatableCode
 from sim.timing.kernel import TimingResult
 from sim.guest.trace import NativeTracer, Trace
 
@@ -433,6 +433,10 @@ def _assemble(body: Body, copies: int, pad: int, assembler: str | None, cpu: Gue
             return Machine.from_source(path, assembler=assembler, cpu=cpu)
         except AssemblerError as e:
             raise AssemblerError(_user_line(body, lines, str(e), path, wrapper)) from None
+        except UntranslatableCode as e:
+            raise UntranslatableCode(f"{body.name}: {wrapper} holds {e.count} {X87_RUN_WORDS}; {X87_RUN_LIMIT_WORDS}"
+                                     + (" (or time it as a loop ending in a jump back to its start)" if copies > 1 else ""),
+                                     e.offset, e.count) from None
         except RetrosimError as e:
             raise RetrosimError(_user_line(body, lines, str(e), path, wrapper)) from None
 
