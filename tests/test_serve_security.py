@@ -414,3 +414,13 @@ def test_preset_names_are_names_not_paths(tmp_path):
         presets.load(f"{up}/cpu")
     answer = serve.compute({"body": "top:\n" + LOOP_TAIL, "cpus": ["pentium2-233"], "memory": f"{up}/mem"})
     assert answer["status"] == 400 and "unknown memory preset" in answer["error"]
+
+
+def test_a_served_body_assembles_into_a_folder_of_its_own(tmp_path, monkeypatch):
+    # a client's objects (up to 64 MB each) never land in the user's assembler cache, and the folder goes
+    monkeypatch.setenv("RETROSIM_CACHE", str(tmp_path / "users-cache"))
+    answer = serve.compute({"body": "top:\n  add eax, 7\n" + LOOP_TAIL, "cpus": ["pentium2-233"]})
+    assert "error" not in answer, answer
+    assert not list((tmp_path / "users-cache").rglob("*.o"))
+    import os
+    assert os.environ["RETROSIM_CACHE"] == str(tmp_path / "users-cache")

@@ -39,6 +39,7 @@ import signal
 import socket
 import stat
 import sys
+import tempfile
 import threading
 import time
 
@@ -129,9 +130,20 @@ def compute(req) -> dict:
 
     try:
         o = parse_request(req)
-        with asm.served_sources():
-            doc, timings = loop_document(o["text"], "<body>", o["cpus"], o["memory"], o["sets"], o["syntax"],
-                                         o["iterations"], o["regs"], o["align"], o["offset"], o["timeline"], None)
+        # its objects go to a folder of its own, removed with it: a client fills no disk of the user's
+        # cache (an object may have 64 MB) and never meets an object the user assembled
+        with asm.served_sources(), tempfile.TemporaryDirectory(prefix="retrosim-serve-") as cache:
+            before = os.environ.get(asm.CACHE_ENV)
+            os.environ[asm.CACHE_ENV] = cache
+            try:
+                doc, timings = loop_document(o["text"], "<body>", o["cpus"], o["memory"], o["sets"], o["syntax"],
+                                             o["iterations"], o["regs"], o["align"], o["offset"], o["timeline"],
+                                             None)
+            finally:
+                if before is None:
+                    del os.environ[asm.CACHE_ENV]
+                else:
+                    os.environ[asm.CACHE_ENV] = before
         return {"data": pipeline_html.loop_data(doc, timings, o["text"])}
     except RetrosimError as e:
         return {"error": error_line(str(e)), "status": 400}
