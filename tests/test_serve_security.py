@@ -433,3 +433,24 @@ def test_a_served_body_assembles_into_a_folder_of_its_own(tmp_path, monkeypatch)
     assert not list((tmp_path / "users-cache").rglob("*.o"))
     import os
     assert os.environ["RETROSIM_CACHE"] == str(tmp_path / "users-cache")
+
+
+@pytest.mark.parametrize("example", ["sum-att.s", "texture-loop.s"])
+def test_the_examples_time_the_same_served_and_on_the_command_line(example):
+    # the allow-list takes nothing away from a real loop body
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "examples" / example
+    answer = serve.compute({"body": path.read_text(), "cpus": ["pentium2-233"]})
+    assert "error" not in answer, answer
+    r = CliRunner().invoke(main, ["loop", str(path), "--cpu", "pentium2-233", "--json"])
+    assert r.exit_code == 0, r.output
+    assert answer["data"]["doc"]["results"][0]["cycles_per_iteration"] == \
+        json.loads(r.output)["results"][0]["cycles_per_iteration"]
+
+
+def test_a_message_about_the_body_as_a_whole_is_kept_when_serving(tmp_path):
+    src = tmp_path / "loop.S"
+    with asm.served_sources():
+        assert asm.format_diagnostics(f"Assembler messages:\n{src}: Error: bad size\n", src) == f"{src}: Error: bad size"
+        assert "/etc/shadow" not in asm.format_diagnostics("as: can't open /etc/shadow for reading\n", src)

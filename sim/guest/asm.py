@@ -296,6 +296,10 @@ def format_diagnostics(stderr: str, source: Path, output: Path | None = None) ->
             name = str(source) if m["file"] in own else m["file"]
             lines.append(f"{name}:{m['line']}: {m['msg'].strip()}")
     if serving() and not lines:
+        last = ([t for t in stderr.splitlines() if t.strip()] or [""])[-1]
+        mine = next((last[len(o) + 2:] for o in own if last.startswith(f"{o}: ")), None)
+        if mine and not foreign:  # a message about the body as a whole (`body: Error: ...`)
+            return f"{source}: {mine}"
         return (f"{source}: the assembler failed on " + ("another file than the body (its messages are not shown: "
                 "a body sent to the server may read no file)" if foreign else "the body without naming a line of it"))
     if not lines:
