@@ -74,10 +74,16 @@ def test_incbin_bytes_cannot_leak_through_counts(secret):
     # that byte must give the same answer (a refusal), never two different counts
     body = (f"top:\n  movzx ecx, byte ptr [data]\n1:\n  dec ecx\n  jns 1b\n{LOOP_TAIL}"
             f"data:\n  .incbin \"{secret}\", 0, 1\n")
-    answers = []
+    from sim.cli.kernel_cmds import loop_document
+
+    answers, own = [], []
     for first in ("A", "z"):
         secret.write_text(first)
         answers.append(serve.compute({"body": body, "cpus": ["pentium2-233"]}))
+        # the same body on the command line (the user's own file) does read it: the attack is real
+        doc, _ = loop_document(body, "own.s", ["pentium2-233"], None, (), None, 100, (), 64, 0, 3, None)
+        own.append(doc["results"][0]["instructions_per_iteration"])
+    assert own == [ord("A") * 2 + 5, ord("z") * 2 + 5]  # movzx, (byte + 1) x (dec, jns), dec, jnz
     assert answers[0] == answers[1] and "error" in answers[0] and "data" not in answers[0]
 
 
