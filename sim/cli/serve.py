@@ -365,11 +365,11 @@ def json_depth_problem(text: str) -> str | None:
     depth = 0
     for m in _JSON_TOKEN.finditer(text):
         token = m.group(0)
-        if token in "[{":
+        if token in ("[", "{"):
             depth += 1
             if depth > MAX_JSON_DEPTH:
                 return f"the request nests arrays or objects more than {MAX_JSON_DEPTH} deep; a loop request is flat"
-        elif token in "]}":
+        elif token in ("]", "}"):
             depth -= 1
     return None
 
