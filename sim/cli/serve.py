@@ -488,7 +488,10 @@ def make_handler(worker: Worker, page: bytes):
             finally:
                 waiting.release()
             answer["ms"] = round(1000 * (time.monotonic() - t), 1)
-            self._json(answer.pop("status", 200), answer)
+            status = answer.pop("status", 200)
+            if status >= 500:  # the server's fault, not the body's: said in its log too
+                self.log_error("%s", answer.get("error"))
+            self._json(status, answer)
 
     return Handler
 
