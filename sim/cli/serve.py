@@ -430,7 +430,8 @@ def make_handler(worker: Worker, page: bytes):
                                                      "only")})
                 return False
             origin = self.headers.get("Origin")
-            if self.command == "POST" and origin is not None and origin.strip().lower() not in {f"http://{h}" for h in ok}:
+            own = {f"http://{h}" for h in ok}
+            if self.command == "POST" and origin is not None and origin.strip().lower() not in own:
                 self._json(403, {"error": error_line(f"Origin {origin!r}: only this server's own page may post to it")})
                 return False
             return True

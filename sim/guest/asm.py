@@ -223,6 +223,9 @@ def serving() -> bool:
     return _served.get()
 
 
+_READ_ANOTHER_FILE = "the assembler read another file than the body; a body sent to the server may read none"
+
+
 def _refuse_served_reads(text: bytes, source: Path) -> None:
     m = _ANY_INCLUDE.search(text)  # anywhere: in a macro's argument or a string too
     if m:
@@ -551,9 +554,8 @@ def assemble(source: str | os.PathLike, assembler: str | None = None, cpu: Guest
     out_dir = cache_dir()
     target = out_dir / f"{source.stem}-{asm.name}-{march or 'i686'}-{key[:20]}.o"
     if target.is_file() and _verified(target):
-        if serving() and _read_files(target):
-            raise AssemblerError(f"{source}: the assembler read another file than the body; a body sent to the "
-                                 "server may read none")
+        if serving() and _read_files(target):  # (a served body assembles into a cache of its own: belt and braces)
+            raise AssemblerError(f"{source}: {_READ_ANOTHER_FILE}")
         return target
     _prepare_cache(out_dir)
     with (temporary_file(out_dir, ".tmp-", ".o") as tmp, temporary_file(out_dir, ".tmp-", ".sha256") as digest_tmp,
@@ -582,8 +584,7 @@ def assemble(source: str | os.PathLike, assembler: str | None = None, cpu: Guest
                                  "(no matching '*/')")
         deps = _dependencies(deps_tmp, source) if depfile else []
         if serving() and deps:  # what it read is never shown, nor timed
-            raise AssemblerError(f"{source}: the assembler read another file than the body; a body sent to the "
-                                 "server may read none")
+            raise AssemblerError(f"{source}: {_READ_ANOTHER_FILE}")
         manifest = _manifest(deps, source)
         data = tmp.read_bytes()
         os.chmod(tmp, file_mode())
