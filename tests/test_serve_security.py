@@ -320,7 +320,10 @@ def test_a_memory_limit_the_child_cannot_set_is_said(tmp_path):
     assert answer["status"] == 500 and "ulimit -v" in answer["error"] and "went past" not in answer["error"]
 
 
-def test_stopping_the_server_stops_its_children_and_frees_the_port(tmp_path):
+@pytest.mark.parametrize("stop", ["SIGINT", "SIGTERM"])  # Ctrl-C, and a service manager's stop
+def test_stopping_the_server_stops_its_children_and_frees_the_port(tmp_path, stop):
+    import signal
+
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
@@ -339,7 +342,7 @@ def test_stopping_the_server_stops_its_children_and_frees_the_port(tmp_path):
                 break
             time.sleep(0.05)
         assert children, "the request started no child"
-        proc.terminate()
+        proc.send_signal(getattr(signal, stop))
         proc.wait(10)
         with socket.socket() as again:  # the port is free at once (no child holds it)
             again.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
