@@ -12,9 +12,9 @@ Why one request cannot take it down: the parent never times a body itself. Each 
 child that inherits the warm parent (copy-on-write), sets its own address-space limit
 (RLIMIT_AS: the parent's size plus ``--memory-mb``) and CPU-time limit, times the body and writes
 the JSON answer into a pipe. The parent waits at most ``--timeout`` seconds for it, then kills it.
-A semaphore bounds the children running at once (``--jobs``); a request waits for a free slot
-within its timeout, else gets 503 with Retry-After, as does any request past MAX_WAITING served or
-waiting at once. Bad input gets the CLI's own one-line error (`retrosim: error: ...`) with a 4xx.
+A semaphore bounds the children running at once (``--jobs``); a request waits at most ``--timeout``
+for a free slot, else gets 503 with Retry-After, as does any request past MAX_WAITING served or
+waiting at once; its own ``--timeout`` starts when it has a slot. Bad input gets the CLI's own one-line error (`retrosim: error: ...`) with a 4xx.
 
 Why a client cannot read the server's files (docs/serve.md has the whole threat model): the body is
 assembled under sim.guest.asm.served_sources, which allows only SERVED_DIRECTIVES (no .include or
@@ -195,12 +195,13 @@ class Worker:
         self.stopping = False
 
     def run(self, req) -> dict:
-        start = time.monotonic()
         if not self.slots.acquire(timeout=self.timeout):
             raise Busy(f"the server is busy: no free slot within {self.timeout:g} s (--jobs {self.jobs}); "
                        "try again shortly")
         try:
-            return self._fork(req, start + self.timeout)
+            # its own --timeout from here: a body stopped at its deadline is the body's fault (422), never
+            # the burst's it waited behind (that is a 503)
+            return self._fork(req, time.monotonic() + self.timeout)
         finally:
             self.slots.release()
 
@@ -592,7 +593,8 @@ def serve(host: str, port: int, timeout: float, memory_mb: int, jobs: int, quiet
               help="allow an address other machines can reach (they may then time bodies here; no password)")
 @click.option("--port", default=8022, show_default=True, callback=bounded(0, 65535), help="TCP port (0: any free one)")
 @click.option("--timeout", default=20.0, show_default=True, type=float,
-              help="seconds one request may take, waiting for a slot included; then it is stopped")
+              help="seconds one request may run, after waiting at most as long for a slot (else 503); then it is "
+                   "stopped")
 @click.option("--memory-mb", default=2048, show_default=True, callback=bounded(64, 1 << 20),
               help="address space one request may add to the warm server (MB)")
 @click.option("--jobs", default=2, show_default=True, callback=bounded(1, 64), help="requests timed at once")
