@@ -252,28 +252,9 @@ def test_explain_page_on_each_family(context, tmp_path):
 def test_fifty_concurrent_posts_are_all_answered(server):
     # issue 31: 15 of 50 were reset with a listen queue of 5; now each gets an answer: timed, or 503
     # with Retry-After when no slot frees within the server's --timeout (4 s here)
-    import http.client
+    from test_serve_security import burst
 
-    host, port = server.split("//")[1].strip("/").split(":")
-    results, errors = [], []
-
-    def ask():
-        try:
-            conn = http.client.HTTPConnection(host, int(port), timeout=60)
-            conn.request("POST", "/api/loop", json.dumps({"body": BODY, "cpus": ["pentium2-233"]}),
-                         {"Content-Type": "application/json"})
-            r = conn.getresponse()
-            results.append((r.status, r.getheader("Retry-After"), json.loads(r.read())))
-            conn.close()
-        except OSError as e:
-            errors.append(repr(e))
-    threads = [threading.Thread(target=ask) for _ in range(50)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(120)
-    assert not errors
-    assert len(results) == 50
-    for status, retry, answer in results:
+    port = int(server.rstrip("/").rsplit(":", 1)[1])
+    for status, retry, answer in burst(port, {"body": BODY, "cpus": ["pentium2-233"]}):
         assert (status == 200 and answer["data"]["doc"]["results"][0]["cycles_per_iteration"] > 0) or \
             (status == 503 and retry and "busy" in answer["error"]), (status, answer)
