@@ -5,6 +5,11 @@ Why: writing to a temporary file and renaming it over the target is atomic, but 
 with a regular file. Targets must therefore be a regular file or nothing; and the check runs before
 the work (a report that takes a minute must not fail at the end because its folder is read-only).
 Files are created following the umask, like any other program's output (mkstemp alone gives 0600).
+
+Symbolic links: every writer writes *through* them, as a plain `open(path, "w")` would. A link at the
+target is kept and the file it points to is replaced (atomically, from a temporary file beside that
+file); renaming over the link itself would turn it into a regular file and leave its target unwritten.
+The target the link points to is held to the same rule: a regular file or nothing.
 """
 
 from __future__ import annotations
@@ -80,7 +85,8 @@ def check_output_file(path: str | os.PathLike, what: str = "output") -> Path:
     if st is not None and not stat.S_ISREG(st.st_mode):
         kind = "a folder" if stat.S_ISDIR(st.st_mode) else "a device, pipe or socket"
         raise OutputError(f"{what} {path}: is {kind}, not a regular file; refusing to replace it")
-    check_output_dir(path.parent if str(path.parent) else Path("."), what, create=False, for_file=path)
+    target = Path(os.path.realpath(path)) if os.path.islink(path) else path  # written through (see above)
+    check_output_dir(target.parent if str(target.parent) else Path("."), what, create=False, for_file=path)
     return path
 
 
@@ -120,6 +126,8 @@ def atomic_output(path: str | os.PathLike, what: str = "output", suffix: str = "
     """Yield a binary file object; on success it replaces `path` atomically (an interrupted or
     failed write leaves any old file intact and no temporary file behind)."""
     path = check_output_file(path, what)
+    if path.is_symlink():  # write through it: the file it points to is the one replaced
+        path = check_output_file(Path(os.path.realpath(path)), what)
     folder = path.parent if str(path.parent) else Path(".")
     try:
         with temporary_file(folder, f".{path.name}.", suffix or ".tmp") as tmp:

@@ -438,6 +438,13 @@ def _is_text(column: str) -> bool:
 
 
 MAX_TABLE_BYTES = 1 << 30  # a sweep's table: 10,000 points of ~100 counters are a few MB
+# What a resumed table may decode to, checked from its footer before any row is decoded (a 1 MB file can
+# hold 80 million repeated rows): 5 million cells are 50,000 points of 100 counters, five times the
+# default point limit, a few hundred MB as Python rows; the decoded bytes are counted batch by batch
+# (a dictionary-encoded string column can repeat one long string in every row).
+MAX_TABLE_CELLS = 5_000_000
+MAX_DECODED_BYTES = 256 << 20
+_BATCH_ROWS = 64
 
 
 class DamagedOutput(RetrosimError):
@@ -472,17 +479,30 @@ def read_rows(base: Path) -> list[dict]:
     import pyarrow.parquet as pq
 
     try:
-        table = pq.read_table(path)
+        table = pq.ParquetFile(path)
+        schema, meta = table.schema_arrow, table.metadata
     except (pa.ArrowException, OSError, ValueError) as e:
         damaged(f"not a readable Parquet table ({one_line_of(e)})")
     for col in FIXED + ["error"]:
-        if col not in table.schema.names:
+        if col not in schema.names:
             damaged(f"no column '{col}'")
-    for f in table.schema:
+    for f in schema:
         want = "string" if _is_text(f.name) else "double" if f.name == "cycles_per_pixel" else "int64"
         if str(f.type) != want:
             damaged(f"column '{f.name}' holds {f.type}, not {want}")
-    rows = table.to_pylist()
+    if meta.num_rows * max(meta.num_columns, 1) > MAX_TABLE_CELLS:
+        damaged(f"{meta.num_rows:,} rows of {meta.num_columns} columns, more than the {MAX_TABLE_CELLS:,} cells a "
+                "sweep table may have")
+    rows, decoded = [], 0
+    try:
+        for batch in table.iter_batches(batch_size=_BATCH_ROWS):
+            decoded += batch.nbytes
+            if decoded > MAX_DECODED_BYTES:
+                damaged(f"more than {MAX_DECODED_BYTES >> 20} MB once decoded, more than a sweep table may have")
+            rows += batch.to_pylist()
+    except (pa.ArrowException, OSError, ValueError) as e:
+        damaged(f"not a readable Parquet table ({one_line_of(e)})")
+    counters = [f.name for f in schema if not _is_text(f.name)]
     seen = set()
     for i, r in enumerate(rows):
         try:
@@ -494,7 +514,21 @@ def read_rows(base: Path) -> list[dict]:
         if r["point"] in seen:
             damaged(f"row {i}: point {r['point']!r} appears twice")
         seen.add(r["point"])
+        _check_counters(r, i, counters, damaged)
     return rows
+
+
+def _check_counters(row: dict, i: int, counters: list[str], damaged) -> None:
+    """A stored row's counters as this module writes them: a row without an error has its cycles, and
+    every counter is empty (a counter another family's model has) or a count, never negative."""
+    if not isinstance(row["error"], str):
+        damaged(f"row {i}: its error column is empty (a timed row holds '')")
+    if not row["error"] and row.get("cycles") is None:
+        damaged(f"row {i}: point {row['point']!r} has no error and no cycles")
+    for name in counters:
+        value = row.get(name)
+        if value is not None and not (value >= 0 and math.isfinite(value)):
+            damaged(f"row {i}: point {row['point']!r} has {name} = {value}, not a count")
 
 
 def one_line_of(e: Exception) -> str:

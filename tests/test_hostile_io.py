@@ -260,3 +260,61 @@ def test_an_include_of_a_folder_is_named_in_the_error(write_kernel, tmp_path):
     src = write_kernel(f'.include "{tmp_path / "inc"}"\nret\n', entry="f")
     line = fails("time", src)
     assert str(tmp_path / "inc") in line and "not a regular file" in line, line
+
+
+# -- issue 31: symbolic links and `--html -` -------------------------------------------------------
+LOOP_BODY = "top:\n  add eax, 1\n  dec edx\n  jnz top\n"
+
+
+@pytest.mark.parametrize("command", ["loop", "explain"])
+def test_html_through_a_symlink_writes_its_target_and_keeps_the_link(command, tmp_path):
+    # the rule for every checked writer (sim/output.py): write through a link, as open() would
+    target = tmp_path / "mine" / "view.html"
+    target.parent.mkdir()
+    target.write_text("old")
+    link = tmp_path / "link.html"
+    link.symlink_to(target)
+    args = (["loop", "-", "-c", "pentium2-233"] if command == "loop" else
+            ["explain", "convert/fp16z.S", "--entry", "fp16z_convert_array", "--args", "buf:u32:16:7,buf:u32:16,16,0,0"])
+    from click.testing import CliRunner
+    from sim.cli import main
+
+    r = CliRunner().invoke(main, [*args, "--html", str(link)], input=LOOP_BODY)
+    assert r.exit_code == 0, r.output
+    assert link.is_symlink() and os.readlink(link) == str(target)
+    assert target.read_text().startswith("<!DOCTYPE html>")
+    assert sorted(p.name for p in target.parent.iterdir()) == ["view.html"]  # no temporary file left
+
+
+def test_every_writer_writes_through_a_symlink_and_refuses_one_to_a_device(tmp_path):
+    from sim import output
+    from sim.errors import OutputError
+
+    target = tmp_path / "real.txt"
+    target.write_text("old")
+    link = tmp_path / "link.txt"
+    link.symlink_to(target)
+    output.atomic_write(link, b"new")
+    assert link.is_symlink() and target.read_text() == "new"
+    dangling = tmp_path / "dangling.txt"
+    dangling.symlink_to(tmp_path / "not-yet.txt")
+    output.atomic_write(dangling, b"made")
+    assert dangling.is_symlink() and (tmp_path / "not-yet.txt").read_text() == "made"
+    device = tmp_path / "null.txt"
+    device.symlink_to("/dev/null")
+    with pytest.raises(OutputError, match="not a regular file"):
+        output.atomic_write(device, b"x")
+    loop_link = tmp_path / "loop.txt"
+    loop_link.symlink_to(loop_link)
+    with pytest.raises(OutputError, match="loop.txt"):
+        output.atomic_write(loop_link, b"x")
+
+
+def test_html_dash_is_refused_not_a_file_named_dash(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+    from sim.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(main, ["loop", "-", "-c", "pentium2-233", "--html", "-"], input=LOOP_BODY)
+    assert r.exit_code == 2 and "--html -: the page is written to a file" in r.output
+    assert not (tmp_path / "-").exists()

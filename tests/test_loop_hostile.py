@@ -4,6 +4,7 @@ what `retrosim time` says for the same instruction on the same CPU."""
 
 from __future__ import annotations
 
+import json
 import re
 import time
 
@@ -56,6 +57,9 @@ def time_message(write_kernel, insn: str, cpu: str) -> str:
     ("mov cr0, eax", "pentium2-233", "privileged or system instruction"),
     ("lgdt [esi]", "pentium2-233", "privileged or system instruction"),
     ("hlt", "pentium2-233", "privileged or system instruction"),
+    ("rdmsr", "pentium2-233", "privileged or system instruction"),  # issue 31: it had "no timing row"
+    ("rdmsr", "k6-2-300", "privileged or system instruction"),
+    ("wrmsr", "pentium-mmx-233", "privileged or system instruction"),
 ])
 def test_loop_refuses_what_time_refuses(write_kernel, insn, cpu, says):
     expected = time_message(write_kernel, insn, cpu)
@@ -258,3 +262,15 @@ def test_the_open_comment_is_found_past_strings_and_closed_comments(body, line, 
     src = write_kernel(body, entry="f")
     got = fails(["time", src])
     assert got.startswith(f"{src}:{line + 4}: a comment is not closed"), got  # 4 header lines, as above
+
+
+def test_a_byte_order_mark_before_the_first_label_is_not_part_of_it(tmp_path):
+    # issue 31: an editor's UTF-8 BOM made `top:` another label, and the back-edge "jumped to a label
+    # not in the body"; it is not part of the text, so the loop times as without it
+    body = "top:\n  add eax, 1\n  dec edx\n  jnz top\n"
+    path = tmp_path / "bom.S"
+    path.write_bytes(b"\xef\xbb\xbf" + body.encode())
+    with_bom = run(["loop", path, "--json", "-c", "pentium2-233"])
+    without = run(["loop", "-", "--json", "-c", "pentium2-233"], body)
+    assert with_bom.exit_code == 0, with_bom.output
+    assert json.loads(with_bom.output)["results"] == json.loads(without.output)["results"]

@@ -100,11 +100,17 @@ def server():
             proc.wait()
 
 
-def post(url: str, **request) -> dict:
+def post(url: str, headers: dict | None = None, status: int = 200, **request) -> dict:
+    """The answer to a POST of `request`, which must come with HTTP status `status`."""
     data = json.dumps(request).encode()
-    with urllib.request.urlopen(urllib.request.Request(url + "api/loop", data, {"Content-Type": "application/json"}),
-                                timeout=60) as r:
-        return json.loads(r.read())
+    try:
+        with urllib.request.urlopen(urllib.request.Request(url + "api/loop", data, {
+                "Content-Type": "application/json", **(headers or {})}), timeout=60) as r:
+            got, answer = r.status, json.loads(r.read())
+    except urllib.error.HTTPError as e:
+        got, answer = e.code, json.loads(e.read())
+    assert got == status, (got, answer)
+    return answer
 
 
 def run_in_page(page, body: str, cpus: list[str]) -> None:
@@ -154,7 +160,7 @@ def test_concurrent_requests_both_answer(server):
 def test_runaway_request_is_stopped_and_the_server_answers_after(server):
     # a block is repeated, not looped: 40,000 copies take GNU as far longer than the server's 4 s
     t = time.monotonic()
-    a = post(server, body="add eax, 1\n", cpus=["pentium2-233"], iterations=39_999)
+    a = post(server, body="add eax, 1\n", cpus=["pentium2-233"], iterations=39_999, status=422)
     assert "took more than 4 s" in a["error"] and a["error"].startswith("retrosim: error: ")
     assert time.monotonic() - t < 15
     b = post(server, body=BODY, cpus=["pentium2-233"])
@@ -170,6 +176,31 @@ def test_only_json_from_this_machine(server):
     with pytest.raises(urllib.error.HTTPError) as e:
         urllib.request.urlopen(urllib.request.Request(server, headers={"Host": "evil.example:8022"}))
     assert e.value.code == 403
+    port = server.rsplit(":", 1)[1].strip("/")
+    # DNS rebinding: a name that starts like the address and resolves to it is still another site's
+    with pytest.raises(urllib.error.HTTPError) as e:
+        urllib.request.urlopen(urllib.request.Request(server, headers={"Host": f"127.0.0.1.rebind.example:{port}"}))
+    assert e.value.code == 403
+    # a page of another site that posts here (a cross-site POST: its Origin is its own)
+    a = post(server, {"Origin": "http://attacker.example"}, status=403, body=BODY, cpus=["pentium2-233"])
+    assert "Origin" in a["error"]
+    post(server, {"Origin": server.rstrip("/")}, body=BODY, cpus=["pentium2-233"])
+
+
+def test_a_served_body_reads_no_file_and_bad_input_is_a_4xx(server):
+    # the attacks of issue 31: .include quotes a file's first line in its error; .incbin feeds its
+    # bytes to a loop whose instruction count then tells them
+    a = post(server, body='top:\n  .include "/etc/passwd"\n  dec edx\n  jnz top\n', status=400)
+    assert a["error"] == ("retrosim: error: <body>:2: '.include' reads a file: a body sent to the server may read "
+                          "or name no file (it is for your own files, with `retrosim loop FILE`)")
+    a = post(server, body='top:\n  movzx ecx, byte ptr [d]\n1:\n  dec ecx\n  jns 1b\n  dec edx\n  jnz top\n'
+                          'd:\n  .incbin "/etc/passwd", 0, 1\n', status=400)
+    assert "'.incbin' reads a file" in a["error"] and "data" not in a
+    # a bad body: the CLI's whole line, with 400
+    bad = "top:\n  movv eax, 1\n  jnz top\n"
+    r = CliRunner().invoke(main, ["loop", "-", "--cpu", "pentium2-233"], input=bad)
+    assert post(server, body=bad, cpus=["pentium2-233"], status=400)["error"] == \
+        r.output.strip().splitlines()[-1].replace("<stdin>", "<body>")
 
 
 def test_missing_browser_fails_in_ci_and_skips_elsewhere(monkeypatch):
@@ -216,3 +247,14 @@ def test_explain_page_on_each_family(context, tmp_path):
         heads = page.locator("table.explain th").all_inner_texts()
         assert {"pentium-mmx-233": "U", "pentium2-233": "ports", "k6-2-300": "units"}[cpu] in heads, (cpu, heads)
         page.close()
+
+
+def test_fifty_concurrent_posts_are_all_answered(server):
+    # issue 31: 15 of 50 were reset with a listen queue of 5; now each gets an answer: timed, or 503
+    # with Retry-After when no slot frees within the server's --timeout (4 s here)
+    from test_serve_security import burst
+
+    port = int(server.rstrip("/").rsplit(":", 1)[1])
+    for status, retry, answer in burst(port, {"body": BODY, "cpus": ["pentium2-233"]}):
+        assert (status == 200 and answer["data"]["doc"]["results"][0]["cycles_per_iteration"] > 0) or \
+            (status == 503 and retry and "busy" in answer["error"]), (status, answer)

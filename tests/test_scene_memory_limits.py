@@ -63,3 +63,33 @@ def test_snap_vertices_just_over_the_limit_are_refused(tmp_path):
     line = _refusal(p)
     assert "workloads.vertices" in line and str(snap_scene.MAX_VERTICES) in line
     assert snap_scene.MAX_VERTICES * snap_scene.VERTEX_BYTES < TWO_GB
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("cpu", ["pentium-mmx-233", "pentium2-233", "k6-2-300"])
+def test_the_largest_snap_scene_stays_under_the_readme_bound(tmp_path, cpu):
+    # a measurement, not a timing: the peak resident memory of `retrosim report` on the shipped snap
+    # scene at MAX_VERTICES (one CPU, one worker) against the bound README states for it (issue 31)
+    import re
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    bound = float(re.search(r"`workloads\.vertices` \(262,144, under ([\d.]+) GB", (root / "README.md").read_text())[1])
+    text = (root / "scenes" / "vertex-snap.toml").read_text()
+    scene = tmp_path / "snap-largest.toml"
+    scene.write_text(re.sub(r"(?m)^vertices = \d+$", f"vertices = {snap_scene.MAX_VERTICES}", text)
+                     .replace('name = "vertex-snap"', 'name = "snap-largest"'))
+    # measured by a parent of its own: RUSAGE_CHILDREN's peak is that of the largest child it waited for
+    measure = ("import resource, subprocess, sys\n"
+               "r = subprocess.run(sys.argv[1:], capture_output=True, text=True)\n"
+               "sys.exit(r.stderr) if r.returncode else print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)\n")
+    r = subprocess.run([sys.executable, "-c", measure, sys.executable, "-m", "sim.cli", "report", str(scene),
+                        "--cpu", cpu, "--out", str(tmp_path / "out"), "-j", "1"], capture_output=True, text=True, cwd=root)
+    assert r.returncode == 0, r.stderr
+    peak = int(r.stdout) << 10  # ru_maxrss is in KB
+    print(f"snap scene at {snap_scene.MAX_VERTICES:,} vertices on {cpu}: peak RSS {peak / (1 << 30):.2f} GB "
+          f"(README: under {bound} GB)")
+    assert peak < bound * (1 << 30)
+    assert peak < snap_scene.MAX_VERTICES * snap_scene.VERTEX_BYTES * 1.1  # the refusal's estimate is near

@@ -148,10 +148,16 @@ def _damage(base: Path, how: str) -> None:
         pq.write_table(table.set_column(0, "point", pa.array(["x"] * table.num_rows)), parquet)
     elif how == "csv only":
         parquet.unlink()
+    elif how in ("null cycles", "negative cycles", "negative instructions", "null error"):  # issue 31
+        column = "error" if how == "null error" else how.split()[1]
+        values = table[column].to_pylist()
+        values[0] = None if how.startswith("null") else -1292
+        pq.write_table(table.set_column(table.schema.get_field_index(column), column,
+                                        pa.array(values, table.schema.field(column).type)), parquet)
 
 
 @pytest.mark.parametrize("how", ["truncated", "garbage", "wrong types", "no point", "no scene", "point not an id",
-                                 "csv only"])
+                                 "csv only", "null cycles", "negative cycles", "negative instructions", "null error"])
 def test_a_damaged_output_is_refused_with_how_to_start_over(tmp_path, how):
     path = kernel_spec(tmp_path)
     base = tmp_path / "s"
@@ -162,6 +168,31 @@ def test_a_damaged_output_is_refused_with_how_to_start_over(tmp_path, how):
     assert "not resuming from it" in line or "not overwriting it" in line
     assert "to start the sweep over" in line
     assert {p.name: p.read_bytes() for p in tmp_path.glob("s.*")} == before  # nothing merged or replaced
+
+
+def test_a_table_that_decodes_to_too_much_is_refused_before_decoding(tmp_path, monkeypatch):
+    # issue 31: a 1 MB Parquet file of 80 million repeated rows took 3 GB to decode; the footer says
+    # how many rows and columns it holds, so it is refused before a row is decoded
+    import pyarrow.parquet as pq
+
+    path = kernel_spec(tmp_path)
+    base = tmp_path / "s"
+    sweep.run_sweep(sweep.load_spec(path), base, "serial", plots=False)
+    parquet = base.with_suffix(".parquet")
+    table = pq.read_table(parquet)
+    rows = sweep.MAX_TABLE_CELLS // table.num_columns + 1
+    pq.write_table(table.take([0] * rows), parquet)
+    assert parquet.stat().st_size < 1 << 20
+    decoded, iter_batches = [], pq.ParquetFile.iter_batches
+    monkeypatch.setattr(pq.ParquetFile, "iter_batches", lambda *a, **k: decoded.append(1) or iter(()))
+    line = fails("sweep", path, "--scheduler", "serial")
+    assert f"{rows:,} rows of {table.num_columns} columns" in line and "cells" in line
+    assert not decoded
+    monkeypatch.setattr(pq.ParquetFile, "iter_batches", iter_batches)
+    # and the bytes it decodes to are counted as it goes (one long string in every row)
+    pq.write_table(table, parquet)
+    monkeypatch.setattr(sweep, "MAX_DECODED_BYTES", 64)
+    assert "once decoded" in fails("sweep", path, "--scheduler", "serial")
 
 
 # -- scheduler addresses ----------------------------------------------------------------------------------

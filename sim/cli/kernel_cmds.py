@@ -30,6 +30,9 @@ def _check_html(given: str | None) -> Path | None:
         return None
     from sim.output import check_output_dir, check_output_file, file_path
 
+    if given == "-":  # not a file named "-": standard output already holds the table or --json
+        raise ArgumentError("--html -: the page is written to a file, not to standard output (which holds the "
+                            "table or the --json document); give the file's name, e.g. --html view.html")
     path = file_path(given, "--html")
     check_output_dir(path.parent if str(path.parent) else Path("."), "--html", for_file=path)
     check_output_file(path, "--html")

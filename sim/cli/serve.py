@@ -12,8 +12,15 @@ Why one request cannot take it down: the parent never times a body itself. Each 
 child that inherits the warm parent (copy-on-write), sets its own address-space limit
 (RLIMIT_AS: the parent's size plus ``--memory-mb``) and CPU-time limit, times the body and writes
 the JSON answer into a pipe. The parent waits at most ``--timeout`` seconds for it, then kills it.
-A semaphore bounds the children running at once (``--jobs``); a request waits for a free slot
-within its timeout. Bad input gets the CLI's own one-line error (`retrosim: error: ...`).
+A semaphore bounds the children running at once (``--jobs``); a request waits at most ``--timeout``
+for a free slot, else gets 503 with Retry-After, as does any request past MAX_WAITING served or
+waiting at once; its own ``--timeout`` starts when it has a slot. Bad input gets the CLI's own one-line error (`retrosim: error: ...`) with a 4xx.
+
+Why a client cannot read the server's files (docs/serve.md has the whole threat model): the body is
+assembled under sim.guest.asm.served_sources, which allows only SERVED_DIRECTIVES (no .include or
+.incbin), refuses an assembly that read any other file and never shows a message about one. Why a
+web page the user visits cannot drive it: the Host header must name the address the client reached
+(DNS rebinding names another), and a POST's Origin must be this server's own.
 
 The parent serves requests in threads (http.server.ThreadingHTTPServer) and forks from them: the
 child runs only code whose imports and compilation the warm-up finished, and writes nothing but
@@ -22,12 +29,17 @@ its pipe (another thread may hold the stderr lock at the fork); the timeout boun
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import os
+import re
 import resource
 import select
 import signal
+import socket
+import stat
 import sys
+import tempfile
 import threading
 import time
 
@@ -52,6 +64,12 @@ WARM_BODY = "top:\n  add eax, [esi]\n  imul ebx, ecx\n  add esi, 4\n  dec edx\n 
 MAX_REQUEST_BYTES = (1 << 20) + (64 << 10)  # a body (loop.MAX_BODY_BYTES) and its options
 MAX_CPUS = 32
 MAX_ANSWER_BYTES = 64 << 20
+MAX_JSON_DEPTH = 8  # a request is an object of lists: 2 levels; json.loads recurses once per level
+_JSON_TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|[\[\]{}]')
+LISTEN_BACKLOG = 128  # connections the kernel holds before the server accepts them (http.server's 5 resets a burst)
+MAX_WAITING = 64      # requests timed or waiting for a slot at once; the next ones get 503 at once
+MAX_CONNECTIONS = 256  # connections with a thread at once (an idle one lets go after Handler.timeout)
+RETRY_AFTER = 2       # seconds, in a 503's Retry-After
 
 
 def error_line(message: str) -> str:
@@ -104,19 +122,33 @@ def parse_request(req) -> dict:
 
 
 def compute(req) -> dict:
-    """Time one request's body (in the child): the page's data, or the one-line error."""
+    """Time one request's body (in the child): the page's data, or the one-line error and its HTTP
+    status. The body is a client's, not the user's: it may read no file (asm.served_sources)."""
     from sim.cli.kernel_cmds import loop_document
+    from sim.guest import asm
     from sim.reports import pipeline_html
 
     try:
         o = parse_request(req)
-        doc, timings = loop_document(o["text"], "<body>", o["cpus"], o["memory"], o["sets"], o["syntax"],
-                                     o["iterations"], o["regs"], o["align"], o["offset"], o["timeline"], None)
+        # its objects go to a folder of its own, removed with it: a client fills no disk of the user's
+        # cache (an object may have 64 MB) and never meets an object the user assembled
+        with asm.served_sources(), tempfile.TemporaryDirectory(prefix="retrosim-serve-") as cache:
+            before = os.environ.get(asm.CACHE_ENV)
+            os.environ[asm.CACHE_ENV] = cache
+            try:
+                doc, timings = loop_document(o["text"], "<body>", o["cpus"], o["memory"], o["sets"], o["syntax"],
+                                             o["iterations"], o["regs"], o["align"], o["offset"], o["timeline"],
+                                             None)
+            finally:
+                if before is None:
+                    del os.environ[asm.CACHE_ENV]
+                else:
+                    os.environ[asm.CACHE_ENV] = before
         return {"data": pipeline_html.loop_data(doc, timings, o["text"])}
     except RetrosimError as e:
-        return {"error": error_line(str(e))}
+        return {"error": error_line(str(e)), "status": 400}
     except MemoryError:
-        return {"error": error_line("the request ran out of the server's memory bound (--memory-mb)")}
+        return {"error": error_line("the request ran out of the server's memory bound (--memory-mb)"), "status": 422}
 
 
 def _vm_bytes() -> int:
@@ -125,28 +157,83 @@ def _vm_bytes() -> int:
         return int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
 
 
+def memory_limit_problem(memory_mb: int) -> str | None:
+    """Why a child of this process cannot be given --memory-mb more address space (a hard RLIMIT_AS,
+    `ulimit -v`, below what it needs: a process can lower its hard limit, never raise it), or None."""
+    hard = resource.getrlimit(resource.RLIMIT_AS)[1]
+    if hard == resource.RLIM_INFINITY or _vm_bytes() + (memory_mb << 20) <= hard:
+        return None
+    return (f"--memory-mb {memory_mb} cannot be given to a request: the server's hard address-space limit "
+            f"(ulimit -v) is {hard >> 20} MB and the warm server already uses {_vm_bytes() >> 20} MB; start it "
+            f"with --memory-mb {max((hard - _vm_bytes()) >> 20, 0)} or less, or under a larger ulimit -v")
+
+
+def _close_sockets() -> None:
+    """In a child: close every socket inherited from the server (its listening socket and other
+    requests' connections), so a child the server outlives for a moment never holds its port."""
+    for name in os.listdir("/proc/self/fd"):
+        fd = int(name)
+        try:
+            if stat.S_ISSOCK(os.fstat(fd).st_mode):
+                os.close(fd)
+        except OSError:
+            pass  # the directory's own descriptor, closed by now
+
+
+class Busy(Exception):
+    """No slot within the wait the server allows: answered 503 with Retry-After."""
+
+
 class Worker:
     """Runs each request in a forked child of this (warm) process, with bounds."""
 
     def __init__(self, timeout: float, memory_mb: int, jobs: int):
-        self.timeout, self.memory_mb = timeout, memory_mb
+        self.timeout, self.memory_mb, self.jobs = timeout, memory_mb, jobs
         self.slots = threading.BoundedSemaphore(jobs)
         self.fork_lock = threading.Lock()
+        self.children: set[int] = set()  # pids of the children running (their process groups)
+        self.stopping = False
 
     def run(self, req) -> dict:
-        start = time.monotonic()
         if not self.slots.acquire(timeout=self.timeout):
-            return {"error": error_line(f"the server is busy: no free slot within {self.timeout:g} s (--jobs)")}
+            raise Busy(f"the server is busy: no free slot within {self.timeout:g} s (--jobs {self.jobs}); "
+                       "try again shortly")
         try:
-            return self._fork(req, start + self.timeout)
+            # its own --timeout from here: a body stopped at its deadline is the body's fault (422), never
+            # the burst's it waited behind (that is a 503)
+            return self._fork(req, time.monotonic() + self.timeout)
         finally:
             self.slots.release()
+
+    def stop_all(self, grace: float = 1.0) -> None:
+        """Stop every running child and its process group (the server is stopping): SIGTERM, so each
+        unwinds and stops the assembler it runs, then SIGKILL to what is left after `grace` seconds.
+        The request threads reap them."""
+        with self.fork_lock:
+            self.stopping = True
+        for sig in (signal.SIGTERM, signal.SIGKILL):
+            with self.fork_lock:
+                children = list(self.children)
+            for pid in children:
+                try:
+                    os.killpg(pid, sig)
+                except (ProcessLookupError, PermissionError):
+                    pass
+            end = time.monotonic() + grace
+            while self.children and time.monotonic() < end:
+                time.sleep(0.01)
 
     def _fork(self, req, deadline: float) -> dict:
         r, w = os.pipe()
         with self.fork_lock:  # one fork at a time; the child's limit is from the parent's size now
+            if self.stopping:
+                os.close(r)
+                os.close(w)
+                raise Busy("the server is stopping")
             limit = _vm_bytes() + (self.memory_mb << 20)
             pid = os.fork()
+            if pid:
+                self.children.add(pid)
         if pid == 0:  # the child: bounded, answers through the pipe, never returns
             code = 0
             try:
@@ -154,15 +241,20 @@ class Worker:
                 os.setpgid(0, 0)  # its own group: a stop reaches the assembler it may be running too
                 signal.signal(signal.SIGTERM, _stop)  # unwinds, so temporary files are removed
                 signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the server's
-                resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-                cpu = int(self.timeout) + 1
-                resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu + 1))
+                _close_sockets()
                 try:
-                    answer = compute(req)
+                    resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+                    cpu = int(self.timeout) + 1
+                    resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu + 1))
+                    limited = None
+                except ValueError as e:  # above a hard limit, which a process can lower but never raise
+                    limited = memory_limit_problem(self.memory_mb) or f"cannot set the request's limits: {e}"
+                try:
+                    answer = compute(req) if limited is None else {"error": error_line(limited), "status": 500}
                 except BaseException as e:  # noqa: BLE001  (the child must answer whatever happens)
                     answer = {"error": error_line(f"internal error: {type(e).__name__}: {e} (a library that cannot "
                                                   f"get memory fails so: the server's bound is --memory-mb "
-                                                  f"{self.memory_mb})")}
+                                                  f"{self.memory_mb})"), "status": 500}
                 data = json.dumps(answer, separators=(",", ":")).encode()
                 view = memoryview(data)
                 while view:
@@ -195,21 +287,28 @@ class Worker:
                     break
         finally:
             os.close(r)
-            if timed_out or size > MAX_ANSWER_BYTES:
-                status = _stop_group(pid)
-            else:
-                _, status = os.waitpid(pid, 0)
+            try:
+                if timed_out or size > MAX_ANSWER_BYTES:
+                    status = _stop_group(pid)
+                else:
+                    _, status = os.waitpid(pid, 0)
+            finally:
+                with self.fork_lock:
+                    self.children.discard(pid)
         if timed_out:
             return {"error": error_line(f"the request took more than {self.timeout:g} s (the server's --timeout); "
-                                        "a shorter body, fewer --iterations or fewer CPUs answer sooner")}
+                                        "a shorter body, fewer --iterations or fewer CPUs answer sooner"),
+                    "status": 422}
         if size > MAX_ANSWER_BYTES:
-            return {"error": error_line(f"the answer has more than {MAX_ANSWER_BYTES >> 20} MB; time fewer CPUs")}
+            return {"error": error_line(f"the answer has more than {MAX_ANSWER_BYTES >> 20} MB; time fewer CPUs"),
+                    "status": 422}
         try:
             return json.loads(b"".join(chunks))
         except ValueError:
             why = (f"signal {os.WTERMSIG(status)}" if os.WIFSIGNALED(status) else f"exit status {os.WEXITSTATUS(status)}")
             return {"error": error_line(f"the request stopped without an answer ({why}): it went past the server's "
-                                        f"bounds (--memory-mb {self.memory_mb}, --timeout {self.timeout:g} s)")}
+                                        f"bounds (--memory-mb {self.memory_mb}, --timeout {self.timeout:g} s)"),
+                    "status": 422}
 
 
 def _stop(signum, frame):
@@ -261,8 +360,36 @@ def app_config() -> dict:
     return {"cpus": cpus, "memories": memory_presets(), "defaults": list(DEFAULT_CPUS), "example": EXAMPLE}
 
 
+def json_depth_problem(text: str) -> str | None:
+    """One line when the request nests arrays or objects deeper than MAX_JSON_DEPTH (json.loads
+    recurses once per level: 100,000 '[' would overflow the stack), else None."""
+    depth = 0
+    for m in _JSON_TOKEN.finditer(text):
+        token = m.group(0)
+        if token in ("[", "{"):
+            depth += 1
+            if depth > MAX_JSON_DEPTH:
+                return f"the request nests arrays or objects more than {MAX_JSON_DEPTH} deep; a loop request is flat"
+        elif token in ("]", "}"):
+            depth -= 1
+    return None
+
+
+def allowed_hosts(local: tuple) -> set[str]:
+    """The Host values a request to the local address `local` (the socket's own) may carry: that
+    address with its port, or `localhost` with it when the address is a loopback one. A name that
+    only resolves to it (a rebinding name such as 127.0.0.1.rebind.example) is never one of them."""
+    address, port = local[0], local[1]
+    names = {f"[{address}]" if ":" in address else address}
+    if ipaddress.ip_address(address).is_loopback:
+        names.add("localhost")
+    return {f"{n}:{port}" for n in names} | (names if port == 80 else set())
+
+
 def make_handler(worker: Worker, page: bytes):
     from http.server import BaseHTTPRequestHandler  # here: every other command starts without it
+
+    waiting = threading.BoundedSemaphore(MAX_WAITING)  # requests timed or waiting for a slot
 
     class Handler(BaseHTTPRequestHandler):
         server_version = "retrosim"
@@ -273,32 +400,45 @@ def make_handler(worker: Worker, page: bytes):
             if not self.quiet:
                 super().log_message(fmt, *args)
 
-        def _send(self, status: int, body: bytes, ctype: str) -> None:
+        def handle(self):
+            try:
+                super().handle()
+            except (ConnectionError, TimeoutError) as e:  # the client went away: a line, not a traceback
+                self.log_message("client went away (%s)", type(e).__name__)
+
+        def _send(self, status: int, body: bytes, ctype: str, headers: dict | None = None) -> None:
             self.send_response(status)
             self.send_header("Content-Type", ctype)
             self.send_header("Content-Length", str(len(body)))
             self.send_header("Cache-Control", "no-store")
             self.send_header("X-Content-Type-Options", "nosniff")
+            for k, v in (headers or {}).items():
+                self.send_header(k, v)
             self.end_headers()
             self.wfile.write(body)
 
-        def _json(self, status: int, answer: dict) -> None:
-            self._send(status, json.dumps(answer, separators=(",", ":")).encode(), "application/json")
+        def _json(self, status: int, answer: dict, headers: dict | None = None) -> None:
+            self._send(status, json.dumps(answer, separators=(",", ":")).encode(), "application/json", headers)
 
-        def _host_ok(self) -> bool:
-            """On a loopback address, only requests naming a loopback host (a page of another site
-            that re-points its name at 127.0.0.1, DNS rebinding, names its own)."""
-            if not self.server.loopback:
-                return True
-            raw = self.headers.get("Host") or ""
-            host = raw.split("]")[0] + "]" if raw.startswith("[") else raw.rsplit(":", 1)[0]
-            if host in ("localhost", "[::1]") or host.startswith("127."):
-                return True
-            self._json(403, {"error": error_line(f"Host {host!r}: this server answers 127.0.0.1 and localhost only")})
-            return False
+        def _origin_ok(self) -> bool:
+            """The Host must name this server (DNS rebinding: a page of another site that re-points
+            its own name at this address still names its own name); a POST's Origin, when the
+            browser sends one, must be this server's own page (a cross-site request is refused)."""
+            ok = allowed_hosts(self.connection.getsockname())
+            host = (self.headers.get("Host") or "").strip().lower()
+            if host not in ok:
+                self._json(403, {"error": error_line(f"Host {host!r}: this server answers {' or '.join(sorted(ok))} "
+                                                     "only")})
+                return False
+            origin = self.headers.get("Origin")
+            own = {f"http://{h}" for h in ok}
+            if self.command == "POST" and origin is not None and origin.strip().lower() not in own:
+                self._json(403, {"error": error_line(f"Origin {origin!r}: only this server's own page may post to it")})
+                return False
+            return True
 
         def do_GET(self):
-            if not self._host_ok():
+            if not self._origin_ok():
                 return
             path = self.path.split("?", 1)[0]
             if path in ("/", "/index.html"):
@@ -309,7 +449,7 @@ def make_handler(worker: Worker, page: bytes):
                 self._json(404, {"error": error_line(f"{path}: no such page")})
 
         def do_POST(self):
-            if not self._host_ok():
+            if not self._origin_ok():
                 return
             if self.path.split("?", 1)[0] != "/api/loop":
                 self._json(404, {"error": error_line(f"{self.path}: no such endpoint (POST /api/loop)")})
@@ -329,22 +469,81 @@ def make_handler(worker: Worker, page: bytes):
                 return
             raw = self.rfile.read(n)
             try:
-                req = json.loads(raw.decode("utf-8"))
+                text = raw.decode("utf-8")
+                problem = json_depth_problem(text)
+                req = None if problem else json.loads(text)
             except (UnicodeDecodeError, ValueError) as e:
-                self._json(400, {"error": error_line(f"the request is not JSON ({e})")})
+                problem = f"the request is not JSON ({e})"
+            if problem:
+                self._json(400, {"error": error_line(problem)})
                 return
             t = time.monotonic()
-            answer = worker.run(req)
+            if not waiting.acquire(blocking=False):
+                self._json(503, {"error": error_line(f"the server is busy: {MAX_WAITING} requests are timed or "
+                                                     "waiting; try again shortly")}, {"Retry-After": str(RETRY_AFTER)})
+                return
+            try:
+                answer = worker.run(req)
+            except Busy as e:
+                self._json(503, {"error": error_line(str(e))}, {"Retry-After": str(RETRY_AFTER)})
+                return
+            finally:
+                waiting.release()
             answer["ms"] = round(1000 * (time.monotonic() - t), 1)
-            self._json(200, answer)
+            status = answer.pop("status", 200)
+            if status >= 500:  # the server's fault, not the body's: said in its log too
+                self.log_error("%s", answer.get("error"))
+            self._json(status, answer)
 
     return Handler
 
 
-def serve(host: str, port: int, timeout: float, memory_mb: int, jobs: int, quiet: bool = False,
-          say=lambda line: None) -> None:
+def _bounded_server(host: str, port: int, handler):
+    """The HTTP server: a listen queue that holds a burst of connections (the default of 5 resets
+    the rest), and a thread for each of at most MAX_CONNECTIONS connections at once (the next get 503
+    and are closed at once; below that, a request past MAX_WAITING gets its 503 from the handler)."""
     from http.server import ThreadingHTTPServer
 
+    class Server(ThreadingHTTPServer):
+        request_queue_size = LISTEN_BACKLOG
+        address_family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        daemon_threads = True
+        allow_reuse_address = True  # SO_REUSEADDR: a restart binds at once, whatever TIME_WAIT the last run left
+
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self.waiting = threading.BoundedSemaphore(MAX_CONNECTIONS)
+
+        def process_request(self, request, client_address):
+            if not self.waiting.acquire(blocking=False):
+                _refuse_busy(request)
+                self.shutdown_request(request)
+                return
+            super().process_request(request, client_address)
+
+        def process_request_thread(self, request, client_address):
+            try:
+                super().process_request_thread(request, client_address)
+            finally:
+                self.waiting.release()
+
+    return Server((host, port), handler, bind_and_activate=False)
+
+
+def _refuse_busy(request) -> None:
+    body = json.dumps({"error": error_line(f"the server is busy: {MAX_CONNECTIONS} connections are open; "
+                                           "try again shortly")}).encode()
+    head = (f"HTTP/1.0 503 Service Unavailable\r\nContent-Type: application/json\r\nContent-Length: {len(body)}\r\n"
+            f"Retry-After: {RETRY_AFTER}\r\nConnection: close\r\n\r\n").encode()
+    try:
+        request.settimeout(1)
+        request.sendall(head + body)
+    except OSError:
+        pass
+
+
+def serve(host: str, port: int, timeout: float, memory_mb: int, jobs: int, quiet: bool = False,
+          say=lambda line: None, allow_remote: bool = False) -> None:
     from sim.reports import pipeline_html
 
     worker = Worker(timeout, memory_mb, jobs)
@@ -353,37 +552,57 @@ def serve(host: str, port: int, timeout: float, memory_mb: int, jobs: int, quiet
     handler.quiet = quiet
     # listen before the warm-up (up to a minute while numba compiles): a port in use fails at once
     try:
-        httpd = ThreadingHTTPServer((host, port), handler)
+        httpd = _bounded_server(host, port, handler)
+        httpd.server_bind()
     except OSError as e:
         raise RetrosimError(f"cannot listen on {host}:{port}: {e.strerror or e}") from None
-    httpd.daemon_threads = True
-    httpd.loopback = host in ("127.0.0.1", "localhost", "::1") or host.startswith("127.")
-    url_host = f"[{host}]" if ":" in host else host
+    try:
+        address = httpd.socket.getsockname()[0]
+        if not ipaddress.ip_address(address).is_loopback:
+            if not allow_remote:
+                raise ArgumentError(f"--host {host!r} listens on {address}, which other machines can reach: anyone "
+                                    "who can reach it may time bodies on this machine's CPU and memory; add "
+                                    "--allow-remote if that is what you want")
+            click.echo(f"retrosim: warning: --allow-remote: listening on {address}: every machine that can reach "
+                       f"it may time bodies here ({jobs} at a time, {timeout:g} s and {memory_mb} MB each), with no "
+                       "password and no encryption; a body still reads no file", err=True)
+        httpd.server_activate()
+    except BaseException:
+        httpd.server_close()
+        raise
+    url_host = f"[{host}]" if ":" in host else host or address
     try:
         warm_up(say)  # requests wait in the listen queue meanwhile; the address is printed once warm
+        problem = memory_limit_problem(memory_mb)
+        if problem:
+            raise RetrosimError(problem)
         click.echo(f"retrosim serve: http://{url_host}:{httpd.server_address[1]}/ (Ctrl-C stops it)")
         sys.stdout.flush()
         httpd.serve_forever()
     except KeyboardInterrupt:
         pass
     finally:
-        httpd.server_close()
+        httpd.server_close()  # the port is free once this returns: no child holds it (_close_sockets)
+        worker.stop_all()
 
 
 @main.command("serve")
 @click.option("--host", default="127.0.0.1", show_default=True,
-              help="address to listen on (the default answers this machine only)")
+              help="address to listen on (the default answers this machine only; any other needs --allow-remote)")
+@click.option("--allow-remote", is_flag=True,
+              help="allow an address other machines can reach (they may then time bodies here; no password)")
 @click.option("--port", default=8022, show_default=True, callback=bounded(0, 65535), help="TCP port (0: any free one)")
 @click.option("--timeout", default=20.0, show_default=True, type=float,
-              help="seconds one request may take, waiting for a slot included; then it is stopped")
+              help="seconds one request may run, after waiting at most as long for a slot (else 503); then it is "
+                   "stopped")
 @click.option("--memory-mb", default=2048, show_default=True, callback=bounded(64, 1 << 20),
               help="address space one request may add to the warm server (MB)")
 @click.option("--jobs", default=2, show_default=True, callback=bounded(1, 64), help="requests timed at once")
 @click.option("--quiet", is_flag=True, help="no line per request on stderr")
-def serve_cmd(host, port, timeout, memory_mb, jobs, quiet):
+def serve_cmd(host, allow_remote, port, timeout, memory_mb, jobs, quiet):
     """A local web app: paste a loop body, pick CPUs, see the pipeline view (warm models, ms answers)."""
     from sim.cli.app import say
 
     if not 0.1 <= timeout <= 3600:
         raise ArgumentError(f"--timeout {timeout:g}: must be between 0.1 and 3,600 seconds")
-    serve(host, port, timeout, memory_mb, jobs, quiet, say)
+    serve(host, port, timeout, memory_mb, jobs, quiet, say, allow_remote)

@@ -76,7 +76,8 @@ def load(name: str) -> CpuPreset:
 
         return load_preset(name)
     path = PRESETS / f"{name}.toml"
-    if not path.is_file():
+    # a name, never a path: `../../x` would read any .toml (a web request names CPUs too)
+    if not path.is_file() or name != Path(name).name or name.startswith("."):
         raise UnknownPreset(f"unknown CPU preset '{name}' (choose one of: {', '.join(available())})")
     _, raw = read_toml(path, "CPU preset")  # a package file edited by hand: one error naming it
     return from_raw(raw, name, path)

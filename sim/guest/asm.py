@@ -198,6 +198,42 @@ def _shown(path: Path, source: Path) -> str:
     return str(source) if path == source.resolve() else str(path)
 
 
+# -- sources a client sent (retrosim serve) -------------------------------------------------------
+# The command line assembles the user's own files, and .include/.incbin read whatever the user can read:
+# that is the point of them. A body sent to the web app is another matter: whoever sent it must not
+# read the server's files, by an error message that quotes a line or by timings that depend on its
+# bytes. sim/timing/loop.py refuses every directive but an allow-list in such a body; here, as a second
+# wall, no such source may name an include at all, an assembly that read any file but the source is
+# refused without a word of it, and a message about another file is never shown.
+_served: ContextVar[bool] = ContextVar("retrosim_served", default=False)
+
+
+@contextmanager
+def served_sources():
+    """Assemble every source in this context as one a client sent (`retrosim serve`)."""
+    token = _served.set(True)
+    try:
+        yield
+    finally:
+        _served.reset(token)
+
+
+def serving() -> bool:
+    """True inside :func:`served_sources`."""
+    return _served.get()
+
+
+_READ_ANOTHER_FILE = "the assembler read another file than the body; a body sent to the server may read none"
+
+
+def _refuse_served_reads(text: bytes, source: Path) -> None:
+    m = _ANY_INCLUDE.search(text)  # anywhere: in a macro's argument or a string too
+    if m:
+        line = text.count(b"\n", 0, m.start()) + 1
+        raise AssemblerError(f"{source}:{line}: '{m.group(0).decode(errors='replace')}': a body sent to the server "
+                             "may read no file (.include and .incbin are for your own files, on the command line)")
+
+
 # -- source syntax (Intel or AT&T) ---------------------------------------------------------------
 SYNTAXES = ("intel", "att")
 _syntax: ContextVar[str | None] = ContextVar("retrosim_syntax", default=None)
@@ -248,16 +284,27 @@ _CLANG_MSG = re.compile(r"^(?P<file>[^:\n]+):(?P<line>\d+):\d+: (?:error|fatal e
 def format_diagnostics(stderr: str, source: Path, output: Path | None = None) -> str:
     """Reduce assembler output to `file:line: message` lines (the first error first). A message from
     an included file keeps that file's name and line; the temporary object is never named (a user
-    knows the source, not the cache)."""
+    knows the source, not the cache). A served source (:func:`serving`) gets messages about its own
+    lines only: a message about any other file could quote that file."""
     if output is not None:
         stderr = stderr.replace(str(output), str(source))
     own = {str(source), source_arg(source)}
-    lines = []
+    lines, foreign = [], 0
     for raw in stderr.splitlines():
         m = _GNU_MSG.match(raw) or _CLANG_MSG.match(raw)
         if m and "Warning" not in raw:
+            if serving() and m["file"] not in own:
+                foreign += 1
+                continue
             name = str(source) if m["file"] in own else m["file"]
             lines.append(f"{name}:{m['line']}: {m['msg'].strip()}")
+    if serving() and not lines:
+        last = ([t for t in stderr.splitlines() if t.strip()] or [""])[-1]
+        mine = next((last[len(o) + 2:] for o in own if last.startswith(f"{o}: ")), None)
+        if mine and not foreign:  # a message about the body as a whole (`body: Error: ...`)
+            return f"{source}: {mine}"
+        return (f"{source}: the assembler failed on " + ("another file than the body (its messages are not shown: "
+                "a body sent to the server may read no file)" if foreign else "the body without naming a line of it"))
     if not lines:
         text = [t for t in stderr.strip().splitlines() if t.strip()]
         last = text[-1] if text else "assembler failed without a message"
@@ -423,6 +470,15 @@ def _verified(target: Path) -> bool:
     return ok
 
 
+def _read_files(target: Path) -> int:
+    """How many files besides the source the assembler read for a cached object (its manifest lines)."""
+    try:
+        return len(target.with_name(target.name + DIGEST_SUFFIX).read_text(
+            encoding="utf-8", errors="surrogateescape").splitlines()) - 1
+    except OSError:
+        return 1  # unreadable now: count it as reading something, so a served body is refused
+
+
 def _unchanged(line: str) -> bool:
     """A manifest line `sha256 path`: does the file still hold those bytes?"""
     want, path = line.split(" ", 1)
@@ -487,6 +543,8 @@ def assemble(source: str | os.PathLike, assembler: str | None = None, cpu: Guest
     text = read_source(source, str(source))  # refuses devices, pipes and oversized files
     if not text.strip():
         raise AssemblerError(f"{source}: empty source file (no instructions to assemble)")
+    if serving():
+        _refuse_served_reads(text, source)
     flags = _syntax_flags(asm, syntax or _syntax.get() or detect_syntax(text))
     cpu = require_cpu(cpu)
     march = cpu.march(asm.name) if cpu is not None else None
@@ -496,6 +554,8 @@ def assemble(source: str | os.PathLike, assembler: str | None = None, cpu: Guest
     out_dir = cache_dir()
     target = out_dir / f"{source.stem}-{asm.name}-{march or 'i686'}-{key[:20]}.o"
     if target.is_file() and _verified(target):
+        if serving() and _read_files(target):  # (a served body assembles into a cache of its own: belt and braces)
+            raise AssemblerError(f"{source}: {_READ_ANOTHER_FILE}")
         return target
     _prepare_cache(out_dir)
     with (temporary_file(out_dir, ".tmp-", ".o") as tmp, temporary_file(out_dir, ".tmp-", ".sha256") as digest_tmp,
@@ -522,7 +582,10 @@ def assemble(source: str | os.PathLike, assembler: str | None = None, cpu: Guest
             # the same: GNU as only warns, and every line after the /* is silently not assembled
             raise AssemblerError(f"{source}:{_unclosed_comment_line(text)}: a comment is not closed "
                                  "(no matching '*/')")
-        manifest = _manifest(_dependencies(deps_tmp, source), source) if depfile else ""
+        deps = _dependencies(deps_tmp, source) if depfile else []
+        if serving() and deps:  # what it read is never shown, nor timed
+            raise AssemblerError(f"{source}: {_READ_ANOTHER_FILE}")
+        manifest = _manifest(deps, source)
         data = tmp.read_bytes()
         os.chmod(tmp, file_mode())
         digest_tmp.write_text(_digest(data) + "\n" + manifest, encoding="utf-8", errors="surrogateescape")

@@ -57,9 +57,11 @@ _SSE2_NAMES = frozenset("paddq psubq pmuludq pshufd pshufhw pshuflw pslldq psrld
 # System instructions that capstone does not put in its 'privilege' group but that a user-mode
 # kernel may not run: port I/O (IOPL 0 under every OS of the period), software interrupts and
 # fast system calls (they leave the kernel's code), segment/descriptor loads.
+# RDMSR is here by name: Capstone does not put it in its privilege group, but it faults at CPL 3 as
+# WRMSR does ("RDMSR/WRMSR: #GP(0) if the current privilege level is not 0", Intel SDM vol. 2).
 _SYSTEM = frozenset("in out insb insw insd outsb outsw outsd int int1 int3 into iret iretd sysenter sysexit "
                     "syscall sysret lldt sldt ltr str lmsw smsw lar lsl verr verw arpl clts ud2 ud0 ud1 "
-                    "lcall ljmp retf".split())
+                    "lcall ljmp retf rdmsr".split())
 
 # What a family lacks, in words, for the refusal message.
 _WHY = {

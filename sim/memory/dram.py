@@ -225,7 +225,8 @@ def available_memory_presets() -> list[str]:
 def load_memory_preset(name: str) -> DramTiming:
     """The memory preset ``sim/memory/presets/NAME.toml``, checked for consistency."""
     path = MEMORY_PRESETS_DIR / f"{name}.toml"
-    if not path.is_file():
+    # a name, never a path: `../../x` would read any .toml (a web request names presets too)
+    if not path.is_file() or name != Path(name).name or name.startswith("."):
         raise ValueError(f"unknown memory preset {name!r} (available: {', '.join(available_memory_presets())})")
     _, d = read_toml(path, "memory preset", ValueError)
     where = f"{path.name}"

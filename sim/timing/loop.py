@@ -92,6 +92,22 @@ _INTEL_RESERVED = ({p + r for r in ("ax", "bx", "cx", "dx", "si", "di", "bp", "s
                    | {f"{k}{i}" for k in ("mm", "xmm", "cr", "dr", "tr") for i in range(8)}
                    | {"byte", "word", "dword", "fword", "qword", "tbyte", "oword", "xmmword", "ptr", "offset",
                       "short", "near", "far", "flat"})
+# A body sent to `retrosim serve` (sim.guest.asm.serving) may use these directives and no other: data,
+# alignment, repetition, macros, conditions, symbols and syntax. An allow-list, because GNU as has many
+# directives that read a file (.include, .incbin) or name one (.file, .loc, .stabs ...), and a new
+# binutils may add more; none of these reads or names a file.
+SERVED_DIRECTIVES = frozenset(
+    ".byte .word .short .hword .value .long .int .quad .octa .2byte .4byte .8byte .single .float .double .tfloat "
+    ".dc .dc.b .dc.w .dc.l .dc.s .dc.d .dc.x .ascii .asciz .string .sleb128 .uleb128 "
+    ".fill .skip .space .zero .nop .nops .align .balign .balignw .balignl .p2align .p2alignw .p2alignl "
+    ".rept .endr .irp .irpc .macro .endm .exitm .purgem .noaltmacro "
+    ".if .ifdef .ifndef .ifnotdef .ifb .ifnb .ifc .ifnc .ifeq .ifeqs .ifne .ifnes .ifge .ifgt .ifle .iflt "
+    ".else .elseif .endif .set .equ .equiv .eqv .local .globl .global .type .size "
+    ".intel_syntax .att_syntax .arch .code32 .err .error .warning .print".split())
+_FILE_DIRECTIVES = {".include": "reads a file", ".incbin": "reads a file", ".file": "names a file",
+                    ".appfile": "names a file", ".line": "names a file's line", ".appline": "names a file's line",
+                    ".loc": "names a file's line", ".stabs": "names a file", ".stabn": "names a file",
+                    ".stabd": "names a file", ".cv_file": "names a file", ".ident": "adds text to the object"}
 _OPENERS = (".rept", ".irp", ".irpc", ".macro", ".if")
 _CLOSERS = {".endr": (".rept", ".irp", ".irpc"), ".endm": (".macro",), ".endif": (".if",)}
 _LEAVES = {"ret", "retl", "retn", "retf", "iret", "iretd", "int", "int3", "into", "hlt", "sysenter", "syscall"}
@@ -175,14 +191,58 @@ def _syntax_of(text: str, syntax: str | None) -> tuple[str, list[str]]:
     return detected or "intel", []
 
 
+def _statements(line: str, where: str) -> list[str]:
+    """A served body's line cut at GNU as's statement separator `;` (outside strings and character
+    constants). A `;` inside a string or character constant is refused: passed to a macro, it would
+    start a statement of its own where the macro uses the argument."""
+    out, start, i = [], 0, 0
+    while i < len(line):
+        ch = line[i]
+        if ch in "\"'":
+            m = re.compile(r'"(?:[^"\\]|\\.)*"?').match(line, i) if ch == '"' else None
+            end = m.end() if m else min(i + 3 if line[i + 2:i + 3] == "'" else i + 2, len(line))
+            if ";" in line[i:end]:
+                raise RetrosimError(f"{where}: a ';' inside a string or character constant: a body sent to the "
+                                    "server may not hold one (a macro argument would make it a statement)")
+            i = end
+            continue
+        if ch == ";":
+            out.append(line[start:i])
+            start = i + 1
+        i += 1
+    return out + [line[start:]]
+
+
+def check_served_line(line: str, where: str) -> None:
+    """Refuse, in a body sent to `retrosim serve`, any directive not in SERVED_DIRECTIVES (first of
+    all those that read or name a host file) and any statement whose name a macro argument makes."""
+    for statement in _statements(line, where):
+        rest = _LABEL_RUN.sub("", statement).strip()
+        word = rest.split(None, 1)[0].lower() if rest else ""
+        if "\\" in word or "&" in word:
+            raise RetrosimError(f"{where}: '{word}': in a body sent to the server a macro argument may not be an "
+                                "instruction's or directive's name")
+        if word.startswith(".") and word not in SERVED_DIRECTIVES:
+            if word in _FILE_DIRECTIVES:
+                raise RetrosimError(f"{where}: '{word}' {_FILE_DIRECTIVES[word]}: a body sent to the server may read "
+                                    "or name no file (it is for your own files, with `retrosim loop FILE`)")
+            raise RetrosimError(f"{where}: '{word}' is not a directive a body sent to the server may use (these are: "
+                                f"{' '.join(sorted(SERVED_DIRECTIVES))})")
+
+
 def parse_body(text: str, name: str = "<stdin>", syntax: str | None = None, cpu: GuestCpu | None = None) -> Body:
     """Split the body into lines and find its shape. `cpu` names the CPU in the refusal of a system
     instruction (as `retrosim time` words it). Macro definitions are kept apart (assembled once,
-    before the body, which a block repeats)."""
+    before the body, which a block repeats). A body sent to the server (asm.serving()) is held to
+    SERVED_DIRECTIVES. A UTF-8 byte-order mark before the first line is not part of it."""
+    text = text.removeprefix("\ufeff")  # an editor's byte-order mark, not a character of the first label
     syntax, warnings = _syntax_of(text, syntax)
+    served = asm.serving()
     lines, labels, head, order, macros, nesting = [], set(), set(), [], [], []
     for number, raw in enumerate(text.splitlines(), 1):
         line = strip_comment(raw, syntax)
+        if served:
+            check_served_line(line, f"{name}:{number}")
         if syntax == "intel":
             line = from_masm(line)
         rest = line
