@@ -52,3 +52,17 @@ def test_a_malformed_baseline_is_one_error(tmp_path, text):
 
 def test_check_and_record_together_are_refused():
     assert "choose one" in cli_fails("bench", "--check", "--record")
+
+
+def test_a_regression_exits_1_with_its_figures(monkeypatch):
+    from click.testing import CliRunner
+
+    from sim.cli import main
+
+    measured = {"pixels": 4096, "rounds": 1, "instructions": 10, "native_ips": 1e7,
+                "models": {"k6-233": {"ratio": 0.2, "ips": 2e6}}}
+    monkeypatch.setattr(speedcheck, "load", lambda path: {"ratios": {"k6-233": 0.3}})
+    monkeypatch.setattr(speedcheck, "measure", lambda **kw: measured)
+    r = CliRunner().invoke(main, ["bench", "--check"])
+    assert r.exit_code == 1, r.output
+    assert "speed regression: k6-233: 0.200 of the native trace's rate, recorded 0.300 (-33%" in r.stderr
