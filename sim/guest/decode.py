@@ -954,7 +954,7 @@ def iter_decode(code: bytes, pc: int) -> Iterator[InsnRecord]:
 # is a pure function of both, and immutable): a scene's many emulations of one kernel (the sort
 # scene's hundreds of runs, each a new Emulation with its own Decoder) decode each instruction once.
 _SHARED: dict[tuple[bytes, int], InsnRecord] = {}
-_SHARED_MAX = 1 << 16  # records kept (a few hundred per kernel); past it the memo starts again
+_SHARED_MAX = 1 << 14  # records kept (a few hundred per kernel, about 1 KB each); past it the memo starts again
 
 
 def _decode_shared(code: bytes, pc: int) -> InsnRecord:
