@@ -120,9 +120,8 @@ def new_state(P: np.ndarray, units: int) -> tuple:
             np.zeros(int(P[P_ROB]), np.int64),    # rob_ring
             # RS occupancy: uops allocated but not yet dispatched, counted by dispatch cycle in a ring
             # (exact, like a heap of dispatch times, but O(1) per uop: allocation times only move forward);
-            # each slot packs three counts (RS_FIELD bits each): every uop, and those bound to port 0
-            # and to port 1 (the binding counters); one load and store per cycle, not three
-            np.zeros(WINDOW, np.int64),           # rs_by_cycle
+            # column 0 every uop, columns 1 and 2 those bound to port 0 and to port 1 (the binding counters)
+            np.zeros((WINDOW, 3), np.int64),      # rs_by_cycle
             np.zeros(max(int(P[P_QUEUE]), 1), np.int64),  # queue_ring
             np.full(WINDOW, -1 << 5, np.int64),   # book: port reservations
             np.zeros(units + 1, np.int64),        # unit_free: per resource, hundredths of a cycle
@@ -142,9 +141,6 @@ def new_state(P: np.ndarray, units: int) -> tuple:
 
 
 UNIT_FREE = 9  # position of unit_free in new_state's tuple
-# rs_by_cycle's packed counts: a slot holds the uops dispatching in one cycle (at most one per
-# port), far below RS_FIELD
-RS_FIELD, RS_BOUND0, RS_BOUND1 = (1 << 21) - 1, 21, 42
 P01 = 3  # the port mask of a uop that may use port 0 or port 1 (sim/cpus/lowering.py port_mask)
 
 
@@ -153,12 +149,12 @@ def _rs_leave(rs_by_cycle, cycle, rs_pending, bound0, bound1):
     """The uops that dispatch in `cycle` leave the RS: the occupancy and the two binding counters
     drop by them (their ring slot is cleared for reuse). Returns (rs_pending, bound0, bound1)."""
     slot = cycle & (WINDOW - 1)
-    e = rs_by_cycle[slot]
-    if e != 0:
-        rs_pending -= e & RS_FIELD
-        bound0 -= (e >> RS_BOUND0) & RS_FIELD
-        bound1 -= e >> RS_BOUND1
-        rs_by_cycle[slot] = 0
+    rs_pending -= rs_by_cycle[slot, 0]
+    bound0 -= rs_by_cycle[slot, 1]
+    bound1 -= rs_by_cycle[slot, 2]
+    rs_by_cycle[slot, 0] = 0
+    rs_by_cycle[slot, 1] = 0
+    rs_by_cycle[slot, 2] = 0
     return rs_pending, bound0, bound1
 
 
@@ -813,15 +809,14 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             # enter the RS (left at dispatch)
             if u_ports[u] != 0:
                 slot = disp & (WINDOW - 1)
+                rs_by_cycle[slot, 0] += 1
                 rs_pending += 1
                 if port == 0:
-                    rs_by_cycle[slot] += 1 + (1 << RS_BOUND0)
+                    rs_by_cycle[slot, 1] += 1
                     bound0 += 1
                 elif port == 1:
-                    rs_by_cycle[slot] += 1 + (1 << RS_BOUND1)
+                    rs_by_cycle[slot, 2] += 1
                     bound1 += 1
-                else:
-                    rs_by_cycle[slot] += 1
             if port >= 0:
                 n_port0 += port == 0
                 n_port1 += port == 1
