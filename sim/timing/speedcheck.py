@@ -38,10 +38,10 @@ def measure(pixels: int = PIXELS, rounds: int = ROUNDS, cpus=CPUS, progress=None
     from sim.cpus import make_model
     from sim.guest.emu import Machine
     from sim.guest.kernels import kernels_root
-    from sim.timing.bench import SPAN_KERNEL, _workload
+    from sim.timing.bench import SPAN_KERNEL, span_workload
     from sim.timing.kernel import emulate, time_emulation
 
-    zinit, (z, dz, colour) = _workload(pixels)
+    zinit, (z, dz, colour) = span_workload(pixels)
     source = kernels_root() / SPAN_KERNEL
     m = Machine.from_source(source)
 
