@@ -63,6 +63,7 @@ def test_a_regression_exits_1_with_its_figures(monkeypatch):
                 "models": {"k6-233": {"ratio": 0.2, "ips": 2e6}}}
     monkeypatch.setattr(speedcheck, "load", lambda path: {"ratios": {"k6-233": 0.3}})
     monkeypatch.setattr(speedcheck, "measure", lambda **kw: measured)
+    monkeypatch.setattr(speedcheck, "measure_fresh", lambda **kw: measured)
     r = CliRunner().invoke(main, ["bench", "--check"])
     assert r.exit_code == 1, r.output
     assert "speed regression: k6-233: 0.200 of the native trace's rate, recorded 0.300 (-33%" in r.stderr

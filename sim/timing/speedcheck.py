@@ -129,14 +129,27 @@ def regressions(result: dict, baseline: dict, tolerance: float = TOLERANCE) -> l
     return lines
 
 
+def measure_fresh(**kw) -> dict:
+    """:func:`measure` in a new process: the same compiled code runs up to a fifth slower or faster
+    from one process to the next (where the code and the arrays land in memory), so a repeated
+    measurement is made in another one."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        return pool.submit(measure, **kw).result()
+
+
 def check(baseline: dict, attempts: int = ATTEMPTS, progress=None, **kw) -> tuple[dict, list[str]]:
-    """Measure and compare; a failing comparison is measured again, up to `attempts` times, and
-    the best ratio of each model over the attempts is kept (load only ever lowers a ratio)."""
+    """Measure and compare; a failing comparison is measured again in a new process, up to
+    `attempts` times, and the best ratio of each model over the attempts is kept (load only ever
+    lowers a ratio)."""
     cpus = tuple(baseline["ratios"])
     kw.setdefault("pixels", int(baseline.get("pixels", PIXELS)))
     best = None
     for attempt in range(attempts):
-        result = measure(cpus=cpus, progress=progress, **kw)
+        result = (measure(cpus=cpus, progress=progress, **kw) if attempt == 0 else
+                  measure_fresh(cpus=cpus, **kw))
         if best is None:
             best = result
         else:
