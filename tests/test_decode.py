@@ -811,3 +811,15 @@ def test_truncated_fetch_raises(asm):
     with pytest.raises(DecodeError, match=r"0x00002000"):
         dec.at(0x2000)
     assert 0x2000 not in dec
+
+
+def test_decoders_share_records_by_bytes_and_pc():
+    """Decoders of one kernel share its records (the sort scene decodes each instruction once), but
+    other bytes at the same PC are decoded as what they are."""
+    add = b"\x01\xd8" + b"\x90" * 13   # add eax, ebx
+    sub = b"\x29\xd8" + b"\x90" * 13   # sub eax, ebx
+    a, b = Decoder(lambda pc, n: add[:n]), Decoder(lambda pc, n: add[:n])
+    assert a.at(0x400000) is b.at(0x400000)
+    other = Decoder(lambda pc, n: sub[:n]).at(0x400000)
+    assert (a.at(0x400000).mnemonic, other.mnemonic) == ("add", "sub")
+    assert Decoder(lambda pc, n: add[:n]).at(0x400010).pc == 0x400010

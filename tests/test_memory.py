@@ -524,7 +524,7 @@ def test_replayed_cache_results_time_exactly_like_a_cache_walk(cpu, override):
     from sim.timing.kernel import emulate, time_emulation
 
     pixels = 6000
-    zinit, (z, dz, colour) = bench._workload(pixels)
+    zinit, (z, dz, colour) = bench.span_workload(pixels)
     emu = emulate(kernels_root() / bench.SPAN_KERNEL, "fp16z_span",
                   lambda m: [m.arena.put(zinit), m.arena.put(np.zeros(pixels, np.uint16)), pixels, z, dz, colour])
     logs = AccessLogs()

@@ -388,10 +388,21 @@ def _placement(timings, align: int, offset: int) -> dict:
 @main.command("bench")
 @click.option("--pixels", default=1 << 20, show_default=True, callback=bounded(1, 1 << 22, " (the Python-hook mode keeps every instruction as Python objects, about 1 GB per million pixels)"), help="pixels in the Z-buffer span workload")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object with the figures")
-def bench_cmd(pixels: int, as_json: bool):
-    """Emulation speed: Unicorn bare, with Python hooks, with the native trace (same workload)."""
+@click.option("--check", "check_speed", is_flag=True,
+              help="the models' speed check: each model alone (P6, K6, P5) against the native trace's rate in "
+                   "this process, compared with benchmarks/model_speed.json; exit 1 when a ratio is more than "
+                   "15 % below its recorded figure")
+@click.option("--record", is_flag=True, help="measure the models' speed ratios and write benchmarks/model_speed.json")
+@click.option("--rounds", default=5, show_default=True, callback=bounded(1, 50),
+              help="--check/--record: interleaved rounds, the best of which is kept")
+def bench_cmd(pixels: int, as_json: bool, check_speed: bool, record: bool, rounds: int):
+    """Emulation speed: Unicorn bare, with Python hooks, with the native trace (same workload).
+    With --check or --record: the models' speed ratios (sim/timing/speedcheck.py)."""
     from sim.timing.bench import run_bench
 
+    if check_speed or record:
+        _speed_check(check_speed, record, rounds, as_json)
+        return
     result = run_bench(pixels, progress=None if as_json else console)
     if as_json:
         click.echo(json.dumps(result, indent=2))
@@ -417,3 +428,35 @@ def bench_cmd(pixels: int, as_json: bool):
                   f"end to end: [bold]{result['end_to_end_ips'] / 1e6:.1f} M[/] instructions/s, "
                   f"{result['end_to_end_vs_native']:.2f} of the native trace's rate (target >= 0.5), "
                   f"{result['bare_vs_end_to_end']:.1f}x slower than bare Unicorn")
+
+
+def _speed_check(check_speed: bool, record: bool, rounds: int, as_json: bool) -> None:
+    from sim.timing import speedcheck
+
+    if check_speed and record:
+        raise ArgumentError("--check and --record: choose one")
+    say = None if as_json or not console.is_terminal else (lambda m: console.print(f"[dim]{escape(m)} ...[/]"))
+    if record:
+        result = speedcheck.measure(rounds=rounds, progress=say)
+        speedcheck.record(result)
+        failed, baseline = [], None
+    else:
+        baseline = speedcheck.load(speedcheck.BASELINE_FILE)
+        result, failed = speedcheck.check(baseline, rounds=rounds, progress=say)
+    if as_json:
+        click.echo(json.dumps({**result, "baseline": baseline and baseline["ratios"], "regressions": failed}, indent=2))
+    else:
+        table = Table(title=f"model speed: fp16z_span, {result['instructions']:,} guest instructions, best of "
+                            f"{result['rounds']} rounds (CPU time); native trace {result['native_ips'] / 1e6:.1f} M/s")
+        for col in ("model alone", "instr/s", "vs native", "recorded"):
+            table.add_column(col, justify="left" if col == "model alone" else "right")
+        for cpu, v in result["models"].items():
+            want = baseline["ratios"].get(cpu) if baseline else None
+            table.add_row(cpu, f"{v['ips'] / 1e6:.1f} M", f"{v['ratio']:.3f}", "-" if want is None else f"{want:.3f}")
+        console.print(table)
+        if record:
+            console.print(f"wrote {speedcheck.BASELINE_FILE}")
+    if failed:
+        for line in failed:
+            click.echo(f"speed regression: {line}", err=True)
+        sys.exit(1)

@@ -59,8 +59,10 @@ def _run_scenes(scenes, cpus, on_result=None, jobs: int | None = None) -> tuple[
 
     jobs = check_jobs(jobs)
     results, failures = [], []
+    # on a terminal only: piped or redirected, the bars' final frames would be the only output
     with Progress(TextColumn("{task.description}", markup=False), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                  TimeElapsedColumn(), console=err_console, transient=False) as bar:
+                  TimeElapsedColumn(), console=err_console, transient=False,
+                  disable=not err_console.is_terminal) as bar:
         for item in scenes:
             try:
                 scene = load_scene(item) if isinstance(item, Path) else item

@@ -950,6 +950,23 @@ def iter_decode(code: bytes, pc: int) -> Iterator[InsnRecord]:
 # Per-static-PC cache
 # --------------------------------------------------------------------------
 
+# Records shared by every Decoder in the process, keyed by the bytes fetched and the PC (a record
+# is a pure function of both, and immutable): a scene's many emulations of one kernel (the sort
+# scene's hundreds of runs, each a new Emulation with its own Decoder) decode each instruction once.
+_SHARED: dict[tuple[bytes, int], InsnRecord] = {}
+_SHARED_MAX = 1 << 14  # records kept (a few hundred per kernel, about 1 KB each); past it the memo starts again
+
+
+def _decode_shared(code: bytes, pc: int) -> InsnRecord:
+    key = (code, pc)
+    rec = _SHARED.get(key)
+    if rec is None:
+        if len(_SHARED) >= _SHARED_MAX:
+            _SHARED.clear()
+        rec = _SHARED[key] = decode_one(code, pc)
+    return rec
+
+
 
 @njit(cache=True, nogil=True)
 def _index_by_first_appearance(pcs, lo, span):
@@ -993,7 +1010,7 @@ class Decoder:
         pc = int(pc)
         rec = self._cache.get(pc)
         if rec is None:
-            rec = decode_one(self._fetch(pc, MAX_INSN_LEN), pc)
+            rec = _decode_shared(self._fetch(pc, MAX_INSN_LEN), pc)
             self._cache[pc] = rec
         return rec
 

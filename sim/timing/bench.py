@@ -24,7 +24,7 @@ from sim.guest.kernels import kernels_root
 SPAN_KERNEL = "zbuffer/fp16z.S"
 
 
-def _workload(pixels: int) -> tuple[np.ndarray, tuple[int, int, int]]:
+def span_workload(pixels: int) -> tuple[np.ndarray, tuple[int, int, int]]:
     """A depth buffer holding an earlier noisy surface, and a ramp that crosses it: the depth
     test passes and fails in long and short runs, as it does in a scene."""
     rng = np.random.default_rng(1998)
@@ -35,7 +35,7 @@ def _workload(pixels: int) -> tuple[np.ndarray, tuple[int, int, int]]:
 
 def run_bench(pixels: int = 1 << 20, progress=None) -> dict:
     m = Machine.from_source(kernels_root() / SPAN_KERNEL)
-    zinit, (z, dz, colour) = _workload(pixels)
+    zinit, (z, dz, colour) = span_workload(pixels)
 
     def once(trace, n=pixels):
         m.arena.reset()
