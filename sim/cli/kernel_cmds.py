@@ -253,10 +253,57 @@ def _loop_explain_table(t) -> Table:
     return table
 
 
+def loop_sections(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline, assembler,
+                  warn=lambda w: None) -> list[dict]:
+    """Time a loop body, or each region of a whole compiler output (sim/guest/body_source.py), as
+    `retrosim loop` does: one section per region ({"region": Region or None, "doc": its --json
+    document, "timings": its timings}). Shared by `loop` and `serve`; `warn` receives each warning line
+    (syntax first, then the run's)."""
+    from sim.guest import body_source
+
+    regions = body_source.regions(text, name, syntax)
+    if regions is None:
+        doc, timings = _loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset,
+                                      timeline, assembler, warn)
+        return [{"region": None, "doc": doc, "timings": timings}]
+    for warning in body_source.syntax_of(text, syntax)[1]:
+        warn(warning)
+    out = []
+    for region in regions:
+        doc, timings = _loop_document(region.text, name, cpus, memory, sets, syntax, iterations, regs, align,
+                                      offset, timeline, assembler, warn, syntax_warned=True)
+        doc = {"region": region.name, "lines": [region.first, region.last], "notes": region.notes, **doc}
+        out.append({"region": region, "doc": doc, "timings": timings})
+    return out
+
+
 def loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline, assembler,
                   warn=lambda w: None):
-    """Time a loop body as `retrosim loop` does and return (the --json document, the timings). Shared by
-    `loop` and `serve`; `warn` receives each warning line (syntax first, then the run's)."""
+    """The --json document of `retrosim loop` (a whole output's: {"source", "regions": [one document per
+    region]}), and the sections (:func:`loop_sections`)."""
+    sections = loop_sections(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline,
+                             assembler, warn)
+    if sections[0]["region"] is None:
+        return sections[0]["doc"], sections
+    return {"source": name, "regions": [s["doc"] for s in sections]}, sections
+
+
+def page_section(sections) -> tuple[dict, list]:
+    """The document and timings the pipeline page draws: the body's, or a whole output's first region
+    (a warning names the others)."""
+    first = sections[0]
+    doc = dict(first["doc"])
+    if first["region"] is not None:
+        r = first["region"]
+        others = [f"{s['region'].name} ({s['region'].lines})" for s in sections[1:]]
+        doc["warnings"] = [f"region {r.name} ({r.lines}) shown" + (f"; not shown: {', '.join(others)}" if others else "")
+                           ] + r.notes + doc["warnings"]
+    return doc, first["timings"]
+
+
+def _loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline, assembler,
+                   warn, syntax_warned=False):
+    """One body's document and timings."""
     from sim.cpus import load_dram
     from sim.timing import loop
     from sim.reports import views
@@ -265,7 +312,7 @@ def loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, alig
     if memory:
         load_dram(memory)
     try:  # a forced --syntax that contradicts the body: said before the assembler's complaints
-        syntax_warnings = loop.parse_body(text, name, syntax).warnings
+        syntax_warnings = [] if syntax_warned else loop.parse_body(text, name, syntax).warnings
     except RetrosimError:
         syntax_warnings = []  # refused below, with the CPU named
     for warning in syntax_warnings:
@@ -328,19 +375,35 @@ def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset
 
     html_out = _check_html(html_out)
     text, name = loop.read_body(source, sys.stdin.buffer)
-    doc, timings = loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline,
-                                 assembler, warn=lambda w: click.echo(f"retrosim: warning: {w}", err=True))
-    not_timed = doc["not_timed"]
+    doc, sections = loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline,
+                                  assembler, warn=lambda w: click.echo(f"retrosim: warning: {w}", err=True))
     if html_out is not None:
         from sim.output import atomic_write
         from sim.reports import pipeline_html
 
-        atomic_write(html_out, pipeline_html.page(pipeline_html.loop_data(doc, timings, text)).encode(), "--html")
+        page_doc, page_timings = page_section(sections)
+        atomic_write(html_out, pipeline_html.page(pipeline_html.loop_data(page_doc, page_timings, text)).encode(),
+                     "--html")
         if not as_json:  # where the page went (not with --json: its stdout is one document)
             say(f"wrote {html_out} (open it in a browser)")
     if as_json:
         click.echo(json.dumps(doc, indent=2))
         return
+    for section in sections:
+        region = section["region"]
+        if region is not None:  # a whole output: each region under its name and the lines it took
+            console.print(f"[bold]region {escape(region.name)}[/]: {escape(name)} {region.lines}")
+            _print_lines(region.notes)
+        _print_loop_section(section["doc"], section["timings"], name, iterations, timeline, align, offset, brief)
+
+
+def _print_loop_section(doc, timings, name, iterations, timeline, align, offset, brief) -> None:
+    """The text output of one body (or region): per-instruction tables and timelines, the summary table
+    and the lines under it."""
+    from sim.timing import loop
+    from sim.reports import views
+
+    not_timed = doc["not_timed"]
     if not brief:
         for t in timings:
             if hasattr(t.result.model, "explain_cells"):  # a family with columns of its own (P5)

@@ -124,7 +124,7 @@ def parse_request(req) -> dict:
 def compute(req) -> dict:
     """Time one request's body (in the child): the page's data, or the one-line error and its HTTP
     status. The body is a client's, not the user's: it may read no file (asm.served_sources)."""
-    from sim.cli.kernel_cmds import loop_document
+    from sim.cli.kernel_cmds import loop_document, page_section
     from sim.guest import asm
     from sim.reports import pipeline_html
 
@@ -136,7 +136,7 @@ def compute(req) -> dict:
             before = os.environ.get(asm.CACHE_ENV)
             os.environ[asm.CACHE_ENV] = cache
             try:
-                doc, timings = loop_document(o["text"], "<body>", o["cpus"], o["memory"], o["sets"], o["syntax"],
+                _, sections = loop_document(o["text"], "<body>", o["cpus"], o["memory"], o["sets"], o["syntax"],
                                              o["iterations"], o["regs"], o["align"], o["offset"], o["timeline"],
                                              None)
             finally:
@@ -144,6 +144,7 @@ def compute(req) -> dict:
                     del os.environ[asm.CACHE_ENV]
                 else:
                     os.environ[asm.CACHE_ENV] = before
+        doc, timings = page_section(sections)  # a whole output: its first region
         return {"data": pipeline_html.loop_data(doc, timings, o["text"])}
     except RetrosimError as e:
         return {"error": error_line(str(e)), "status": 400}

@@ -36,6 +36,8 @@ from unicorn import UC_ERR_EXCEPTION, UC_HOOK_MEM_READ_UNMAPPED, UC_HOOK_MEM_WRI
 from unicorn import x86_const as X
 
 from sim.guest import asm
+from sim.guest.body_source import COND as _COND, JUMP as _JUMP, LABEL as _LABEL, LABEL_RUN as _LABEL_RUN
+from sim.guest.body_source import MASM_ANON, from_masm, strip_comment, syntax_of as _syntax_of  # noqa: F401 (re-exported)
 from sim.guest import elf
 from sim.guest.cpu import GuestCpu
 from sim.guest import isa
@@ -73,10 +75,6 @@ ALIGN_SPAN = 64
 DEFAULT_ALIGN = ALIGN_SPAN
 _STACK_TOP = elf.STACK_BASE + elf.STACK_SIZE - 4096  # room above ESP for [esp+k] reads
 
-_LABEL = re.compile(r"^\s*([A-Za-z_.$][\w.$@]*|\d+)\s*:(?!:)")
-_LABEL_RUN = re.compile(r"^(?:\s*(?:[A-Za-z_.$][\w.$@]*|\d+)\s*:(?!:))*")
-_COND = re.compile(r"^(j(?!mp)[a-z]+|loop[a-z]*|jn?e?cxz)$")
-_JUMP = re.compile(r"^(j[a-z]+|loop[a-z]*|call[lw]?|ljmp|lcall)$")
 _REGISTERS = {p + r for r in ("ax", "bx", "cx", "dx", "si", "di", "bp", "sp") for p in ("e", "")}
 _REP_PREFIXES = {"rep", "repe", "repz", "repne", "repnz"}
 _PREFIXES = _REP_PREFIXES | {"lock", "data16", "addr16", "data32", "addr32", "cs", "ds", "es", "fs", "gs", "ss"}
@@ -129,66 +127,6 @@ class Body:
     loop: bool                     # ends with a conditional jump to its first instruction
     macros: list[tuple[int, str]] = field(default_factory=list)  # .macro ... .endm, assembled once before the body
     warnings: list[str] = field(default_factory=list)  # one line each, for stderr
-
-
-def strip_comment(line: str, syntax: str) -> str:
-    """Remove `//`, `#` and (Intel) `;` comments, but not inside a string ("a#b") or a character
-    constant ('#', GNU as's '#). In GNU as `;` separates statements, so a MASM listing's
-    `; comment` would be assembled as code without this."""
-    marks = ("//", "#") + ((";",) if syntax == "intel" else ())
-    i = 0
-    while i < len(line):
-        ch = line[i]
-        if ch == '"':
-            m = re.compile(r'"(?:[^"\\]|\\.)*"?').match(line, i)
-            i = m.end()
-            continue
-        if ch == "'":
-            i += 3 if line[i + 2:i + 3] == "'" else 2
-            continue
-        if line.startswith(marks, i):
-            return line[:i].rstrip()
-        i += 1
-    return line.rstrip()
-
-
-_STRING = re.compile(r'"(?:[^"\\]|\\.)*"?|\'.\'?')
-_MASM_HEX = re.compile(r"(?<![\w.$@])([0-9][0-9A-Fa-f]*)[hH](?![\w.$@])")
-_MASM_ANON_LABEL = re.compile(r"^(\s*)@@\s*:")
-_MASM_ANON_REF = re.compile(r"(?<![\w.$@])@([bBfF])(?![\w.$@])")
-MASM_ANON = "1986"  # the GNU numeric local label that stands for MASM's @@ (1986b = @b, 1986f = @f)
-
-
-def from_masm(line: str) -> str:
-    """The era's MASM/TASM forms in GNU as terms, outside strings: hex numbers `0FFh` -> `0x0FF`
-    (numeric tokens only: they start with a digit, so a label `bh` or a register is untouched)
-    and anonymous labels `@@:`, `@b`, `@f` -> the numeric local label MASM_ANON (`1986:`, `1986b`, `1986f`)."""
-    line = _MASM_ANON_LABEL.sub(lambda m: f"{m.group(1)}{MASM_ANON}:", line)
-    out, last = [], 0
-    for m in _STRING.finditer(line):
-        out.append(line[last:m.start()])
-        out.append(m.group(0))
-        last = m.end()
-    out.append(line[last:])
-    for i in range(0, len(out), 2):  # the parts outside strings
-        part = _MASM_HEX.sub(lambda m: "0x" + m.group(1), out[i])
-        out[i] = _MASM_ANON_REF.sub(lambda m: MASM_ANON + m.group(1).lower(), part)
-    return "".join(out)
-
-
-def _syntax_of(text: str, syntax: str | None) -> tuple[str, list[str]]:
-    """The body's syntax and a warning when a forced --syntax contradicts what the text says."""
-    m = re.search(r"^\s*\.(intel|att)_syntax", text, re.MULTILINE)
-    detected = m.group(1) if m else asm.detect_syntax(text.encode())
-    if syntax:
-        if syntax not in asm.SYNTAXES:
-            raise ArgumentError(f"--syntax {syntax}: choose intel or att")
-        if detected and detected != syntax:
-            names = {"intel": "Intel", "att": "AT&T"}
-            return syntax, [f"--syntax {syntax}: the body looks like {names[detected]} syntax; it is read as "
-                            f"{names[syntax]} (operand order {'destination first' if syntax == 'intel' else 'source first'})"]
-        return syntax, []
-    return detected or "intel", []
 
 
 def _statements(line: str, where: str) -> list[str]:
