@@ -73,6 +73,13 @@ MAX_BLOCK_INSTRUCTIONS = 40_000
 # puts it on such a boundary (the start of the code, as every release has done).
 ALIGN_SPAN = 64
 DEFAULT_ALIGN = ALIGN_SPAN
+# --data: the caches' state when the measured pass starts. cold: what the warm-up pass left (reads
+# allocate; a write allocates only if the preset's write policy does, so a P5 or a K6 without
+# write allocation writes fresh memory through to the bus). warm: also every line the measured pass
+# touches, read in, in address order, as far as it fits (llvm-mca's and uiCA's all-hits-L1 view).
+# Cold is the default: it is what the chip does, and what every release has timed.
+DATA_STATES = ("cold", "warm")
+DEFAULT_DATA = "cold"
 _STACK_TOP = elf.STACK_BASE + elf.STACK_SIZE - 4096  # room above ESP for [esp+k] reads
 
 _REGISTERS = {p + r for r in ("ax", "bx", "cx", "dx", "si", "di", "bp", "sp") for p in ("e", "")}
@@ -588,6 +595,8 @@ class LoopTiming:
     address: int = 0                 # where the body's first instruction was placed
     alignment: int = 0               # the largest power of two (up to ALIGN_SPAN) dividing it
     warnings: list[str] = field(default_factory=list)  # about the body's run (one line each)
+    data: str = DEFAULT_DATA         # the caches' state at the measured pass (DATA_STATES)
+    write_policy: str | None = None  # when the write policy decides the result: one line saying so
 
     @property
     def cycles_per_iteration(self) -> float:
@@ -598,28 +607,63 @@ class LoopTiming:
         return self.per_iteration["uops"]
 
 
-def time_run(run: LoopRun, cpu: str, memory: str | None = None, timeline_iterations: int = 3) -> LoopTiming:
+def time_run(run: LoopRun, cpu: str, memory: str | None = None, timeline_iterations: int = 3,
+             data: str = DEFAULT_DATA) -> LoopTiming:
     """Time a traced body on one CPU (a preset or a machine label such as
-    ``k6-233{write_allocate.mode=full}``; any family make_model knows)."""
+    ``k6-233{write_allocate.mode=full}``; any family make_model knows), with the caches `data`
+    (DATA_STATES) when the measured pass starts."""
+    if data not in DATA_STATES:
+        raise ArgumentError(f"--data {data}: choose {' or '.join(DATA_STATES)}")
     model = make_model(cpu, memory)
     span = min(256, run.iteration_length * max(0, timeline_iterations))
-    core_run = _run_model(model, run, (run.cuts[1], span))
+    core_run = _run_model(model, run, (run.cuts[1], span), data)
     calls = [core_run.segment(k) for k in range(len(run.cuts))]
     per = {k: round(v / run.measured, 4) for k, v in calls[-1].items()}
     result = TimingResult(cpu, model.dram.name, "loop", Path(run.body.name), 1, calls, model, core_run, run.trace)
     return LoopTiming(cpu, model.dram.name, run.measured, per, result, run.address, run.alignment,
-                      x87_warnings(run))
+                      x87_warnings(run), data, write_policy_line(model, cpu, per, data))
 
 
-def _run_model(model, run: LoopRun, timeline: tuple[int, int]):
+def _run_model(model, run: LoopRun, timeline: tuple[int, int], data: str = DEFAULT_DATA):
     """`model.run` on the loop's trace, except that the body does not end after the trace: it goes on
     to `run.next_pc` (the back-edge is taken). A run that ended there would take the last back-edge
-    as falling through, a mispredict the loop never has, inside the measured window."""
+    as falling through, a mispredict the loop never has, inside the measured window. With warm data
+    the warm-up pass is fed first, then the lines of the measured pass are read into the caches
+    (Hierarchy.prefill), then the measured pass is fed: the core's own state runs on unbroken."""
     decoder = Decoder(run.machine.image.fetch)
     session_type = type(model.session(decoder, list(run.cuts), run.cuts[1]))
     session = session_type(model, decoder, list(run.cuts), timeline, run.cuts[1])
-    session.feed(run.trace, run.next_pc)
+    if data == "warm":
+        warm_end = run.cuts[0]
+        session.feed(run.trace.head(warm_end), int(run.trace.pc[warm_end]))
+        measured = run.trace.part(warm_end, run.trace.instructions)
+        model.dside.prefill(measured.mem_addr, measured.mem_size)
+        session.feed(measured, run.next_pc)
+    else:
+        session.feed(run.trace, run.next_pc)
     return session.finish()
+
+
+# How to make write misses allocate on a preset whose write policy does not (the K6's is the
+# [write_allocate] mode of its preset; the P5 never allocates on a write miss: Intel SDM vol. 3A sec. 11.3)
+_WRITE_ALLOCATE_FIX = {"k6": " or {write_allocate.mode=full} (write allocation on, as a BIOS that programs WHCR sets it)"}
+
+
+def write_policy_line(model, cpu: str, per: dict[str, float], data: str) -> str | None:
+    """One line when the preset's write policy decides the result: stores in the measured
+    iterations miss the L1 data cache and the L1 does not allocate every write miss (P5: never;
+    K6 presets: per their write_allocate mode), so each goes to the bus and the loop waits on the
+    write buffer. None otherwise (no such store, or warm data)."""
+    from sim.memory.cache import ALLOC_ALWAYS
+
+    misses = per.get("l1d_store_misses", 0)
+    if data == "warm" or not misses or model.dside.geometries[0].allocate_id == ALLOC_ALWAYS:
+        return None
+    what = {0: "does not allocate a line on a write miss", 2: "allocates on a write miss only to the page of the "
+            "last line fill or a present sector"}[model.dside.geometries[0].allocate_id]
+    return (f"{cpu}: {misses:g} store(s) per iteration miss L1 and go to the bus: the L1 data cache {what}, so the "
+            f"write policy decides this result; --data warm times them as L1 hits"
+            f"{_WRITE_ALLOCATE_FIX.get(model.family, '')}")
 
 
 def x87_warnings(run: LoopRun) -> list[str]:
@@ -653,11 +697,11 @@ def required_extensions(run: LoopRun) -> set[str]:
 def time_body(text: str, cpus: list[str], name: str = "<stdin>", syntax: str | None = None,
               iterations: int = DEFAULT_ITERATIONS, regs: dict[str, int] | None = None,
               assembler: str | None = None, timeline_iterations: int = 3, memory: str | None = None,
-              align: int = DEFAULT_ALIGN, offset: int = 0) -> list[LoopTiming]:
+              align: int = DEFAULT_ALIGN, offset: int = 0, data: str = DEFAULT_DATA) -> list[LoopTiming]:
     """Time the body on every CPU in `cpus` (presets or machine labels); a CPU without an
     instruction the body uses is an error."""
     timings, _ = time_body_where_possible(text, cpus, name, syntax, iterations, regs, assembler,
-                                          timeline_iterations, memory, align, offset, skip=False)
+                                          timeline_iterations, memory, align, offset, skip=False, data=data)
     return timings
 
 
@@ -665,13 +709,15 @@ def time_body_where_possible(text: str, cpus: list[str], name: str = "<stdin>", 
                              iterations: int = DEFAULT_ITERATIONS, regs: dict[str, int] | None = None,
                              assembler: str | None = None, timeline_iterations: int = 3,
                              memory: str | None = None, align: int = DEFAULT_ALIGN, offset: int = 0,
-                             skip: bool = True) -> tuple[list[LoopTiming], dict[str, list[str]]]:
+                             skip: bool = True, data: str = DEFAULT_DATA) -> tuple[list[LoopTiming], dict[str, list[str]]]:
     """Time the body on the CPUs in `cpus` that have every instruction it uses; return the timings
     and the others by what they lack ({"MMX": [cpu, ...]}). With no CPU able to run it (or
     `skip` false and one CPU unable), the first refusal is the error."""
     from sim.cpus import presets, split_label
 
-    placement(align, offset)  # a bad --align / --offset fails before any emulation
+    placement(align, offset)  # a bad --align / --offset (or --data) fails before any emulation
+    if data not in DATA_STATES:
+        raise ArgumentError(f"--data {data}: choose {' or '.join(DATA_STATES)}")
     if not cpus:
         raise ArgumentError("no CPU to time the body on")
     bases = {}
@@ -726,7 +772,7 @@ def time_body_where_possible(text: str, cpus: list[str], name: str = "<stdin>", 
             lacks = sorted(required_extensions(run) - targets[c].extensions, key=isa.EXTENSIONS.index)
             missing.setdefault(", ".join(EXTENSION_NAMES[x] for x in lacks), []).append(c)
             continue
-        out.append(time_run(run, c, memory, timeline_iterations=timeline_iterations))
+        out.append(time_run(run, c, memory, timeline_iterations=timeline_iterations, data=data))
     if not out:  # no CPU could run it: the refusal `retrosim time` gives on the first one
         raise refusals[0]
     return out, missing
