@@ -218,14 +218,21 @@ def regions(text: str, name: str, syntax: str | None = None) -> list[Region] | N
     else:
         spans = [(f"loop {label}", a, b) for label, a, b in _innermost_loops(lines)]
         if not spans:
-            raise RetrosimError(f"{name}: no loop found: no conditional jump goes back to a label of the text. "
-                                "Mark the code to time with '# LLVM-MCA-BEGIN name' and '# LLVM-MCA-END' lines, "
-                                "or give the loop body alone")
+            raise RetrosimError(_no_loop(lines, name))
     out = []
     for title, a, b in spans:  # a marked region's lines: from its first to its last label or statement
         used = [k for k in range(a, b + 1) if lines[k].labels or lines[k].statement]
         out.append(_region(raw_lines, lines, title, used[0] if used else a, used[-1] if used else b, name, syntax))
     return out
+
+
+def _no_loop(lines: list[_Line], name: str) -> str:
+    """The error for a whole file or function without a loop: the line that made it one, and what to do."""
+    k, line = next((k, line) for k, line in enumerate(lines) if line.word in _SECTIONS or line.word in _RETURNS)
+    what = "a section directive" if line.word in _SECTIONS else "leaves the body (a return)"
+    return (f"{name}:{k + 1}: '{' '.join(line.statement.split())}': {what}, so this is a whole file or function, "
+            "not a loop body, and no loop was found in it (no conditional jump back to a label of the text): mark "
+            "the code to time with '# LLVM-MCA-BEGIN name' and '# LLVM-MCA-END' lines, or give the loop body alone")
 
 
 def _region(raw_lines: list[str], lines: list[_Line], title: str, a: int, b: int, name: str,

@@ -646,7 +646,7 @@ def _run_model(model, run: LoopRun, timeline: tuple[int, int], data: str = DEFAU
 
 # How to make write misses allocate on a preset whose write policy does not (the K6's is the
 # [write_allocate] mode of its preset; the P5 never allocates on a write miss: Intel SDM vol. 3A sec. 11.3)
-_WRITE_ALLOCATE_FIX = {"k6": " or {write_allocate.mode=full} (write allocation on, as a BIOS that programs WHCR sets it)"}
+_WRITE_ALLOCATE_FIX = {"k6": "; --set write_allocate.mode=full makes write misses allocate (a K6 whose BIOS programs WHCR)"}
 
 
 def write_policy_line(model, cpu: str, per: dict[str, float], data: str) -> str | None:
@@ -661,8 +661,8 @@ def write_policy_line(model, cpu: str, per: dict[str, float], data: str) -> str 
         return None
     what = {0: "does not allocate a line on a write miss", 2: "allocates on a write miss only to the page of the "
             "last line fill or a present sector"}[model.dside.geometries[0].allocate_id]
-    return (f"{cpu}: {misses:g} store(s) per iteration miss L1 and go to the bus: the L1 data cache {what}, so the "
-            f"write policy decides this result; --data warm times them as L1 hits"
+    return (f"{cpu}: the write policy decides this result: {misses:g} store(s) per iteration miss L1 and go to the "
+            f"bus (its L1 data cache {what}); --data warm times them as L1 hits"
             f"{_WRITE_ALLOCATE_FIX.get(model.family, '')}")
 
 
