@@ -253,10 +253,57 @@ def _loop_explain_table(t) -> Table:
     return table
 
 
+def loop_sections(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline, assembler,
+                  warn=lambda w: None, data=None) -> list[dict]:
+    """Time a loop body, or each region of a whole compiler output (sim/guest/body_source.py), as
+    `retrosim loop` does: one section per region ({"region": Region or None, "doc": its --json
+    document, "timings": its timings}). Shared by `loop` and `serve`; `warn` receives each warning line
+    (syntax first, then the run's)."""
+    from sim.guest import body_source
+
+    regions = body_source.regions(text, name, syntax)
+    if regions is None:
+        doc, timings = _loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset,
+                                      timeline, assembler, warn, data=data)
+        return [{"region": None, "doc": doc, "timings": timings}]
+    for warning in body_source.syntax_of(text, syntax)[1]:
+        warn(warning)
+    out = []
+    for region in regions:
+        doc, timings = _loop_document(region.text, name, cpus, memory, sets, syntax, iterations, regs, align,
+                                      offset, timeline, assembler, warn, syntax_warned=True, data=data)
+        doc = {"region": region.name, "lines": [region.first, region.last], "notes": region.notes, **doc}
+        out.append({"region": region, "doc": doc, "timings": timings})
+    return out
+
+
 def loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline, assembler,
-                  warn=lambda w: None):
-    """Time a loop body as `retrosim loop` does and return (the --json document, the timings). Shared by
-    `loop` and `serve`; `warn` receives each warning line (syntax first, then the run's)."""
+                  warn=lambda w: None, data=None):
+    """The --json document of `retrosim loop` (a whole output's: {"source", "regions": [one document per
+    region]}), and the sections (:func:`loop_sections`)."""
+    sections = loop_sections(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline,
+                             assembler, warn, data)
+    if sections[0]["region"] is None:
+        return sections[0]["doc"], sections
+    return {"source": name, "data": sections[0]["doc"]["data"], "regions": [s["doc"] for s in sections]}, sections
+
+
+def page_section(sections) -> tuple[dict, list]:
+    """The document and timings the pipeline page draws: the body's, or a whole output's first region
+    (a warning names the others)."""
+    first = sections[0]
+    doc = dict(first["doc"])
+    if first["region"] is not None:
+        r = first["region"]
+        others = [f"{s['region'].name} ({s['region'].lines})" for s in sections[1:]]
+        doc["warnings"] = [f"region {r.name} ({r.lines}) shown" + (f"; not shown: {', '.join(others)}" if others else "")
+                           ] + r.notes + doc["warnings"]
+    return doc, first["timings"]
+
+
+def _loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline, assembler,
+                   warn, syntax_warned=False, data=None):
+    """One body's document and timings."""
     from sim.cpus import load_dram
     from sim.timing import loop
     from sim.reports import views
@@ -265,7 +312,7 @@ def loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, alig
     if memory:
         load_dram(memory)
     try:  # a forced --syntax that contradicts the body: said before the assembler's complaints
-        syntax_warnings = loop.parse_body(text, name, syntax).warnings
+        syntax_warnings = [] if syntax_warned else loop.parse_body(text, name, syntax).warnings
     except RetrosimError:
         syntax_warnings = []  # refused below, with the CPU named
     for warning in syntax_warnings:
@@ -277,12 +324,13 @@ def loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, alig
         memory = memory or set_memory
     timings, not_timed = loop.time_body_where_possible(text, list(dict.fromkeys(labels)), name, syntax, iterations,
                                                        loop.parse_regs(regs), assembler, timeline, memory, align,
-                                                       offset)
+                                                       offset, data=data or loop.DEFAULT_DATA)
     warnings = list(dict.fromkeys(w for t in timings for w in t.warnings))
     for warning in warnings:
         warn(warning)
     warnings = syntax_warnings + warnings
-    doc = {"source": name, "registers": {k: f"{v:#010x}" for k, v in loop.parse_regs(regs).items()},
+    doc = {"source": name, "data": data or loop.DEFAULT_DATA,
+           "registers": {k: f"{v:#010x}" for k, v in loop.parse_regs(regs).items()},
            "placement": _placement(timings, align, offset),
            "not_timed": not_timed,
            "warnings": warnings,
@@ -291,6 +339,7 @@ def loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, alig
                         "uops_per_iteration": t.uops_per_iteration,
                         "instructions_per_iteration": t.per_iteration["instructions"],
                         "measured_iterations": t.iterations, "per_iteration": t.per_iteration,
+                        "write_policy": t.write_policy,
                         "model_limits": views.caveats(t.result),
                         "instructions": views.explain_rows(t.result),
                         "timeline": views.timeline_rows(t.result)} for t in timings]}
@@ -314,33 +363,54 @@ def loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, alig
 @click.option("--offset", "offset", default=0, show_default=True, metavar="K",
               help="then K bytes further (0 <= K < N): --align 16 --offset 3 starts the body 19 bytes past a "
                    "64-byte boundary")
+@click.option("--data", "data", type=click.Choice(["cold", "warm"]), default="cold", show_default=True,
+              help="the data caches when the measured pass starts. cold: as the warm-up pass left them (reads "
+                   "allocate; writes only where the CPU's write policy allocates: not on a P5, nor on a K6 preset "
+                   "without write allocation). warm: also every line the measured pass touches read in first, as "
+                   "far as it fits (every access an L1 hit when the working set fits, as llvm-mca and uiCA assume)")
 @click.option("--timeline", "timeline", default=3, show_default=True, callback=bounded(0, 1000),
               help="iterations shown in the timeline")
 @click.option("--brief", is_flag=True, help="only the table of cycles per iteration")
 @click.option("--assembler", type=click.Choice(["gnu", "zig"]), help="assembler back end (default: GNU as)")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
 @html_option
-def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline, brief, assembler, as_json,
-             html_out):
+def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset, data, timeline, brief, assembler,
+             as_json, html_out):
     """Time a bare loop body or basic block (FILE, or - for standard input): steady-state cycles per iteration."""
     from sim.timing import loop
     from sim.reports import views
 
     html_out = _check_html(html_out)
     text, name = loop.read_body(source, sys.stdin.buffer)
-    doc, timings = loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline,
-                                 assembler, warn=lambda w: click.echo(f"retrosim: warning: {w}", err=True))
-    not_timed = doc["not_timed"]
+    doc, sections = loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline,
+                                  assembler, warn=lambda w: click.echo(f"retrosim: warning: {w}", err=True), data=data)
     if html_out is not None:
         from sim.output import atomic_write
         from sim.reports import pipeline_html
 
-        atomic_write(html_out, pipeline_html.page(pipeline_html.loop_data(doc, timings, text)).encode(), "--html")
+        page_doc, page_timings = page_section(sections)
+        atomic_write(html_out, pipeline_html.page(pipeline_html.loop_data(page_doc, page_timings, text)).encode(),
+                     "--html")
         if not as_json:  # where the page went (not with --json: its stdout is one document)
             say(f"wrote {html_out} (open it in a browser)")
     if as_json:
         click.echo(json.dumps(doc, indent=2))
         return
+    for section in sections:
+        region = section["region"]
+        if region is not None:  # a whole output: each region under its name and the lines it took
+            console.print(f"[bold]region {escape(region.name)}[/]: {escape(name)} {region.lines}")
+            _print_lines(region.notes)
+        _print_loop_section(section["doc"], section["timings"], name, iterations, timeline, align, offset, brief)
+
+
+def _print_loop_section(doc, timings, name, iterations, timeline, align, offset, brief) -> None:
+    """The text output of one body (or region): per-instruction tables and timelines, the summary table
+    and the lines under it."""
+    from sim.timing import loop
+    from sim.reports import views
+
+    not_timed = doc["not_timed"]
     if not brief:
         for t in timings:
             if hasattr(t.result.model, "explain_cells"):  # a family with columns of its own (P5)
@@ -371,10 +441,18 @@ def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset
     place = _placement(timings, align, offset)
     lines = [f"body at {place['address']} ({place['alignment']}-byte aligned, {place['past_boundary']} past a "
              f"{loop.ALIGN_SPAN}-byte boundary: --align {align} --offset {offset}); est.: executed instructions "
-             "timed with estimated table rows"]
+             "timed with estimated table rows", DATA_LINES[doc["data"]]]
+    lines += [t.write_policy for t in timings if t.write_policy]
     lines += [f"not timed (no {what}): {', '.join(cpus_)}" for what, cpus_ in not_timed.items()]
     lines += [f"{cpu}: {views.not_modelled_line(c)}" for cpu, c in limits.items() if c["not_modelled"]]
     _print_lines(lines)
+
+
+# the caches' state, said under every loop table (sim.timing.loop.DATA_STATES)
+DATA_LINES = {"cold": "data: cold (caches as the warm-up pass left them; writes allocate only where the CPU's write "
+                      "policy does; --data warm reads every line in first)",
+              "warm": "data: warm (every line the measured pass touches read into the caches first, as far as it "
+                      "fits)"}
 
 
 def _placement(timings, align: int, offset: int) -> dict:

@@ -25,6 +25,7 @@ def cpus_cmd(as_json):
                                                  "l1i": c.l1i.describe(), "l1d": c.l1d.describe(),
                                                  "l2": c.l2.describe() if c.l2 else None,
                                                  "board_cache": c.board_cache.describe() if c.board_cache else None,
+                                                 "write_allocate": write_allocate_mode(c),
                                                  "memory": c.memory} for c in cpus},
                                "memory": {m: load_dram(m).describe() for m in memory_presets()}}, indent=2))
         return
@@ -38,6 +39,29 @@ def cpus_cmd(as_json):
         d = load_dram(name)
         m.add_row(name, d.kind, "-".join(str(x) for x in d.burst))
     console.print(m)
+
+
+def write_allocate_mode(preset) -> str:
+    """The L1 data cache's write allocation, in the words of the `write_allocate.mode` override:
+    "full", "page+sector only" or "none" (a loop writing fresh memory waits on the write buffer on
+    all but "full": `retrosim loop --data`)."""
+    from sim.memory.cache import ALLOC_ALWAYS, ALLOC_NEVER
+    from sim.memory.hierarchy import Hierarchy
+
+    allocate = Hierarchy.from_preset(preset).geometries[0].allocate_id
+    return {ALLOC_ALWAYS: "full", ALLOC_NEVER: "none"}.get(allocate, "page+sector only")
+
+
+def _write_allocate_caption(cpus, full: bool) -> str:
+    """What the presets' write allocation means for a loop, and (compact table) which presets lack it."""
+    lacking = {}
+    for c in cpus:
+        mode = write_allocate_mode(c)
+        if mode != "full":
+            lacking.setdefault(mode, []).append(c.name)
+    where = "" if full else " (" + "; ".join(f"{mode}: {', '.join(names)}" for mode, names in lacking.items()) + ")"
+    return ("write alloc.: does the L1D allocate a line on a write miss" + where + "; where it does not, a loop "
+            "writing fresh memory waits on the write buffer: see retrosim loop --data")
 
 
 def _cpu_tables(cpus, width: int) -> list:
@@ -65,8 +89,9 @@ def _cpu_tables(cpus, width: int) -> list:
                   pad_edge=False,
                   caption=("L1: size, ways, line, load-to-use clocks; L2 'x clock': its clock over the core's"
                            if full else "MHz: core and bus clocks; L1: instruction + data; 'board': the motherboard cache; 'at 0.5x': L2 at half the core clock; "
-                           "ways and latencies with --json or a wider terminal"), caption_justify="left")
-        cols = (["preset", "family", "MHz", "bus MHz", "L1I", "L1D", "L2", "memory"] if full else
+                           "ways and latencies with --json or a wider terminal")
+                  + "\n" + _write_allocate_caption(cpus, full), caption_justify="left")
+        cols = (["preset", "family", "MHz", "bus MHz", "L1I", "L1D", "L2", "write alloc.", "memory"] if full else
                 ["preset", "family", "MHz", "bus", "L1 KB", "L2 KB", "memory"])
         for col in cols:
             t.add_column(col, no_wrap=True, justify="right" if col in ("MHz", "bus", "bus MHz") else "left")
@@ -74,7 +99,7 @@ def _cpu_tables(cpus, width: int) -> list:
             l1 = [c.l1i.describe(), c.l1d.describe()] if full else [f"{c.l1i.size_kb}+{c.l1d.size_kb}"]
             # truncated, as the parts are sold: 266.67 MHz is a Celeron 266 on a 66 MHz bus
             t.add_row(c.name, c.family.upper(), f"{int(c.core_mhz)}", f"{int(c.fsb_mhz)}", *l1, caches(c, full),
-                      c.memory)
+                      *([write_allocate_mode(c)] if full else []), c.memory)
         return t
 
     wide = build(True)

@@ -82,7 +82,7 @@ def parse_request(req) -> dict:
     if not isinstance(req, dict):
         raise ArgumentError("the request is not a JSON object")
     unknown = set(req) - {"body", "cpus", "sets", "memory", "syntax", "iterations", "regs", "align", "offset",
-                          "timeline"}
+                          "timeline", "data"}
     if unknown:
         raise ArgumentError(f"unknown request field(s): {', '.join(sorted(unknown))}")
 
@@ -112,19 +112,22 @@ def parse_request(req) -> dict:
     syntax = text("syntax") or None
     if syntax is not None and syntax not in ("intel", "att"):
         raise ArgumentError(f"--syntax {syntax}: choose intel or att")
+    data = text("data") or None
+    if data is not None and data not in ("cold", "warm"):
+        raise ArgumentError(f"--data {data}: choose cold or warm")
     timeline = integer("timeline", 3)
     if not 0 <= timeline <= 1000:
         raise ArgumentError(f"--timeline {timeline}: must be between 0 and 1,000")
     return {"text": body, "cpus": texts("cpus", MAX_CPUS) or list(DEFAULT_CPUS), "sets": texts("sets", 64),
             "memory": text("memory") or None, "syntax": syntax, "iterations": integer("iterations", 100),
             "regs": texts("regs", 16), "align": integer("align", 64), "offset": integer("offset", 0),
-            "timeline": timeline}
+            "timeline": timeline, "data": data}
 
 
 def compute(req) -> dict:
     """Time one request's body (in the child): the page's data, or the one-line error and its HTTP
     status. The body is a client's, not the user's: it may read no file (asm.served_sources)."""
-    from sim.cli.kernel_cmds import loop_document
+    from sim.cli.kernel_cmds import loop_document, page_section
     from sim.guest import asm
     from sim.reports import pipeline_html
 
@@ -136,14 +139,15 @@ def compute(req) -> dict:
             before = os.environ.get(asm.CACHE_ENV)
             os.environ[asm.CACHE_ENV] = cache
             try:
-                doc, timings = loop_document(o["text"], "<body>", o["cpus"], o["memory"], o["sets"], o["syntax"],
+                _, sections = loop_document(o["text"], "<body>", o["cpus"], o["memory"], o["sets"], o["syntax"],
                                              o["iterations"], o["regs"], o["align"], o["offset"], o["timeline"],
-                                             None)
+                                             None, data=o["data"])
             finally:
                 if before is None:
                     del os.environ[asm.CACHE_ENV]
                 else:
                     os.environ[asm.CACHE_ENV] = before
+        doc, timings = page_section(sections)  # a whole output: its first region
         return {"data": pipeline_html.loop_data(doc, timings, o["text"])}
     except RetrosimError as e:
         return {"error": error_line(str(e)), "status": 400}

@@ -710,6 +710,16 @@ class Hierarchy:
         self.config[:, CFG_TLB_WAYS] = ways
         self.work[TLB_LAST:TLB_TAGS + MAX_TLB_ENTRIES] = -1
 
+    def prefill(self, mem_addr, mem_size) -> None:
+        """Bring every line the accesses touch into the caches, in address order, as reads would
+        bring them (each line read once, through the data TLB if there is one), as far as they fit:
+        the "warm data" start of `retrosim loop --data warm`. Counts go nowhere (a throwaway array)."""
+        ob = self.geometries[0].offset_bits
+        lines = _trace_lines(np.ascontiguousarray(mem_addr, dtype=np.uint32),
+                             np.ascontiguousarray(mem_size, dtype=np.uint8), ob)
+        addr = (np.unique(lines) << ob).astype(np.uint32)  # sorted: address order
+        simulate(*self.arrays(), addr, np.ones(addr.size, np.uint8), np.zeros(addr.size, np.bool_))
+
     def run(self, trace, *, classify: bool = False, cold: bool = True) -> HierarchyStats:
         """Simulate ``trace`` (anything with ``mem_addr``/``mem_size``/``mem_write`` arrays, e.g. a
         :class:`sim.guest.trace.Trace`). ``cold`` empties the caches first; ``classify`` adds the

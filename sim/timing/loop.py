@@ -36,6 +36,8 @@ from unicorn import UC_ERR_EXCEPTION, UC_HOOK_MEM_READ_UNMAPPED, UC_HOOK_MEM_WRI
 from unicorn import x86_const as X
 
 from sim.guest import asm
+from sim.guest.body_source import COND as _COND, JUMP as _JUMP, LABEL as _LABEL, LABEL_RUN as _LABEL_RUN
+from sim.guest.body_source import MASM_ANON, from_masm, strip_comment, syntax_of as _syntax_of  # noqa: F401 (re-exported)
 from sim.guest import elf
 from sim.guest.cpu import GuestCpu
 from sim.guest import isa
@@ -71,12 +73,15 @@ MAX_BLOCK_INSTRUCTIONS = 40_000
 # puts it on such a boundary (the start of the code, as every release has done).
 ALIGN_SPAN = 64
 DEFAULT_ALIGN = ALIGN_SPAN
+# --data: the caches' state when the measured pass starts. cold: what the warm-up pass left (reads
+# allocate; a write allocates only if the preset's write policy does, so a P5 or a K6 without
+# write allocation writes fresh memory through to the bus). warm: also every line the measured pass
+# touches, read in, in address order, as far as it fits (llvm-mca's and uiCA's all-hits-L1 view).
+# Cold is the default: it is what the chip does, and what every release has timed.
+DATA_STATES = ("cold", "warm")
+DEFAULT_DATA = "cold"
 _STACK_TOP = elf.STACK_BASE + elf.STACK_SIZE - 4096  # room above ESP for [esp+k] reads
 
-_LABEL = re.compile(r"^\s*([A-Za-z_.$][\w.$@]*|\d+)\s*:(?!:)")
-_LABEL_RUN = re.compile(r"^(?:\s*(?:[A-Za-z_.$][\w.$@]*|\d+)\s*:(?!:))*")
-_COND = re.compile(r"^(j(?!mp)[a-z]+|loop[a-z]*|jn?e?cxz)$")
-_JUMP = re.compile(r"^(j[a-z]+|loop[a-z]*|call[lw]?|ljmp|lcall)$")
 _REGISTERS = {p + r for r in ("ax", "bx", "cx", "dx", "si", "di", "bp", "sp") for p in ("e", "")}
 _REP_PREFIXES = {"rep", "repe", "repz", "repne", "repnz"}
 _PREFIXES = _REP_PREFIXES | {"lock", "data16", "addr16", "data32", "addr32", "cs", "ds", "es", "fs", "gs", "ss"}
@@ -129,66 +134,6 @@ class Body:
     loop: bool                     # ends with a conditional jump to its first instruction
     macros: list[tuple[int, str]] = field(default_factory=list)  # .macro ... .endm, assembled once before the body
     warnings: list[str] = field(default_factory=list)  # one line each, for stderr
-
-
-def strip_comment(line: str, syntax: str) -> str:
-    """Remove `//`, `#` and (Intel) `;` comments, but not inside a string ("a#b") or a character
-    constant ('#', GNU as's '#). In GNU as `;` separates statements, so a MASM listing's
-    `; comment` would be assembled as code without this."""
-    marks = ("//", "#") + ((";",) if syntax == "intel" else ())
-    i = 0
-    while i < len(line):
-        ch = line[i]
-        if ch == '"':
-            m = re.compile(r'"(?:[^"\\]|\\.)*"?').match(line, i)
-            i = m.end()
-            continue
-        if ch == "'":
-            i += 3 if line[i + 2:i + 3] == "'" else 2
-            continue
-        if line.startswith(marks, i):
-            return line[:i].rstrip()
-        i += 1
-    return line.rstrip()
-
-
-_STRING = re.compile(r'"(?:[^"\\]|\\.)*"?|\'.\'?')
-_MASM_HEX = re.compile(r"(?<![\w.$@])([0-9][0-9A-Fa-f]*)[hH](?![\w.$@])")
-_MASM_ANON_LABEL = re.compile(r"^(\s*)@@\s*:")
-_MASM_ANON_REF = re.compile(r"(?<![\w.$@])@([bBfF])(?![\w.$@])")
-MASM_ANON = "1986"  # the GNU numeric local label that stands for MASM's @@ (1986b = @b, 1986f = @f)
-
-
-def from_masm(line: str) -> str:
-    """The era's MASM/TASM forms in GNU as terms, outside strings: hex numbers `0FFh` -> `0x0FF`
-    (numeric tokens only: they start with a digit, so a label `bh` or a register is untouched)
-    and anonymous labels `@@:`, `@b`, `@f` -> the numeric local label MASM_ANON (`1986:`, `1986b`, `1986f`)."""
-    line = _MASM_ANON_LABEL.sub(lambda m: f"{m.group(1)}{MASM_ANON}:", line)
-    out, last = [], 0
-    for m in _STRING.finditer(line):
-        out.append(line[last:m.start()])
-        out.append(m.group(0))
-        last = m.end()
-    out.append(line[last:])
-    for i in range(0, len(out), 2):  # the parts outside strings
-        part = _MASM_HEX.sub(lambda m: "0x" + m.group(1), out[i])
-        out[i] = _MASM_ANON_REF.sub(lambda m: MASM_ANON + m.group(1).lower(), part)
-    return "".join(out)
-
-
-def _syntax_of(text: str, syntax: str | None) -> tuple[str, list[str]]:
-    """The body's syntax and a warning when a forced --syntax contradicts what the text says."""
-    m = re.search(r"^\s*\.(intel|att)_syntax", text, re.MULTILINE)
-    detected = m.group(1) if m else asm.detect_syntax(text.encode())
-    if syntax:
-        if syntax not in asm.SYNTAXES:
-            raise ArgumentError(f"--syntax {syntax}: choose intel or att")
-        if detected and detected != syntax:
-            names = {"intel": "Intel", "att": "AT&T"}
-            return syntax, [f"--syntax {syntax}: the body looks like {names[detected]} syntax; it is read as "
-                            f"{names[syntax]} (operand order {'destination first' if syntax == 'intel' else 'source first'})"]
-        return syntax, []
-    return detected or "intel", []
 
 
 def _statements(line: str, where: str) -> list[str]:
@@ -650,6 +595,8 @@ class LoopTiming:
     address: int = 0                 # where the body's first instruction was placed
     alignment: int = 0               # the largest power of two (up to ALIGN_SPAN) dividing it
     warnings: list[str] = field(default_factory=list)  # about the body's run (one line each)
+    data: str = DEFAULT_DATA         # the caches' state at the measured pass (DATA_STATES)
+    write_policy: str | None = None  # when the write policy decides the result: one line saying so
 
     @property
     def cycles_per_iteration(self) -> float:
@@ -660,28 +607,63 @@ class LoopTiming:
         return self.per_iteration["uops"]
 
 
-def time_run(run: LoopRun, cpu: str, memory: str | None = None, timeline_iterations: int = 3) -> LoopTiming:
+def time_run(run: LoopRun, cpu: str, memory: str | None = None, timeline_iterations: int = 3,
+             data: str = DEFAULT_DATA) -> LoopTiming:
     """Time a traced body on one CPU (a preset or a machine label such as
-    ``k6-233{write_allocate.mode=full}``; any family make_model knows)."""
+    ``k6-233{write_allocate.mode=full}``; any family make_model knows), with the caches `data`
+    (DATA_STATES) when the measured pass starts."""
+    if data not in DATA_STATES:
+        raise ArgumentError(f"--data {data}: choose {' or '.join(DATA_STATES)}")
     model = make_model(cpu, memory)
     span = min(256, run.iteration_length * max(0, timeline_iterations))
-    core_run = _run_model(model, run, (run.cuts[1], span))
+    core_run = _run_model(model, run, (run.cuts[1], span), data)
     calls = [core_run.segment(k) for k in range(len(run.cuts))]
     per = {k: round(v / run.measured, 4) for k, v in calls[-1].items()}
     result = TimingResult(cpu, model.dram.name, "loop", Path(run.body.name), 1, calls, model, core_run, run.trace)
     return LoopTiming(cpu, model.dram.name, run.measured, per, result, run.address, run.alignment,
-                      x87_warnings(run))
+                      x87_warnings(run), data, write_policy_line(model, cpu, per, data))
 
 
-def _run_model(model, run: LoopRun, timeline: tuple[int, int]):
+def _run_model(model, run: LoopRun, timeline: tuple[int, int], data: str = DEFAULT_DATA):
     """`model.run` on the loop's trace, except that the body does not end after the trace: it goes on
     to `run.next_pc` (the back-edge is taken). A run that ended there would take the last back-edge
-    as falling through, a mispredict the loop never has, inside the measured window."""
+    as falling through, a mispredict the loop never has, inside the measured window. With warm data
+    the warm-up pass is fed first, then the lines of the measured pass are read into the caches
+    (Hierarchy.prefill), then the measured pass is fed: the core's own state runs on unbroken."""
     decoder = Decoder(run.machine.image.fetch)
     session_type = type(model.session(decoder, list(run.cuts), run.cuts[1]))
     session = session_type(model, decoder, list(run.cuts), timeline, run.cuts[1])
-    session.feed(run.trace, run.next_pc)
+    if data == "warm":
+        warm_end = run.cuts[0]
+        session.feed(run.trace.head(warm_end), int(run.trace.pc[warm_end]))
+        measured = run.trace.part(warm_end, run.trace.instructions)
+        model.dside.prefill(measured.mem_addr, measured.mem_size)
+        session.feed(measured, run.next_pc)
+    else:
+        session.feed(run.trace, run.next_pc)
     return session.finish()
+
+
+# How to make write misses allocate on a preset whose write policy does not (the K6's is the
+# [write_allocate] mode of its preset; the P5 never allocates on a write miss: Intel SDM vol. 3A sec. 11.3)
+_WRITE_ALLOCATE_FIX = {"k6": "; --set write_allocate.mode=full makes write misses allocate (a K6 whose BIOS programs WHCR)"}
+
+
+def write_policy_line(model, cpu: str, per: dict[str, float], data: str) -> str | None:
+    """One line when the preset's write policy decides the result: stores in the measured
+    iterations miss the L1 data cache and the L1 does not allocate every write miss (P5: never;
+    K6 presets: per their write_allocate mode), so each goes to the bus and the loop waits on the
+    write buffer. None otherwise (no such store, or warm data)."""
+    from sim.memory.cache import ALLOC_ALWAYS
+
+    misses = per.get("l1d_store_misses", 0)
+    if data == "warm" or not misses or model.dside.geometries[0].allocate_id == ALLOC_ALWAYS:
+        return None
+    what = {0: "does not allocate a line on a write miss", 2: "allocates on a write miss only to the page of the "
+            "last line fill or a present sector"}[model.dside.geometries[0].allocate_id]
+    return (f"{cpu}: the write policy decides this result: {misses:g} store(s) per iteration miss L1 and go to the "
+            f"bus (its L1 data cache {what}); --data warm times them as L1 hits"
+            f"{_WRITE_ALLOCATE_FIX.get(model.family, '')}")
 
 
 def x87_warnings(run: LoopRun) -> list[str]:
@@ -715,11 +697,11 @@ def required_extensions(run: LoopRun) -> set[str]:
 def time_body(text: str, cpus: list[str], name: str = "<stdin>", syntax: str | None = None,
               iterations: int = DEFAULT_ITERATIONS, regs: dict[str, int] | None = None,
               assembler: str | None = None, timeline_iterations: int = 3, memory: str | None = None,
-              align: int = DEFAULT_ALIGN, offset: int = 0) -> list[LoopTiming]:
+              align: int = DEFAULT_ALIGN, offset: int = 0, data: str = DEFAULT_DATA) -> list[LoopTiming]:
     """Time the body on every CPU in `cpus` (presets or machine labels); a CPU without an
     instruction the body uses is an error."""
     timings, _ = time_body_where_possible(text, cpus, name, syntax, iterations, regs, assembler,
-                                          timeline_iterations, memory, align, offset, skip=False)
+                                          timeline_iterations, memory, align, offset, skip=False, data=data)
     return timings
 
 
@@ -727,13 +709,15 @@ def time_body_where_possible(text: str, cpus: list[str], name: str = "<stdin>", 
                              iterations: int = DEFAULT_ITERATIONS, regs: dict[str, int] | None = None,
                              assembler: str | None = None, timeline_iterations: int = 3,
                              memory: str | None = None, align: int = DEFAULT_ALIGN, offset: int = 0,
-                             skip: bool = True) -> tuple[list[LoopTiming], dict[str, list[str]]]:
+                             skip: bool = True, data: str = DEFAULT_DATA) -> tuple[list[LoopTiming], dict[str, list[str]]]:
     """Time the body on the CPUs in `cpus` that have every instruction it uses; return the timings
     and the others by what they lack ({"MMX": [cpu, ...]}). With no CPU able to run it (or
     `skip` false and one CPU unable), the first refusal is the error."""
     from sim.cpus import presets, split_label
 
-    placement(align, offset)  # a bad --align / --offset fails before any emulation
+    placement(align, offset)  # a bad --align / --offset (or --data) fails before any emulation
+    if data not in DATA_STATES:
+        raise ArgumentError(f"--data {data}: choose {' or '.join(DATA_STATES)}")
     if not cpus:
         raise ArgumentError("no CPU to time the body on")
     bases = {}
@@ -788,7 +772,7 @@ def time_body_where_possible(text: str, cpus: list[str], name: str = "<stdin>", 
             lacks = sorted(required_extensions(run) - targets[c].extensions, key=isa.EXTENSIONS.index)
             missing.setdefault(", ".join(EXTENSION_NAMES[x] for x in lacks), []).append(c)
             continue
-        out.append(time_run(run, c, memory, timeline_iterations=timeline_iterations))
+        out.append(time_run(run, c, memory, timeline_iterations=timeline_iterations, data=data))
     if not out:  # no CPU could run it: the refusal `retrosim time` gives on the first one
         raise refusals[0]
     return out, missing
