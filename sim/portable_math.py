@@ -18,26 +18,28 @@ import numpy as np
 _CONTEXT = decimal.Context(prec=34)
 
 
+def _each(values, fn) -> np.ndarray:
+    """fn (a decimal function) of every value, rounded once to float64, in the values' shape."""
+    v = np.asarray(values, dtype=np.float64)
+    return np.array([float(fn(decimal.Decimal(t))) for t in v.ravel().tolist()], dtype=np.float64).reshape(v.shape)
+
+
 def power(base: float, exponents) -> np.ndarray:
     """base ** exponents elementwise (base > 0), as float64 of the exponents' shape."""
     b = decimal.Decimal(float(base))
-    e = np.asarray(exponents, dtype=np.float64)
-    out = [float(_CONTEXT.power(b, decimal.Decimal(x))) for x in e.ravel().tolist()]
-    return np.array(out, dtype=np.float64).reshape(e.shape)
+    return _each(exponents, lambda e: _CONTEXT.power(b, e))
 
 
 def exp(x: float) -> float:
     """e ** x for one float."""
-    return float(_CONTEXT.exp(decimal.Decimal(float(x))))
+    return float(_each(x, _CONTEXT.exp))
 
 
 def exp_array(x) -> np.ndarray:
     """e ** x elementwise, as float64 of x's shape (Generator.lognormal's exp, made portable:
     ``exp_array(rng.normal(m, s, n))`` draws what ``rng.lognormal(m, s, n)`` draws, but every
     value is rounded once from 34 digits instead of by the host libm's exp)."""
-    v = np.asarray(x, dtype=np.float64)
-    out = [float(_CONTEXT.exp(decimal.Decimal(t))) for t in v.ravel().tolist()]
-    return np.array(out, dtype=np.float64).reshape(v.shape)
+    return _each(x, _CONTEXT.exp)
 
 
 def geomspace(start: float, stop: float, num: int) -> np.ndarray:

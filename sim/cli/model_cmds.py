@@ -52,11 +52,11 @@ def write_allocate_mode(preset) -> str:
     return {ALLOC_ALWAYS: "full", ALLOC_NEVER: "none"}.get(allocate, "page+sector only")
 
 
-def _write_allocate_caption(cpus, full: bool) -> str:
+def _write_allocate_caption(cpus, modes: dict, full: bool) -> str:
     """What the presets' write allocation means for a loop, and (compact table) which presets lack it."""
     lacking = {}
     for c in cpus:
-        mode = write_allocate_mode(c)
+        mode = modes[c.name]
         if mode != "full":
             lacking.setdefault(mode, []).append(c.name)
     where = "" if full else " (" + "; ".join(f"{mode}: {', '.join(names)}" for mode, names in lacking.items()) + ")"
@@ -68,6 +68,8 @@ def _cpu_tables(cpus, width: int) -> list:
     """The presets in one wide table (every cache in full) when `width` holds it, else a compact one:
     sizes only, with the latencies and clock ratios one `--json` away."""
     from sim.reports.views import natural_width
+
+    modes = {c.name: write_allocate_mode(c) for c in cpus}  # one hierarchy built per preset, for both tables
 
     def level(c, section: dict | None) -> str:
         return ("board " if "motherboard" in str((section or {}).get("location", "")) else "") + f"{c.size_kb}"
@@ -90,7 +92,7 @@ def _cpu_tables(cpus, width: int) -> list:
                   caption=("L1: size, ways, line, load-to-use clocks; L2 'x clock': its clock over the core's"
                            if full else "MHz: core and bus clocks; L1: instruction + data; 'board': the motherboard cache; 'at 0.5x': L2 at half the core clock; "
                            "ways and latencies with --json or a wider terminal")
-                  + "\n" + _write_allocate_caption(cpus, full), caption_justify="left")
+                  + "\n" + _write_allocate_caption(cpus, modes, full), caption_justify="left")
         cols = (["preset", "family", "MHz", "bus MHz", "L1I", "L1D", "L2", "write alloc.", "memory"] if full else
                 ["preset", "family", "MHz", "bus", "L1 KB", "L2 KB", "memory"])
         for col in cols:
@@ -99,7 +101,7 @@ def _cpu_tables(cpus, width: int) -> list:
             l1 = [c.l1i.describe(), c.l1d.describe()] if full else [f"{c.l1i.size_kb}+{c.l1d.size_kb}"]
             # truncated, as the parts are sold: 266.67 MHz is a Celeron 266 on a 66 MHz bus
             t.add_row(c.name, c.family.upper(), f"{int(c.core_mhz)}", f"{int(c.fsb_mhz)}", *l1, caches(c, full),
-                      *([write_allocate_mode(c)] if full else []), c.memory)
+                      *([modes[c.name]] if full else []), c.memory)
         return t
 
     wide = build(True)
