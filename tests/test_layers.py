@@ -62,11 +62,30 @@ def imports(path: Path, name: str, known: set[str]) -> list[tuple[str, int]]:
                 sub = f"{base}.{alias.name}"
                 out.append((sub if sub in known else base, node.lineno))
     # a module that imports by name (importlib.import_module) imports every sim module it names in
-    # a string (e.g. a table of kinds -> modules)
+    # a string: a bare module name (a table of kinds -> modules) or a "module:Class" path (a registry
+    # of classes loaded when first used: the import still runs, only later)
     if any(isinstance(node, ast.Attribute) and node.attr == "import_module" for node in ast.walk(tree)):
-        out += [(node.value, node.lineno) for node in ast.walk(tree)
-                if isinstance(node, ast.Constant) and isinstance(node.value, str) and node.value in known]
+        out += [(named, node.lineno) for node in ast.walk(tree)
+                if isinstance(node, ast.Constant) and isinstance(node.value, str)
+                for named in [node.value.partition(":")[0]] if named in known]
     return out
+
+
+def holds_code(path: Path) -> bool:
+    """Whether a package's __init__ does more than describe and re-export its modules: any
+    statement besides the docstring, imports and ``__all__`` (sim/cpus/__init__.py's make_model is
+    code; sim/memory/__init__.py's re-exports are not)."""
+    body = ast.parse(path.read_text(encoding="utf-8"), str(path)).body
+    for i, node in enumerate(body):
+        if i == 0 and isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant):
+            continue  # the docstring
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            continue
+        if isinstance(node, ast.Assign) and all(isinstance(t, ast.Name) and t.id in ("__all__", "__version__")
+                                                for t in node.targets):
+            continue
+        return True
+    return False
 
 
 def layer_of(module: str) -> int:
@@ -160,17 +179,41 @@ def cycles(graph) -> list[list[str]]:
     return out
 
 
+def cycle_edges(graph) -> dict[str, list[tuple[str, int]]]:
+    """The edges the cycle check follows. A package's __init__ that only re-exports its modules is
+    not a cycle through them, so an edge from a submodule to such an __init__ is dropped (`from
+    sim.memory import cache` in a sim.memory module names the module, which imports() resolves).
+    An __init__ that holds code (:func:`holds_code`) is a module like any other: a submodule that
+    imports a function from it, while the __init__ imports the submodule, is a cycle."""
+    mods = modules()
+    plain = {name for name, path in mods.items() if path.name == "__init__.py" and not holds_code(path)}
+    return {name: [(t, line) for t, line in targets
+                   if not (t in plain and name.startswith(t + ".")) and (name, t) not in ALLOWED]
+            for name, targets in graph.items()}
+
+
+def test_import_graph_sees_registry_strings_and_packages_with_code(tmp_path):
+    """The two ways a cycle hid from this test: a "module:Class" string loaded through importlib,
+    and a submodule importing from its package's __init__ when that __init__ holds code."""
+    reg = tmp_path / "registry.py"
+    reg.write_text('import importlib\nMODELS = {"x": "sim.pkg.model:Model"}\n'
+                   'def load(k):\n    m, c = MODELS[k].split(":")\n    return getattr(importlib.import_module(m), c)\n')
+    assert ("sim.pkg.model", 2) in imports(reg, "sim.pkg.registry", {"sim.pkg.model", "sim.pkg.registry"})
+    init = tmp_path / "__init__.py"
+    init.write_text('"""doc"""\nfrom sim.pkg import model\n__all__ = ["model"]\n')
+    assert not holds_code(init)
+    init.write_text('"""doc"""\nfrom sim.pkg import model\ndef make():\n    return model.Model()\n')
+    assert holds_code(init)
+    assert holds_code(SIM / "cpus" / "__init__.py") and not holds_code(SIM / "memory" / "__init__.py")
+
+
 def test_no_import_cycles(graph):
-    # a package's __init__ re-exporting its modules is not a cycle through them: drop the edges
-    # from a submodule to its own package's __init__ (`from sim.cpus import presets` in sim.cpus.k6
-    # names the module sim.cpus.presets, which imports() already resolves)
-    edges = {name: [(t, line) for t, line in targets if not name.startswith(t + ".") and (name, t) not in ALLOWED]
-             for name, targets in graph.items()}
+    edges = cycle_edges(graph)
     bad = []
     for comp in cycles(edges):
         members = set(comp)
-        where = [f"{modules()[n].relative_to(SIM.parent)}:{line}: {n} imports {t}"
-                 for n in comp for t, line in edges[n] if t in members]
+        where = list(dict.fromkeys(f"{modules()[n].relative_to(SIM.parent)}:{line}: {n} imports {t}"
+                                   for n in comp for t, line in edges[n] if t in members))
         bad.append(" <-> ".join(comp) + "\n  " + "\n  ".join(where))
     assert not bad, "import cycles:\n" + "\n".join(bad)
 
