@@ -3,7 +3,7 @@
 Each kernel of kernels/micro/chains.S (and cmov.S) runs 8 instances of one instruction per iteration, each
 reading the previous one's result; cycles / (8 n) is the instruction's latency (the loop counter
 is off the chain). The expected figures are measurements (InstLatX64 dumps, quoted in the rows of
-sim/cpus/tables/p6.toml and k6.toml) or, where a row has only a published delay, Agner Fog's table
+sim/cpus/p6/p6.toml and k6.toml) or, where a row has only a published delay, Agner Fog's table
 plus the measured L1 load latency; each case names its source. Short keys as in the tables:
 InstLat-PII = InstLatX64 GenuineIntel0000651 (Pentium II); IL-all = the same figure in the K6, K6-2
 and K6-III dumps (AuthenticAMD0000562, 0000580, 0000591); AF29 = Agner Fog, "How to optimize for

@@ -14,7 +14,8 @@ from click.testing import CliRunner
 from sim import cli
 from sim.cpus import families, make_model, overridable, presets
 from sim.cpus.contract import C_NAMES, FamilyModel
-from sim.cpus.families import ALWAYS, FAMILIES, TABLES
+from sim.cpus.families import ALWAYS, FAMILIES
+from sim.cpus.record import machine_path, table_path
 from sim.guest.isa import EXTENSIONS
 
 SIM = Path(__file__).resolve().parents[1] / "sim"
@@ -45,8 +46,9 @@ def test_every_preset_belongs_to_a_registered_family():
 def test_a_registered_family_has_a_model_and_tables(name):
     f = families.family(name)
     model = make_model(_first_preset(name))
-    assert isinstance(model, f.model_class()) and isinstance(model, FamilyModel) and model.family == name
-    assert (TABLES / f"{name}.toml").is_file() and (TABLES / f"{name}_machine.toml").is_file()
+    assert isinstance(model, families.model_class(name)) and isinstance(model, FamilyModel) and model.family == name
+    assert table_path(name).is_file() and machine_path(name).is_file()
+    assert table_path(name).parent == SIM / "cpus" / name  # the family is one package
     assert model.table.rows  # its instruction table loads (the loader refuses a field not in table_fields)
     assert f.lacks <= set(EXTENSIONS), f.lacks - set(EXTENSIONS)
     assert f.marker and f.display_name
@@ -56,7 +58,7 @@ def test_a_registered_family_has_a_model_and_tables(name):
 
 @pytest.mark.parametrize("name", list(FAMILIES))
 def test_every_estimate_is_complete_in_the_machine_table(name, counters):
-    with open(TABLES / f"{name}_machine.toml", "rb") as fh:
+    with open(machine_path(name), "rb") as fh:
         raw = tomllib.load(fh)
     assert raw["estimates"], f"{name}_machine.toml has no [estimates]"
     for est, fields in raw["estimates"].items():
@@ -118,18 +120,21 @@ def _imports(path: Path) -> set[str]:
 
 
 def _family_modules(name: str) -> set[str]:
-    return {f"sim.cpus.{name}", f"sim.cpus.{name}_core"}
+    return {f"sim.cpus.{name}.{m}" for m in ("model", "core", "view")} | {f"sim.cpus.{name}"}
 
 
 def test_no_module_reaches_into_a_familys_module():
     """A family's model and core import only the contract and shared modules, never another family's;
-    no other module of sim imports a family module at all (it asks the registry for the model)."""
+    no other module of sim imports a family module at all (it asks the registry for the model and
+    the view)."""
     own = {m: name for name in FAMILIES for m in _family_modules(name)}
     checked = 0
     for path in SIM.rglob("*.py"):
         module = ".".join(path.relative_to(SIM.parent).with_suffix("").parts)
+        module = module.removesuffix(".__init__")
         allowed = _family_modules(own[module]) if module in own else set()
         reached = {m for m in _imports(path) if m in own and m not in allowed}
         assert not reached, f"{module} imports {', '.join(sorted(reached))}"
         checked += 1
-    assert checked > 40 and all((SIM / "cpus" / f"{m.rsplit('.', 1)[1]}.py").is_file() for m in own)
+    assert checked > 40 and all((SIM / "cpus" / m.split(".")[2] / f"{m.split('.')[3]}.py").is_file()
+                                for m in own if m.count(".") == 3)

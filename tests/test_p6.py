@@ -28,7 +28,7 @@ def per_iteration(entry, *, n=N, cpu="pentium2-233", buf_words=64, extra=()):
 
 @pytest.mark.table_check
 def test_dependency_chain_runs_at_imul_latency():
-    # IMUL r32,r32 latency 4 (sim/cpus/tables/p6.toml: Agner Fog sec. 29; InstLatX64 PII)
+    # IMUL r32,r32 latency 4 (sim/cpus/p6/p6.toml: Agner Fog sec. 29; InstLatX64 PII)
     cycles, r = per_iteration("imul_chain", buf_words=0)
     assert 8 * 4 - 0.5 <= cycles <= 8 * 4 + 1
     assert r.last["stall_dependency"] > 0
@@ -198,14 +198,15 @@ def test_table_loader_refuses_fields_no_model_reads(tmp_path, extra, message):
 def test_too_many_register_operands_is_an_error_naming_the_instruction(monkeypatch):
     # the cores track MAX_OPS sources and destinations per instruction; more is refused, not truncated
     from sim.cpus import lowering
+    from sim.cpus.p6.lowering import P6Limits, uops_rule
     from sim.cpus.table import load_table
     from sim.guest.decode import decode_one
 
     rec = decode_one(bytes.fromhex("01c8"), 0x400000)  # add eax, ecx: 2 sources + flags
-    assert lowering.lower([rec], load_table("p6")).s_nsrc[0] == 2
+    assert lowering.lower([rec], load_table("p6"), uops_for=uops_rule(P6Limits())).s_nsrc[0] == 2
     monkeypatch.setattr(lowering, "MAX_OPS", 1)
     with pytest.raises(lowering.LoweringError, match=r"pc 0x00400000 \(add eax, ecx\)"):
-        lowering.lower([rec], load_table("p6"))
+        lowering.lower([rec], load_table("p6"), uops_for=uops_rule(P6Limits()))
 
 
 def test_rdtsc_returns_simulated_cycles(write_kernel):

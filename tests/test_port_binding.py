@@ -1,6 +1,6 @@
 """P6 port binding: a uop that may use port 0 or port 1 is bound to one of them when it enters the
 reservation station, to the port with fewer uops bound and not yet dispatched, and then waits for
-that port (Intel patent US 5,689,674, abstract; sim/cpus/tables/p6_machine.toml [port_binding];
+that port (Intel patent US 5,689,674, abstract; sim/cpus/p6/p6_machine.toml [port_binding];
 docs/sources/p6.md "Port choice for p01 uops"). Ties go to estimates.p01_tie_port (no source).
 
 Every expected figure below is derived by hand from that rule and from sourced machine facts: IMUL

@@ -154,12 +154,13 @@ def test_precision_changed_mid_run_times_each_divide_at_its_own_precision(cpu):
 @pytest.mark.table_check
 def test_k6_fsqrt_throughput_by_model_and_precision():
     """IL-K6/IL-K62: FSQRT T 23/38/43; IL-K63 (K6-III): T = L = 21/36/41."""
-    from sim.cpus.k6 import K6Rules, _machine_table
+    from sim.cpus.k6.model import K6Rules
+    from sim.cpus.record import machine_table
     from sim.cpus.table import load_table
 
     row = load_table("k6").lookup("fsqrt", "").row
     for key, want in (("k6-2", (23, 38, 43)), ("k6-3", (21, 36, 41))):
-        rules = K6Rules(key, _machine_table())
+        rules = K6Rules(key, machine_table("k6"))
         assert tuple(rules.field(row.at_precision(p), "throughput") for p in range(3)) == want
         assert tuple(rules.field(row.at_precision(p), "latency") for p in range(3)) == (21, 36, 41)
 

@@ -2,7 +2,7 @@
 the permanent register file, so a triplet of uops renamed together that reads 3 or 4 distinct
 registers not modified recently costs a clock more, 5 or 6 two more (Agner Fog, The microarchitecture
 of Intel, AMD and VIA CPUs, sec. 6.5 "ROB read"; PIIDM: at most 2 completed-register reads per
-cycle). p6_machine.toml [rob.register_read]; sim/cpus/p6_core.py _register_reads.
+cycle). p6_machine.toml [rob.register_read]; sim/cpus/p6/core.py _register_reads.
 
 Expected figures follow from that rule: a group of uops renamed together takes ceil(reads / 2)
 clocks in the ROB-read stage, at least one. The loops are blocks (`retrosim loop` repeats them back

@@ -65,7 +65,7 @@ def test_a_trace_fed_in_chunks_times_as_the_whole_trace(cpu, sizes):
 def test_p5_pairs_across_chunk_boundaries_as_in_the_whole_trace(cpu, sizes):
     # the P5 pairs an instruction with the next one (U and V pipes): cut between the two, the
     # pair must still form, REP string elements still follow their first, branches still resolve
-    from sim.cpus.p5_core import C_PAIRS
+    from sim.cpus.p5.core import C_PAIRS
 
     emu = emulate(ZBUF / "z16.S", "z16_span", _span_setup(), repeat=2)
     model = make_model(cpu)

@@ -10,7 +10,7 @@ from rich.console import Console
 
 from sim import cli
 from sim.guest import kernels
-from sim.cpus import vocabulary
+from sim.cpus import families, vocabulary
 
 LOOP = ("convert/loops.S", "-e", "convert_plain", "--args", "buf:u32:64:4096,buf:u16:64,64")
 
@@ -81,8 +81,8 @@ def test_branch_stalls_are_explained_as_the_models_count_them():
     k6 = json.loads(CliRunner().invoke(cli.main, args + ["--cpu", "k6-233"]).output)
     assert p6["mispredicts"] <= 4 and p6["stall_mispredict"] >= 400  # a bubble per taken loop branch
     assert k6["mispredicts"] <= 4 and k6["stall_mispredict"] < 100
-    assert "taken branch" in vocabulary.for_preset("pentium2-233").stall_help["mispredict"]
-    assert "taken" not in vocabulary.for_preset("k6-233").stall_help["mispredict"]
+    assert "taken branch" in families.vocabulary_for("pentium2-233").stall_help["mispredict"]
+    assert "taken" not in families.vocabulary_for("k6-233").stall_help["mispredict"]
 
 
 @pytest.mark.parametrize("width", [80, 200])
@@ -117,12 +117,10 @@ def test_entry_descriptions_continue_on_following_comment_lines(tmp_path):
     assert e["h"].args == ("x", "y") and e["h"].returns == "What h does"
 
 
-def test_views_take_their_words_from_the_model():
-    from sim.cpus import make_model
-
-    assert vocabulary.of(make_model("k6-2-300")).ports == ("X", "Y", "load", "store", "branch")
-    assert vocabulary.of(make_model("pentium3-500")).ports[0] == "p0"
-    assert vocabulary.of(object()) is vocabulary.GENERIC  # a model that brings none gets neutral names
+def test_views_take_their_words_from_the_family_view():
+    assert families.view("k6").vocabulary.ports == ("X", "Y", "load", "store", "branch")
+    assert families.view("p6").vocabulary.ports[0] == "p0"
+    assert families.view("no-such").vocabulary is vocabulary.GENERIC  # no view of its own: neutral names
 
 
 def test_explain_help_is_the_legend_one_step_away():

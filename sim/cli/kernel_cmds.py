@@ -235,24 +235,6 @@ def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat
 
 
 
-def _loop_explain_table(t) -> Table:
-    """The explain table, narrowed to what a loop body needs (fits 80 columns for short bodies)."""
-    from rich.markup import escape
-
-    from sim.reports import views
-
-    table = Table(title=f"{t.cpu}: per instruction, cycles per execution (full table: --json)")
-    for col in ("instruction", "dec", "uops", "ports", "iss>ret", "stalls"):
-        table.add_column(col, justify="right" if col in ("uops", "iss>ret") else "left")
-    names = (("stall_dependency", "dep"), ("stall_port", "port"), ("stall_decode", "decode"),
-             ("stall_partial", "partial"), ("stall_memory", "mem"), ("stall_store_forward", "fwd"),
-             ("stall_window", "window"), ("mispredict_rate", "mispred"))
-    for r in views.explain_rows(t.result):
-        table.add_row(escape(r["instruction"]), r["decoder"], str(r["uops"]), r["ports"], f"{r['issue_to_retire']:g}",
-                      " ".join(f"{short} {r[k]:g}" for k, short in names if r[k]))
-    return table
-
-
 def loop_sections(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline, assembler,
                   warn=lambda w: None, data=None) -> list[dict]:
     """Time a loop body, or each region of a whole compiler output (sim/guest/body_source.py), as
@@ -413,13 +395,8 @@ def _print_loop_section(doc, timings, name, iterations, timeline, align, offset,
     not_timed = doc["not_timed"]
     if not brief:
         for t in timings:
-            if hasattr(t.result.model, "explain_cells"):  # a family with columns of its own (P5)
-                for part in views.explain_tables(t.result, console.width):
-                    # several CPUs: each table names its own; a loop body has measured iterations, not calls
-                    part.title = f"{escape(t.cpu)}: {part.title.replace('last call', 'measured iterations')}"
-                    console.print(part)
-            else:
-                console.print(_loop_explain_table(t))
+            for part in views.loop_tables(t.result, t.cpu, console.width):  # each names its CPU
+                console.print(part)
             text_tl = views.timeline_text(t.result, columns=console.width)
             if text_tl:
                 console.print(f"[bold]timeline[/] on {escape(t.cpu)}: {timeline} iterations from the middle of the measured pass")

@@ -293,7 +293,7 @@ def make_model(cpu: str, memory: str | None = None, overrides: dict | None = Non
         mem = dataclasses.replace(mem, pages=dataclasses.replace(mem.pages, **pages))
     if preset.family not in families.FAMILIES:
         raise RetrosimError(f"CPU preset '{cpu}': no timing model for family '{preset.family}' yet")
-    model = families.family(preset.family).model_class()
+    model = families.model_class(preset.family)
     try:
         return model(preset, mem, estimates)
     except ValueError as e:  # e.g. an overridden cache geometry that is no cache

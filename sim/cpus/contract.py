@@ -28,7 +28,7 @@ from sim.errors import RetrosimError
 from sim.memory.dram import DramTiming, line_costs
 from sim.memory.hierarchy import Hierarchy
 from sim.memory.cache import CacheGeometry
-from sim.cpus import families
+from sim.cpus import record as families  # the family's own record (not the registry above the models)
 from sim.cpus.lowering import StaticProgram
 from sim.cpus.presets import CpuPreset, dram_overhead
 from sim.cpus.table import InstructionTable, load_table
@@ -154,7 +154,7 @@ class DramCost:
     line_busy_hit: int = 0
     writeback_busy_hit: int = 0
     # a fill's whole bus cycle, request to last transfer (the board's overhead included), where the
-    # bus does not overlap one line fill with the next (Socket 7, sim/cpus/k6.py)
+    # bus does not overlap one line fill with the next (Socket 7, sim/cpus/k6/model.py)
     line_tenure: int = 0
     line_tenure_hit: int = 0
 
@@ -201,7 +201,7 @@ def data_tlb(machine: dict, family: str) -> tuple[int, int]:
 
 
 class FamilyModel:
-    """What every family's timing model has: ``family`` (its key in :data:`sim.cpus.families.FAMILIES`),
+    """What every family's timing model has: ``family`` (its key in :data:`sim.cpus.families.REGISTRY`),
     ``preset``, ``memory``, ``machine`` (its machine table), ``table`` (its instruction table),
     ``estimates`` (the machine table's [estimates] defaults, with make_model's overrides),
     ``dram`` (:func:`dram_cost`), ``dside`` and ``iside`` (:func:`caches`). A subclass adds its
@@ -212,7 +212,7 @@ class FamilyModel:
     def __init__(self, preset: CpuPreset, memory: DramTiming, estimates: dict | None = None):
         if preset.family != self.family:
             raise ValueError(f"{preset.name} is a {preset.family} part, not {self.family.upper()}")
-        record = families.family(self.family)
+        record = families.read(self.family)
         self.estimates = record.defaults() | dict(estimates or {})
         self.preset = preset
         self.memory = memory
@@ -229,6 +229,10 @@ class FamilyModel:
         """Cold caches: each run starts from reset."""
         self.dside.reset()
         self.iside.reset()
+
+    def session(self, decoder, segments: list[int], stat_first: int = 0, check=None):
+        """A run fed in chunks (sim/timing/stream.py): every family's model has one."""
+        raise NotImplementedError(f"{type(self).__name__}.session")
 
     def board_cache_hit_clocks(self) -> int | None:
         """Clocks until a load that misses L1 and hits the level below has its data, where the model

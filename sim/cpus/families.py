@@ -1,129 +1,46 @@
-"""The CPU families: one registered record per family, the single place the rest of retrosim asks
-what a family is called, how it is drawn, which instruction sets it lacks, which counters explain
-its results, which estimates its model makes and which class times it.
+"""The registry of CPU families: one line per family (:data:`FAMILIES`), the single place the rest
+of retrosim asks which families exist, in which order reports list them, which class times each and
+how each is shown (its :class:`~sim.cpus.view.FamilyView`).
 
-A record is read from the family's machine table (``sim/cpus/tables/<name>_machine.toml``):
-its ``[family]`` section (display name, plot marker, lacking extensions, conformance preset,
-explain columns, instruction-table fields), its ``[estimates]`` (each with default, plausible
-range, mechanism counter and reason) and its ``[rules]`` (estimated rules that are not numbers).
-The model class is named here, one line per family (:data:`FAMILIES`), and imported only when a
-model is made, so reading a record never loads a compiled core. A family's cache policies are in
-sim/memory/policies.toml under its name (the memory layer reads them).
+A family is one package, ``sim/cpus/NAME/``: its model and core, its lowering rules, its instruction
+table (NAME.toml), its machine table (NAME_machine.toml, read by :mod:`sim.cpus.record`) and its
+view. The model and the view are named here as "module:Class" and imported only when first needed,
+so listing the families never loads a compiled core. A family's cache policies are in
+sim/memory/policies.toml under its name (the memory layer reads them); its CPU presets in
+sim/cpus/presets/.
 
-Adding a family: its own files (model, core, instruction table, machine table with [family] and
-[estimates], presets), its policies in sim/memory/policies.toml and one line in :data:`FAMILIES`.
+Adding a family: its package, its policies and presets, and one line in :data:`FAMILIES`.
 """
 
 from __future__ import annotations
 
 import functools
 import importlib
-import math
-import tomllib
 from dataclasses import dataclass
-from pathlib import Path
 
 from sim.errors import RetrosimError
-
-TABLES = Path(__file__).resolve().parent / "tables"
-ALWAYS = "always"  # an estimate's mechanism when every run exercises it
-
-
-@functools.cache
-def machine_table(name: str) -> dict:
-    """A family's machine table (sim/cpus/tables/NAME_machine.toml), parsed once."""
-    path = TABLES / f"{name}_machine.toml"
-    try:
-        with open(path, "rb") as f:
-            return tomllib.load(f)
-    except (OSError, tomllib.TOMLDecodeError) as e:
-        raise RetrosimError(f"{path}: {e}") from None
+from sim.cpus import presets, vocabulary
+from sim.cpus.view import FamilyView
+from sim.cpus.record import ALWAYS, CPUS, Estimate, Family, machine_table, read  # noqa: F401  (re-exported)
 
 
 @dataclass(frozen=True)
-class Estimate:
-    """A model choice with no figure in the sources (a machine table's ``[estimates.NAME]``)."""
+class Registered:
+    """A registry line: the family's name and where its model and view classes are."""
 
     name: str
-    default: int | float
-    low: int | float
-    high: int | float
-    mechanism: str          # the counter that must be non-zero for it to matter, or ALWAYS
-    reason: str             # why the default is what it is
-    range_reason: str       # why the range
-    overridable: bool = True  # a make_model override (estimates.NAME) and re-timed by the claims
-    only_with: str = ""     # a CpuPreset attribute (a cache level) without which the model never reads it
-
-    @property
-    def key(self) -> str:
-        """The make_model override key."""
-        return f"estimates.{self.name}"
-
-    def applies_to(self, preset) -> bool:
-        return not self.only_with or getattr(preset, self.only_with) is not None
-
-
-@dataclass(frozen=True)
-class Family:
-    name: str                   # the presets' cpu_model
-    model_path: str             # "module:Class" of the timing model
-    display_name: str           # "the P6 family"
-    marker: str                 # matplotlib marker of its presets in dot plots
-    lacks: frozenset[str]       # extensions no CPU of the family has (sim/guest/isa.py)
-    conformance_isa: str | None  # the preset whose instruction set has every table row (None: no conformance run)
-    explain: tuple[str, ...]    # counters that explain a texture-scene result
-    loop_counters: tuple[str, ...]  # counters of the texture-loops report
-    table_fields: frozenset[str]  # the instruction table's family-specific row fields
-    estimates: dict[str, Estimate]
-    rules: dict[str, str]       # estimated rules that are not numbers: name -> reason
-
-    @property
-    def machine(self) -> dict:
-        return machine_table(self.name)
-
-    def model_class(self) -> type:
-        module, cls = self.model_path.split(":")
-        return getattr(importlib.import_module(module), cls)
-
-    def defaults(self) -> dict:
-        """Estimate name -> default value (what the model reads unless overridden)."""
-        return {e.name: e.default for e in self.estimates.values()}
-
-    def overridable(self) -> list[Estimate]:
-        return [e for e in self.estimates.values() if e.overridable]
-
-
-def _record(name: str, model_path: str) -> Family:
-    table = machine_table(name)
-    where = f"{TABLES / f'{name}_machine.toml'}"
-    try:
-        fam = table["family"]
-        estimates = {}
-        for est, e in table.get("estimates", {}).items():
-            low, high = e["range"]
-            estimates[est] = Estimate(est, e["default"], low, high, e["mechanism"], e["reason"], e["range_reason"],
-                                      bool(e.get("overridable", True)), e.get("only_with", ""))
-        return Family(name, model_path, fam["display_name"], fam["marker"], frozenset(fam["lacks"]),
-                      fam.get("conformance_isa"), tuple(fam["explain"]), tuple(fam["loop_counters"]),
-                      frozenset(fam["table_fields"]), estimates, dict(table.get("rules", {})))
-    except (KeyError, TypeError, ValueError) as e:
-        raise RetrosimError(f"{where}: [family] or [estimates]: missing or bad field {e}") from None
-
-
-def _check(f: Family) -> Family:
-    for e in f.estimates.values():
-        for v in (e.default, e.low, e.high):
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise RetrosimError(f"{f.name}_machine.toml [estimates.{e.name}]: default and range must be numbers")
-    return f
+    model: str  # "module:Class" of the timing model
+    view: str   # "module:Class" of its FamilyView
 
 
 # The registry: one line per family, in the order reports list them.
-FAMILIES: dict[str, Family] = {f.name: _check(f) for f in (
-    _record("p5", "sim.cpus.p5:P5Model"),
-    _record("p6", "sim.cpus.p6:P6Model"),
-    _record("k6", "sim.cpus.k6:K6Model"),
-)}
+REGISTRY: tuple[Registered, ...] = (
+    Registered("p5", "sim.cpus.p5.model:P5Model", "sim.cpus.p5.view:P5View"),
+    Registered("p6", "sim.cpus.p6.model:P6Model", "sim.cpus.p6.view:P6View"),
+    Registered("k6", "sim.cpus.k6.model:K6Model", "sim.cpus.k6.view:K6View"),
+)
+FAMILIES: dict[str, Family] = {r.name: read(r.name) for r in REGISTRY}
+_LINES = {r.name: r for r in REGISTRY}
 
 
 def family(name: str) -> Family:
@@ -137,3 +54,32 @@ def family(name: str) -> Family:
 def order(name: str) -> int:
     """A family's position in the registry (reports list p5, p6, k6 in this order); unknown last."""
     return list(FAMILIES).index(name) if name in FAMILIES else 9
+
+
+def _load(path: str):
+    module, cls = path.split(":")
+    return getattr(importlib.import_module(module), cls)
+
+
+def model_class(name: str) -> type:
+    """The timing model class of a registered family."""
+    family(name)
+    return _load(_LINES[name].model)
+
+
+@functools.cache
+def view(name: str | None) -> FamilyView:
+    """The FamilyView of a family (the family-neutral base view for an unregistered or no family)."""
+    if name not in _LINES:
+        return FamilyView()
+    return _load(_LINES[name].view)()
+
+
+@functools.cache
+def vocabulary_for(cpu: str) -> vocabulary.Vocabulary:
+    """The words of a CPU preset's (or machine label's) family: its view's vocabulary (GENERIC for
+    a family with no view of its own, an unregistered one or an unknown preset)."""
+    try:
+        return view(presets.load(cpu.partition("{")[0]).family).vocabulary
+    except RetrosimError:
+        return vocabulary.GENERIC

@@ -20,7 +20,7 @@ A LOCK-prefixed instruction takes its unlocked row (uops, units, latency) with t
 throughput where it exceeds the row's; XCHG with memory takes the family's XCHG latency and throughput. What the model
 assumes: the operand is cached (P6) and within one line; a line split (a bus lock on the P6 too), a
 locked access that misses the cache, and the lock's hold on neighbouring memory accesses (the P6
-drains its store buffer) are not modelled; on the P6 the hold is per mnemonic (lowering.p6_uops), so
+drains its store buffer) are not modelled; on the P6 the hold is per mnemonic (sim/cpus/p6/lowering.py: p6_uops), so
 two different locked instructions do not wait for each other. The K6 holds its decoder (vector
 decode) and the P5 its pipes for the whole cost, so there every later instruction waits (each family
 model's `rewrite` of the locked row, passed to :func:`locked_match`).

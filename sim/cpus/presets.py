@@ -8,7 +8,7 @@ from pathlib import Path
 
 from sim.errors import RetrosimError
 from sim.tomlfile import read_toml
-from sim.cpus import families
+from sim.cpus import record as families  # the record, not the registry (which imports the models)
 
 PRESETS = Path(__file__).resolve().parent / "presets"
 
@@ -85,7 +85,7 @@ def load(name: str) -> CpuPreset:
 
 def from_raw(raw: dict, name: str, where: str | Path) -> CpuPreset:
     """A :class:`CpuPreset` from a parsed preset file (also used for overridden copies)."""
-    record = families.FAMILIES.get(raw.get("cpu_model"))
+    record = families.read(raw["cpu_model"]) if families.known(raw.get("cpu_model")) else None
     try:
         return CpuPreset(
             name=raw.get("name", name), family=raw["cpu_model"], core_mhz=float(raw["clock"]["core_mhz"]),

@@ -2,7 +2,7 @@
 
 A core times a trace in one pass, in program order, so it can equally take the trace a chunk at a
 time (a streamed emulation: sim/timing/stream.py) if its loop-carried state survives between chunks (each
-family's core keeps it in a state vector and arrays, :func:`sim.cpus.p6_core.new_state`). What
+family's core keeps it in a state vector and arrays, :func:`sim.cpus.p6.core.new_state`). What
 the chunks change is the static program: a chunk may run instructions no earlier chunk ran, or a
 precision-dependent x87 instruction at a new precision (sim/cpus/precision.py). :class:`Statics`
 gives every static instruction one id for the whole run, in order of first appearance, so the

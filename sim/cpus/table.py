@@ -26,9 +26,8 @@ from functools import cached_property
 from pathlib import Path
 
 from sim.errors import RetrosimError
-from sim.cpus import families
+from sim.cpus import record
 
-TABLES = Path(__file__).resolve().parent / "tables"
 
 _FAMILIES = {"j": "jcc", "set": "setcc", "cmov": "cmovcc"}
 _NOT_FAMILY = {"jmp", "jecxz", "jcxz"}
@@ -143,7 +142,7 @@ def _signature_candidates(signature: str):
 
 
 class InstructionTable:
-    """One family's table (e.g. sim/cpus/tables/p6.toml)."""
+    """One family's table (e.g. sim/cpus/p6/p6.toml)."""
 
     def __init__(self, path: str | Path, family: str | None = None):
         self.path = Path(path)
@@ -152,7 +151,7 @@ class InstructionTable:
         family = family or self.path.stem
         self.rows: dict[tuple[str, str], TimingRow] = {}
         known = ROW_FIELDS | {"ports"}
-        allowed = ROW_FIELDS | (families.FAMILIES[family].table_fields if family in families.FAMILIES else set())
+        allowed = ROW_FIELDS | (record.read(family).table_fields if record.known(family) else set())
         for key in data:
             if key not in TOP_LEVEL:
                 raise RetrosimError(f"{self.path}: unknown table [{key}] (known: {', '.join(sorted(TOP_LEVEL))})")
@@ -236,7 +235,7 @@ def _check_precision_fields(where: str, raw: dict) -> None:
 @functools.cache
 def load_table(family: str) -> InstructionTable:
     """The family's table, parsed once per process (tables are data files shipped with the package)."""
-    path = TABLES / f"{family}.toml"
+    path = record.table_path(family)
     if not path.is_file():
         raise RetrosimError(f"no instruction table for CPU family '{family}' ({path} is missing)")
     return InstructionTable(path)

@@ -3,18 +3,16 @@
 The timing cores of every family fill the same counter slots (``port0``..``port4``,
 ``decoder0``..``decoder2``, ``msrom_uops``, the stall kinds; see :mod:`sim.cpus.contract`), but the
 slots mean different hardware on each family: port 0 is a P6 execution port and the K6's X
-integer unit. Each model class carries a :class:`Vocabulary` (``Model.vocabulary``) so that tables,
-reports and legends name the hardware of the CPU they describe; each family defines its instance
-next to its model (``p6.VOCABULARY``, ``k6.VOCABULARY``; the P5 brings its own rows and columns
-instead). :data:`GENERIC` is what a model without one gets.
+integer unit. Each family's view (sim/cpus/NAME/view.py) carries a :class:`Vocabulary`
+(``FamilyView.vocabulary``) so that tables, reports and legends name the hardware of the CPU they
+describe (the P5's view brings its own rows and columns instead). :data:`GENERIC` is what a view
+without one gets.
 """
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass, field
 
-from sim.errors import RetrosimError
 
 # Stall kinds shared by the per-instruction table, the timeline and the reports: (key, short
 # column title). The help text of each is family-specific (Vocabulary.stall_help).
@@ -62,18 +60,3 @@ GENERIC = Vocabulary(
     stall_help=dict(COMMON_STALLS),
 )
 
-
-def of(model) -> Vocabulary:
-    """The vocabulary of a timing model (GENERIC when its class defines none)."""
-    return getattr(model, "vocabulary", GENERIC)
-
-
-@functools.cache
-def for_preset(cpu: str) -> Vocabulary:
-    """The vocabulary of a CPU preset's model (GENERIC for a family with no model yet)."""
-    from sim.cpus import make_model
-
-    try:
-        return of(make_model(cpu))
-    except RetrosimError:
-        return GENERIC

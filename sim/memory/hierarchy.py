@@ -164,7 +164,7 @@ def tlb_probe(config, work, addr):
     """Whether the data TLB holds ``addr``'s page (True with no TLB); a hit becomes the set's most
     recently used entry, a miss changes nothing. Set = page mod sets; LRU within the set. The page
     translated last needs no lookup (TLB_LAST); the set lookup is out of line. A core's inline
-    L1-hit path may skip the probe for that page alone (the P6's: sim/cpus/p6_core.py tlb_page)."""
+    L1-hit path may skip the probe for that page alone (the P6's: sim/cpus/p6/core.py tlb_page)."""
     return work[TLB_LAST] == addr >> TLB_PAGE_BITS or _tlb_lookup(config, work, addr >> TLB_PAGE_BITS)
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from sim import reference as ref
-from sim.cpus import vocabulary
+from sim.cpus import families
 from sim.errors import RetrosimError
 from sim.guest.kernels import kernels_root
 from sim.reports.render import md_table
@@ -87,7 +87,7 @@ def conversion_markdown(results: dict) -> str:
               "From the model's per-instruction table of `convert_plain` (decoder slot actually used, uops, "
               "ports, average issue-to-retire cycles) and the instruction-table row it used, with its source.", ""]
     for cpu, d in results["cpus"].items():
-        voc = vocabulary.for_preset(cpu)  # each family's words: P6 uops on ports, K6 RISC86 ops on units
+        voc = families.vocabulary_for(cpu)  # each family's words: P6 uops on ports, K6 RISC86 ops on units
         rows = [[r["instruction"], r["decoder"], r["decoder_class"], str(r["uops"]), r["ports"],
                  f"{r['issue_to_retire']:g}", r["row"], r["source"]] for r in d["convert_plain"]["conversion"]]
         parts += [f"### {cpu}", "", md_table(["instruction", "decoder", "class", voc.op + "s",

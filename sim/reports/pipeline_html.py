@@ -18,8 +18,7 @@ import html
 import json
 import re
 
-from sim.cpus import contract as core
-from sim.cpus import families, vocabulary
+from sim.cpus import families
 
 # Most timeline rows and cycles one CPU's chart draws: beyond them the page says how many it left
 # out (a browser stays responsive with a few thousand positioned elements per chart).
@@ -43,56 +42,17 @@ def stage_words(legend: str) -> list[list[str]]:
 
 def view(result) -> dict:
     """The family's words for one timed run (a :class:`sim.timing.kernel.TimingResult`): the stage
-    names, the meaning of each stall cause, the unit and decoder names, and per timeline row the
-    lane the family's model puts it in (P5: the U or V pipe)."""
+    names, the meaning of each stall cause, the unit and decoder names, the explain table's columns
+    and tooltip lines, and per timeline row the lane the family's model puts it in (P5: the U or V
+    pipe; others: the decoder). All of it from the family's view (sim/cpus/view.py: page_words)."""
     from sim.reports import views
 
-    model = result.model
-    family = getattr(model, "family", "")
-    voc = vocabulary.of(model)
+    family = result.model.family
     legend = views.timeline_key(result)
     out = {"family": family, "family_name": families.family(family).display_name if family else "",
            "legend": legend, "stages": stage_words(legend)}
-    if hasattr(model, "timeline_causes"):  # the P5: a row's cause is why it ran alone
-        reasons = list(getattr(model, "reasons", ()))
-        out["causes"] = [[c, "paired in the U/V pipes" if i == 0 else f"ran alone in the U pipe: {reasons[i]}"
-                          if i < len(reasons) else c] for i, c in enumerate(model.timeline_causes)]
-        out["units"] = "U/V pipes"
-        out["op"] = "instruction"
-        out["lanes"] = p5_lanes(views.timeline_rows(result))
-        out["notes"] = ["In-order U and V pipes: two instructions issued in one clock paired (the first in U, "
-                        "the second in V); one issued alone ran in U, and its colour says why it did not pair."]
-    else:
-        causes = getattr(model, "timeline_causes", core.CAUSES)
-        out["causes"] = [[c, "" if c == "none" else voc.stall_help.get(c, c)] for c in causes]
-        out["units"] = f"{voc.unit}s " + ", ".join(voc.port_label(k) for k in range(5)) + \
-            "".join(f", {n}" for _, n in voc.extra_units)
-        out["unit_heading"] = f"{voc.unit}s"  # the table's column: P6 "ports", K6 "units"
-        out["op"] = voc.op
-        out["lanes"] = []
-        out["notes"] = [voc.decode_help, "; ".join(voc.port_help),
-                        f"window: {voc.window}"]
-    out["notes"] = [n for n in out["notes"] if n]
+    out.update(views.family_view(result).page_words(views.timeline_rows(result), views.explain_rows(result)))
     return out
-
-
-def p5_lanes(rows: list[dict]) -> list[str]:
-    """The pipe of each P5 timeline row, as the P5 core records a group: the two instructions of a
-    pair share their issue clock (and are the only rows with cause 'none'), the first in U, the
-    second in V; an instruction issued alone runs in U."""
-    lanes = [""] * len(rows)
-    i = 0
-    while i < len(rows):
-        r = rows[i]
-        if r["cause"] != "none":
-            lanes[i] = "U"
-        elif i + 1 < len(rows) and rows[i + 1]["cause"] == "none" and rows[i + 1]["alloc"] == r["alloc"]:
-            lanes[i], lanes[i + 1] = "U", "V"
-            i += 1
-        else:  # the other half of the pair is outside the recorded window
-            lanes[i] = "V" if i == 0 else "U"
-        i += 1
-    return lanes
 
 
 def loop_data(doc: dict, timings, body: str | None = None) -> dict:
@@ -222,14 +182,12 @@ _SCRIPT = r"""
   function rowText(view, ins) {
     if (!ins) return "";
     const lines = [ins.instruction + "  (pc 0x" + ins.pc.toString(16) + ", " + ins.executions + " executions)"];
-    if (view.family === "p5") {
-      lines.push("class " + ins["class"] + "; U pipe " + ins.u_pipe + ", V pipe " + ins.v_pipe +
-                 "; clocks per group " + ins.group_cycles);
-      if (ins.alone_because) lines.push("ran alone because: " + ins.alone_because);
-    } else {
-      lines.push("decoder " + ins.decoder + " (" + ins.decoder_class + "), " + ins.uops + " " + view.op +
-                 "(s); " + (ins.ports || "no unit"));
-      lines.push("issue to retire " + ins.issue_to_retire + " cycles per execution");
+    // the family's lines: {field} of the explain row, {field|text} text when the field is empty;
+    // a line with a `when` field only when that field is set
+    for (const [tpl, when] of view.tip || []) {
+      if (when && !ins[when]) continue;
+      lines.push(tpl.replace(/\{(\w+)(?:\|([^}]*))?\}/g, (_, f, dflt) =>
+        dflt !== undefined && (ins[f] === undefined || ins[f] === "") ? dflt : String(ins[f])));
     }
     const stalls = Object.keys(ins).filter(k => k.startsWith("stall_") && ins[k]).map(k => k.slice(6) + " " + ins[k]);
     if (stalls.length) lines.push("stall cycles per execution: " + stalls.join(", "));
@@ -254,11 +212,11 @@ _SCRIPT = r"""
     rows.forEach((r, i) => {
       const row = el("div", {"class": "row", "data-insn": r.insn, "data-cause": r.cause});
       const ins = byPc[r.pc];
-      const lane = view.family === "p5" ? (view.lanes[i] || "") : (ins ? ins.decoder : "");
+      const lane = (view.lanes || [])[i] || "";
       const lbl = el("div", {"class": "lbl " + causeClass(r.cause)});
       lbl.appendChild(el("span", {"class": "lane"}, lane));
       // the units it ran on (P6 ports, K6 units), from its explain row: "p0:0.5 p1:0.5" -> "p0 p1"
-      if (view.family !== "p5") {
+      if (view.show_units) {
         const units = (ins && ins.ports) ? ins.ports.split(" ").map(u => u.split(":")[0]).join(" ") : "";
         lbl.appendChild(el("span", {"class": "units"}, units));
       }
@@ -285,7 +243,7 @@ _SCRIPT = r"""
         "#" + r.insn + "  " + r.instruction + (lane ? "  [" + lane + "]" : ""),
         "decode " + r.decode + ", issue " + r.alloc + ", execute " + r.dispatch + "-" + r.complete + ", retire " + r.retire +
           " (cycle " + (r.decode - base) + " to " + (r.retire - base) + " of the chart)",
-        r.cause === "none" ? (view.family === "p5" ? "paired" : "no stall") : "held back: " + r.cause + (why ? " - " + why : ""),
+        r.cause === "none" ? view.calm : "held back: " + r.cause + (why ? " - " + why : ""),
         "", rowText(view, ins)].join("\n"));
       box.appendChild(row);
     });
@@ -303,7 +261,7 @@ _SCRIPT = r"""
     }
     const causes = (view.causes || []).filter(([c, _]) => c !== "none");
     const cl = el("div", {"class": "legend"});
-    cl.appendChild(el("span", {}, view.family === "p5" ? "why it ran alone: " : "stall causes: "));
+    cl.appendChild(el("span", {}, view.causes_heading));
     for (const [c, what] of causes) {
       const k = el("span", {"class": "key " + causeClass(c)}, c);
       hover(k, () => c + ": " + what);
@@ -316,15 +274,12 @@ _SCRIPT = r"""
   function table(result, view) {
     const t = el("table", {"class": "explain"});
     const head = el("tr");
-    const p5 = view.family === "p5";
-    const cols = p5 ? ["instruction", "class", "U", "V", "clk", "alone because", "table row"]
-                    : ["instruction", "dec", view.op + "s", view.unit_heading || "units", "iss->ret", "table row"];
-    cols.forEach(c => head.appendChild(el("th", {}, c)));
+    const cols = view.columns || [];  // [heading, field of the explain row], the family's
+    cols.forEach(([c, _]) => head.appendChild(el("th", {}, c)));
     t.appendChild(head);
     for (const ins of result.instructions || []) {
       const tr = el("tr");
-      const cells = p5 ? [ins.instruction, ins["class"], ins.u_pipe, ins.v_pipe, ins.group_cycles, ins.alone_because, ins.row]
-                       : [ins.instruction, ins.decoder, ins.uops, ins.ports, ins.issue_to_retire, ins.row];
+      const cells = cols.map(([_, f]) => ins[f]);
       cells.forEach(c => tr.appendChild(el("td", {}, c)));
       hover(tr, () => rowText(view, ins));
       t.appendChild(tr);

@@ -29,7 +29,7 @@ from sim.errors import RetrosimError
 from sim.tomlfile import read_toml
 
 VALIDATION_DIR = Path(__file__).resolve().parents[2] / "validation"
-TABLES_DIR = Path(__file__).resolve().parents[1] / "cpus" / "tables"
+TABLES_DIR = Path(__file__).resolve().parents[1] / "cpus"  # each family's package: NAME/NAME_machine.toml
 INSTLAT_KEYS = ("InstLat", "IL-")  # how the tables cite InstLatX64 dumps
 ITERATIONS = 40  # per pass; cycles are taken over iterations 20..40 of the second pass
 
@@ -100,7 +100,7 @@ def cites(text: str, key: str) -> bool:
 
 def machine_sources(family: str, tables_dir: Path = TABLES_DIR) -> list[str]:
     """Every source string of the family's machine parameters (`FAMILY_machine.toml`)."""
-    path = tables_dir / f"{family}_machine.toml"
+    path = tables_dir / family / f"{family}_machine.toml"
     if not path.is_file():
         return []
     out: list[str] = []

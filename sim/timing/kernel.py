@@ -221,7 +221,7 @@ def time_kernel(source: str | Path, entry: str, setup: Setup | None = None, cpu=
     first pass)."""
     model = make_model(cpu, memory) if isinstance(cpu, str) else cpu  # before emulating: an unknown preset fails fast
     target = GuestCpu.from_preset(model.preset)
-    if timeline_iterations == 0 and hasattr(model, "session"):
+    if timeline_iterations == 0:  # every family model takes a trace in chunks (FamilyModel.session)
         from sim.timing.stream import emulate_and_time
 
         machine, run = emulate_and_time(

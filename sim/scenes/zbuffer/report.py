@@ -99,10 +99,10 @@ def accuracy_table(result: SceneResult) -> tuple[list[str], list[list[str]]]:
 def breakdown_table(result: SceneResult, key: str) -> tuple[list[str], list[list[str]]]:
     """Where one CPU's cycles go, per pixel, in its family's words (P6 ports p0-p4, K6 units X, Y,
     load, store, branch and FPU); 'no L2' where the CPU has none."""
-    from sim.cpus import presets, vocabulary
+    from sim.cpus import families, presets
 
     cpu = MachineKey.parse(key).label
-    voc = vocabulary.for_preset(cpu)
+    voc = families.vocabulary_for(cpu)
     has_l2 = presets.load(cpu).l2 is not None
     units = list(voc.ports) + [name for counter, name in voc.extra_units]
     unit_counters = [f"port{p}" for p in range(len(voc.ports))] + [counter for counter, _ in voc.extra_units]
@@ -121,9 +121,9 @@ def breakdown_table(result: SceneResult, key: str) -> tuple[list[str], list[list
 
 def breakdown_legend(key: str) -> str:
     """The family's words for one breakdown table, in one sentence under it."""
-    from sim.cpus import vocabulary
+    from sim.cpus import families
 
-    voc = vocabulary.for_preset(MachineKey.parse(key).label)
+    voc = families.vocabulary_for(MachineKey.parse(key).label)
     units = "; ".join(voc.port_help) + ("; " + ", ".join(f"{n}: x87 unit" for c, n in voc.extra_units)
                                         if voc.extra_units else "")
     return (f"{voc.op}s per pixel on each {voc.unit} ({units}). "

@@ -1,6 +1,6 @@
 """The P6 family model (Pentium Pro, Pentium II, Celeron, Pentium III): parameters from
-sim/cpus/tables/p6_machine.toml and the CPU/memory presets, instruction facts from
-sim/cpus/tables/p6.toml, the cycle loop in :mod:`sim.cpus.p6_core`."""
+sim/cpus/p6/p6_machine.toml and the CPU/memory presets, instruction facts from
+sim/cpus/p6/p6.toml, the cycle loop in :mod:`sim.cpus.p6.core`."""
 
 from __future__ import annotations
 
@@ -13,47 +13,19 @@ from sim.guest.elf import EXIT_ADDR
 from sim.memory.dram import DramTiming
 from sim.memory.replay import NO_LOG, AccessLogs
 from sim.guest.trace import Trace
-from sim.cpus import p6_core as core
+from sim.cpus.p6 import core
 from sim.cpus.contract import CoreRun, FamilyModel
 from sim.cpus.locking import lock_cost, locked_match
-from sim.cpus.lowering import P6Limits, StaticProgram, lower
+from sim.cpus.lowering import StaticProgram, lower
+from sim.cpus.p6.lowering import P6Limits, uops_rule
 from sim.cpus.presets import CpuPreset
 from sim.cpus.session import CoreSession, grown_state
-from sim.cpus.vocabulary import COMMON_STALLS, Vocabulary
-
-# The words views use for the contract's counters on a P6 (sim/cpus/vocabulary.py).
-VOCABULARY = Vocabulary(
-    family="p6", op="uop",
-    ports=("p0", "p1", "p2", "p3", "p4"),
-    port_help=("p0: integer ALU, shifts, multiply, x87", "p1: integer ALU, branches",
-               "p2: loads", "p3: store address", "p4: store data"),
-    extra_units=(),
-    decoders=("decoder 0", "decoder 1", "decoder 2"),
-    slot_marks=("D0", "D1", "D2"),
-    classes=("simple", "complex", "microcode"),
-    class_marks=("", "", "MS"),
-    decode_help=("4-1-1 decode: decoder 0 (D0) takes any instruction of up to 4 uops, decoders 1 and 2 "
-                 "(D1, D2) one-uop instructions only; MS = the microcode sequencer (more than 4 uops)"),
-    sequencer="from the microcode sequencer",
-    group="decode groups (cycles in which the decoders took instructions)",
-    window="the reorder buffer or the reservation station was full",
-    stall_help={**COMMON_STALLS,
-                "decode": "rename idle, waiting for the decoders",
-                "window": "waiting for a free reorder-buffer or reservation-station entry",
-                "mispredict": ("decoders idle after a branch: the restart after a mispredicted branch plus "
-                               "the fetch bubble of every taken branch (1 cycle when the BTB predicts it)")},
-    mispredict_note=("'mispredicted' counts branches predicted wrongly; 'branch' stall cycles are the decoders' "
-                     "idle cycles after branches: each misprediction's restart and the bubble of every "
-                     "correctly predicted taken branch, so a loop with few mispredictions still shows many"),
-)
-
 
 class P6Model(FamilyModel):
     """The P6 model: parameters, caches and estimates as every family's (:class:`FamilyModel`); an
     L1I miss is charged the L2 latency (or the DRAM lead-off without an L2)."""
 
     family = "p6"
-    vocabulary = VOCABULARY  # the words views use for its ports, decoders and stalls
 
     def __init__(self, preset: CpuPreset, memory: DramTiming, estimates: dict | None = None):
         super().__init__(preset, memory, estimates)
@@ -61,7 +33,7 @@ class P6Model(FamilyModel):
         self.params = self._params()
         self.lock = lock_cost(self.machine["lock"], "p6_machine.toml")
         P = self.params
-        # what the machine charges without a held resource (lowering.natural_throughput)
+        # what the machine charges without a held resource (sim/cpus/p6/lowering.py: natural_throughput)
         self.limits = P6Limits(width=int(min(P[core.P_RENAME], P[core.P_RETIRE])), msrom_rate=int(P[core.P_MSROM_RATE]),
                                taken_cycles=1 + int(P[core.P_TAKEN_BUBBLE]), lcp_cycles=1 + int(P[core.P_LCP]))
 
@@ -129,7 +101,8 @@ class P6Model(FamilyModel):
 
     def lower(self, records, precisions) -> StaticProgram:
         return lower(records, self.table, self.l1_latency, self.machine["decode"]["simple_decoder_max_length"]["value"],
-                     limits=self.limits, precisions=precisions, adjust=self.locked, fpcw_serializes=True)
+                     uops_for=uops_rule(self.limits), precisions=precisions, adjust=self.locked,
+                     fpcw_serializes=True)
 
 
 class P6Session(CoreSession):

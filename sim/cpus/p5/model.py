@@ -1,13 +1,13 @@
 """The P5 family model (Pentium P54C, Pentium MMX P55C): parameters from
-sim/cpus/tables/p5_machine.toml and the CPU/memory presets, instruction facts (pairing class,
-clocks, x87 overlap) from sim/cpus/tables/p5.toml, the cycle loop in :mod:`sim.cpus.p5_core`.
+sim/cpus/p5/p5_machine.toml and the CPU/memory presets, instruction facts (pairing class,
+clocks, x87 overlap) from sim/cpus/p5/p5.toml, the cycle loop in :mod:`sim.cpus.p5.core`.
 
 The interface is every family's (:class:`sim.cpus.contract.FamilyModel`): ``run(trace, decoder,
 segments, timeline, stat_first)`` returns a run whose ``segment(k)`` gives the counters of one call.
-The counters are the P5's own (``p5_core.C_NAMES``); the contract's names the reports read (cycles,
+The counters are the P5's own (``core.C_NAMES``); the contract's names the reports read (cycles,
 instructions, l1d_*, l2_*, dram_*, branches, mispredicts) mean the same here, and ``uops`` counts
-instructions (the P5 has no micro-ops). Views ask the model for its vocabulary:
-``pipe_names``, ``counter_names``, ``summary_rows`` and ``explain_rows``.
+instructions (the P5 has no micro-ops). Its words (pipes, pairing, its own stall counters) are its
+view's (sim/cpus/p5/view.py).
 
 Simplifications (each stated where it applies): pairing marks come from executing an instruction
 once (``first_pass_source`` in the machine file), not from the prefetch buffers' byte counts; the
@@ -28,14 +28,13 @@ from sim.guest.decode import Decoder, InsnRecord
 from sim.errors import RetrosimError
 from sim.memory.dram import DramTiming, bus_ratio, core_clocks
 from sim.guest.trace import Trace, access_spans
-from sim.cpus import p5_core as core
+from sim.cpus.p5 import core
 from sim.cpus.contract import CoreRun, FamilyModel
-from sim.cpus.families import machine_table
+from sim.cpus.record import machine_table
 from sim.cpus.locking import lock_cost, locked_match, whole_clocks
 from sim.cpus.lowering import COMPUTE, DEC_SIMPLE, GPRS, PART_MASK, StaticProgram, lower
 from sim.cpus.presets import CpuPreset, model_by_cpuid
 from sim.cpus.session import CoreSession, grown_state
-from sim.cpus.table import Match
 
 CLASSES = {"NP": core.NP, "UV": core.UV, "PU": core.PU, "PV": core.PV, "FX": core.FX, "FXCH": core.FXCH,
            "MMX": core.MMX}
@@ -222,20 +221,7 @@ class P5Model(FamilyModel):
     board cache (L2) on the Socket 7 bus behind L1."""
 
     family = "p5"
-    pipe_names = ("U", "V")
-    # the stall counters `time` and `loop` list for a P5 run, in its own words (not the P6 aliases)
-    stall_counters = ("stall_agi", "stall_prefix", "stall_fpu", "stall_memory", "stall_misaligned", "stall_bank",
-                      "stall_write_buffer", "stall_fetch", "stall_mispredict")
     counter_names = core.C_NAMES
-    reasons = core.REASONS
-    # timeline words: a row's cause is why its instruction ran alone ("none" when it paired)
-    # short forms of core.REASONS, so a timeline line fits 80 columns (the long forms are in the
-    # "alone because" column)
-    timeline_causes = ("none",) + tuple("alone: " + r for r in (
-        "NP", "PV class in U", "next's class", "RAW", "WAW", "flags", "disp+imm", "prefix", "first run",
-        "x87, no FXCH", "MMX unit", "MMX mem in U", "branch"))
-    timeline_legend = ("D the previous group left the pipe, R issue (after AGI, prefix, x87 waits), E execute, "
-                       "C done; in-order U/V pipes; [alone: ...] why it did not pair (in full under 'alone because')")
 
     def __init__(self, preset: CpuPreset, memory: DramTiming, estimates: dict | None = None):
         # `estimates`: make_model's overrides; the P5's estimates (p5_machine.toml [estimates]) are
@@ -313,80 +299,8 @@ class P5Model(FamilyModel):
         return P5Session.whole(self, trace, decoder, segments, timeline, stat_first)
 
     def session(self, decoder: Decoder, segments: list[int], stat_first: int = 0, check=None) -> P5Session:
-        """A run fed in chunks (sim/timing/stream.py), as :meth:`sim.cpus.p6.P6Model.session`."""
+        """A run fed in chunks (sim/timing/stream.py), as :meth:`sim.cpus.p6.model.P6Model.session`."""
         return P5Session(self, decoder, segments, (0, 0), stat_first, check)
-
-    # ---- vocabulary for the views ---------------------------------------------------------------
-    def summary_rows(self, s: dict) -> list[tuple[str, str, str]]:
-        """(label, value, detail) rows of `retrosim time` for a P5 run."""
-        stalls = [(k, s[k]) for k in self.stall_counters if s[k]]
-        alone = sorted(((s[f"alone_{j}"], name) for j, name in enumerate(core.REASONS) if j and s[f"alone_{j}"]),
-                       reverse=True)
-        return [
-            ("cycles", f"{s['cycles']:,}", f"IPC {s['ipc']:.2f}"),
-            ("instructions", f"{s['instructions']:,}", f"{s['pairs']:,} U/V pairs, {s['alone']:,} alone"),
-            ("pipes", "", f"U {s['u_pipe']:,}  V {s['v_pipe']:,}"),
-            ("ran alone because", "", "; ".join(f"{name} {v:,}" for v, name in alone) or "-"),
-            ("branches", f"{s['branches']:,}", f"{s['mispredicts']:,} mispredicted"),
-            ("L1D", f"{s['l1d_loads'] + s['l1d_stores']:,}",
-             f"loads {s['l1d_loads']:,} ({s['l1d_load_misses']:,} miss), stores {s['l1d_stores']:,} "
-             f"({s['l1d_store_misses']:,} miss, no allocation: {s['bus_writes']:,} bus writes)"),
-            ("L2 (board)", f"{s['l2_accesses']:,}", f"{s['l2_misses']:,} miss"),
-            ("DRAM", f"{s['dram_fills']:,}", f"line fills, {s['dram_writebacks']:,} writebacks, "
-                                             f"{s['dram_bus_cycles']:,} bus-busy core cycles; fills on an open DRAM page "
-                                             f"{s.get('dram_page_hits', 0):,}, page misses {s.get('dram_page_misses', 0):,}"),
-            ("data TLB", f"{s.get('dtlb_misses', 0):,}", "misses (each a page walk: two page-table reads through the data caches)"),
-            ("L1I misses", f"{s['l1i_misses']:,}", ""),
-            ("stall cycles", "", "  ".join(f"{k[6:].replace('_', ' ')} {v:,}" for k, v in stalls) or "none"),
-        ]
-
-    explain_columns = (("pc", "right"), ("instruction", "left"), ("runs", "right"), ("class", "left"),
-                       ("U", "right"), ("V", "right"), ("clk", "right"), ("agi", "right"), ("pfx", "right"),
-                       ("fpu", "right"), ("mem", "right"), ("mis", "right"), ("bank", "right"), ("wbuf", "right"),
-                       ("mispred", "right"), ("alone because", "left"), ("table row", "left"))
-
-    def explain_rows(self, result) -> list[dict]:
-        """One row per static instruction of the last call, in address order: the pipe it ran in,
-        clocks per execution of the groups it started, stalls, and why it ran alone."""
-        run = result.run
-        rows = []
-        for sid in np.argsort([r.pc for r in run.program.records]):
-            v = run.per_static[sid]
-            n = int(v[core.S_EXEC])
-            if n == 0:
-                continue
-            rec = run.program.records[sid]
-            match: Match = run.program.matches[sid]
-            per = lambda key: round(float(v[key]) / n, 2)  # noqa: E731
-            why = []
-            for j in range(1, core.NR):
-                c = int(v[core.S_REASON0 + j])
-                if c:
-                    text = core.REASONS[j]
-                    if j in (core.R_RAW, core.R_WAW):
-                        reg = int(v[core.S_REASON_REG])
-                        text += f": {GPRS[reg]}" if 0 <= reg < 8 else ""
-                    why.append(f"{text} ({c:,})")
-            alone = int(sum(v[core.S_REASON0 + j] for j in range(1, core.NR)))
-            rows.append({
-                "pc": rec.pc, "instruction": f"{rec.mnemonic} {rec.op_str}".strip(), "executions": n,
-                "class": run.static.classes[sid] if run.static else "", "u_pipe": int(v[core.S_U]),
-                "v_pipe": int(v[core.S_V]), "paired_as_u": int(v[core.S_PAIRED_U]), "alone": alone,
-                "group_cycles": per(core.S_CYCLES), "stall_agi": per(core.S_AGI), "stall_prefix": per(core.S_PREFIX),
-                "stall_fpu": per(core.S_FPU), "stall_memory": per(core.S_MEMORY),
-                "stall_misaligned": per(core.S_MISALIGNED), "stall_bank": per(core.S_BANK),
-                "stall_write_buffer": per(core.S_WB), "mispredict_rate": per(core.S_MISPREDICTS),
-                "l1d_miss_rate": per(core.S_L1D_MISSES), "alone_because": "; ".join(why),
-                "row": match.describe(), "source": match.row.source, "estimated": match.row.estimated,
-            })
-        return rows
-
-    def explain_cells(self, r: dict) -> list[str]:
-        z = lambda x: f"{x:g}" if x else ""  # noqa: E731
-        return [f"{r['pc']:#x}", r["instruction"], f"{r['executions']:,}", r["class"], f"{r['u_pipe']:,}",
-                f"{r['v_pipe']:,}", z(r["group_cycles"]), z(r["stall_agi"]), z(r["stall_prefix"]), z(r["stall_fpu"]),
-                z(r["stall_memory"]), z(r["stall_misaligned"]), z(r["stall_bank"]), z(r["stall_write_buffer"]),
-                z(r["mispredict_rate"]), r["alone_because"], r["row"] + (" (est.)" if r["estimated"] else "")]
 
 
 class P5Session(CoreSession):

@@ -1,6 +1,6 @@
 """The compiled AMD K6 cycle model: one pass over the dynamic instruction stream, in program order.
 
-The machine (AMD-K6 data sheet 20695H ch. 2; numbers in sim/cpus/tables/k6_machine.toml):
+The machine (AMD-K6 data sheet 20695H ch. 2; numbers in sim/cpus/k6/k6_machine.toml):
 
 Front end. Decode clocks produce *opquads*, groups of four RISC86 ops padded with RISC86 NOPs.
 In one clock either both short decoders work (two instructions of at most 7 bytes and 2 ops each;
@@ -279,7 +279,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     """Time instructions base .. base + len(dyn_sid) - 1 of a run, continuing from the state
     (`sv` and the arrays after it, from :func:`new_state`) and leaving it for the next chunk; the
     chunk's arrays are its own, everything else counts from the run's start (as
-    :func:`sim.cpus.p6_core.simulate`). `next_pc`: the PC after the chunk, -1 at the run's end."""
+    :func:`sim.cpus.p6.core.simulate`). `next_pc`: the PC after the chunk, -1 at the run's end."""
     n = dyn_sid.shape[0]
     nstatic = s_len.shape[0]
     sink = per_static.shape[0] - 1  # per-static sums only from stat_first: earlier ones go to this row

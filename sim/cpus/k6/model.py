@@ -1,6 +1,6 @@
 """The AMD K6 family model (K6 model 6/7, K6-2 model 8, K6-III model 9): parameters from
-sim/cpus/tables/k6_machine.toml and the CPU/memory presets, instruction facts (RISC86 ops, decoder,
-units, latency, throughput) from sim/cpus/tables/k6.toml, the cycle loop in :mod:`sim.cpus.k6_core`.
+sim/cpus/k6/k6_machine.toml and the CPU/memory presets, instruction facts (RISC86 ops, decoder,
+units, latency, throughput) from sim/cpus/k6/k6.toml, the cycle loop in :mod:`sim.cpus.k6.core`.
 
 The interface is every family's (:class:`sim.cpus.contract.FamilyModel`): ``run(trace, decoder,
 segments, timeline, stat_first)`` returns a :class:`K6CoreRun` whose counters carry the contract's
@@ -52,9 +52,9 @@ from sim.errors import RetrosimError
 from sim.memory.dram import DramTiming, bus_ratio, core_clocks
 from sim.memory.replay import NO_LOG, AccessLogs
 from sim.guest.trace import Trace
-from sim.cpus import k6_core as core
+from sim.cpus.k6 import core
 from sim.cpus.contract import CoreRun, FamilyModel
-from sim.cpus.families import machine_table
+from sim.cpus.record import machine_table
 from sim.cpus.locking import lock_cost, locked_match
 from sim.cpus.lowering import (
     BRANCH, COMPUTE, DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE, LOAD, STA, StaticProgram, lower, rep_timing,
@@ -62,7 +62,6 @@ from sim.cpus.lowering import (
 from sim.cpus.presets import CpuPreset, model_by_cpuid
 from sim.cpus.session import CoreSession, grown_state
 from sim.cpus.table import Match
-from sim.cpus.vocabulary import COMMON_STALLS, Vocabulary
 
 PORT_BITS = {"int-x": core.X, "int-y": core.Y, "int-xy": core.X | core.Y, "load": core.LOAD_SLOT,
              "store": core.STORE_SLOT, "branch": core.BRANCH_SLOT}
@@ -279,35 +278,6 @@ class K6Rules:
         return cyc, first, pfx, cross
 
 
-# The words views use for the contract's counters on a K6 (sim/cpus/vocabulary.py).
-VOCABULARY = Vocabulary(
-    family="k6", op="RISC86 op",
-    ports=("X", "Y", "load", "store", "branch"),
-    port_help=("X: integer/MMX unit X (the only one for shifts, multiply, divide)",
-               "Y: integer/MMX unit Y (MMX only on the K6-2 and K6-III)",
-               "load: load unit", "store: store unit (also LEA)", "branch: branch unit"),
-    extra_units=(("fpu_ops", "FPU"),),
-    decoders=("short 1 / long", "short 2", ""),
-    slot_marks=("S1", "S2", ""),
-    classes=("short", "long", "vector"),
-    class_marks=("", "L", "V"),
-    decode_help=("per clock either two short instructions (S1, S2: up to 7 bytes and 2 ops each), one "
-                 "long-decoded instruction (L: up to 4 ops) or one vector-decoded instruction (V: the ROM "
-                 "sequencer, alone, for 2 or more clocks)"),
-    sequencer="vector-decoded (ROM sequencer)",
-    group="opquads (groups of four op slots, NOP padding included)",
-    window="the scheduler (24 ops, 6 opquads) was full",
-    stall_help={**COMMON_STALLS,
-                "decode": "scheduler had room, waiting for the decoders (vector decode holds them)",
-                "window": "decoded, waiting for a free opquad in the scheduler",
-                "mispredict": "decoders idle, restarting after a mispredicted branch"},
-    mispredict_note=("'mispredicted' counts branches predicted wrongly; 'branch' stall cycles are the clocks "
-                     "the decoders waited to restart after them"),
-    unit="unit",
-    timeline="D decode, R enter the scheduler, = wait in the scheduler, E execute, - done, C retire",
-)
-
-
 @dataclass
 class K6CoreRun(CoreRun):
     """A K6 run: the contract's fields; counters named by k6_core.C_NAMES (the contract's names first)."""
@@ -321,7 +291,6 @@ class K6Model(FamilyModel):
     Socket 7 board cache (or the K6-III's on-die L2 and board cache) behind L1."""
 
     family = "k6"
-    vocabulary = VOCABULARY  # the words views use for its ports, decoders and stalls
 
     def __init__(self, preset: CpuPreset, memory: DramTiming, estimates: dict | None = None):
         super().__init__(preset, memory, estimates)
@@ -393,7 +362,7 @@ class K6Model(FamilyModel):
         return K6Session.whole(self, trace, decoder, segments, timeline, stat_first, access_logs)
 
     def session(self, decoder: Decoder, segments: list[int], stat_first: int = 0, check=None) -> "K6Session":
-        """A run fed in chunks (sim/timing/stream.py), as :meth:`sim.cpus.p6.P6Model.session`."""
+        """A run fed in chunks (sim/timing/stream.py), as :meth:`sim.cpus.p6.model.P6Model.session`."""
         return K6Session(self, decoder, segments, (0, 0), stat_first, check)
 
 
