@@ -123,6 +123,23 @@ def test_views_take_their_words_from_the_family_view():
     assert families.view("no-such").vocabulary is vocabulary.GENERIC  # no view of its own: neutral names
 
 
+def test_bottleneck_names_the_limit_in_each_familys_words():
+    """The bottleneck is the biggest limit of the counters, named as the family names its hardware:
+    the P6's busiest ports, the P5's pairing or its own stall counters, the K6's decoders."""
+    p6, p5, k6 = families.view("p6"), families.view("p5"), families.view("k6")
+    ports = {"stall_port": 30, "stall_dependency": 10, "port0": 100, "port1": 95, "port2": 40, "port3": 0, "port4": 0}
+    assert p6.bottleneck(ports) == "ports p0/p1 saturated"
+    assert p6.bottleneck({**ports, "port1": 50}) == "ports p0 saturated"  # p1 well below p0
+    assert p6.bottleneck({**ports, "stall_dependency": 31}) == "dependency"  # a bigger stall kind wins
+    assert k6.bottleneck({**ports, "port0": 10}) == "units Y saturated"  # the K6's words for port1
+    assert k6.bottleneck({"stall_decode": 9, "vector_cycles": 4}) == "decode: vector-decoded"
+    assert k6.bottleneck({"stall_decode": 9, "vector_cycles": 0}) == "decode: short/long decoders"
+    assert p5.bottleneck({"instructions": 4, "alone": 2, "stall_write_buffer": 1}) == "U/V pairing: 2 of 4 alone"
+    assert p5.bottleneck({"instructions": 4, "alone": 2, "stall_write_buffer": 3}) == "write buffer full"
+    assert p5.bottleneck({"instructions": 4, "alone": 0, "stall_fpu": 0}) == "none"
+    assert families.view(None).bottleneck({"stall_rob": 0}) == "none"
+
+
 def test_explain_help_is_the_legend_one_step_away():
     r = CliRunner().invoke(cli.main, ["explain", "--help"], terminal_width=80)
     assert r.exit_code == 0

@@ -153,21 +153,32 @@ def _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iter
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
 def time_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets, as_json):
     """Cycle counts of a kernel on a CPU model: cycles, uops, decode, ports, stalls, caches, DRAM."""
-    from sim.reports import views
+    from sim.reports import registry
 
     result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets=sets)
-    limits = views.caveats(result)
-    if as_json:
-        click.echo(json.dumps({**views.summary(result), "model_limits": limits}, indent=2))
+    if as_json:  # one view (the summary): its part is the whole document
+        click.echo(json.dumps({k: v for part in registry.document(result, "time").values() for k, v in part.items()},
+                              indent=2))
         return
-    console.print(views.summary_table(result))
-    _print_lines(views.caveat_lines(result, limits))
-    console.print(views.stall_table(result))
+    _print_views(registry.text(result, registry.TextContext("time", console.width)))
 
 
 def _print_lines(lines) -> None:
     for line in lines:  # literal text (rows hold [esi]), wrapped at the terminal's width
         console.print(line, markup=False, highlight=False)
+
+
+def _print_views(items) -> None:
+    """Print the registered views' text items (sim/reports/registry.py)."""
+    from sim.reports import registry
+
+    for item, how in items:
+        if how == registry.RICH:
+            console.print(item)
+        elif how == registry.LINES:  # literal text (rows hold [esi]), wrapped at the terminal's width
+            console.print(item, markup=False, highlight=False)
+        else:  # a chart: literal, never wrapped
+            console.print(item, markup=False, highlight=False, soft_wrap=True)
 
 
 EXPLAIN_HELP = """Per-instruction table of the last call (decoder, uops, ports, latency,
@@ -202,14 +213,11 @@ Narrow terminals get the table in three parts keyed by the instruction."""
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object (rows and timeline)")
 @html_option
 def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat, sets, iterations, as_json, html_out):
-    from sim.reports import views
+    from sim.reports import registry
 
     html_out = _check_html(html_out)
     result = _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations, sets=sets)
-    limits = views.caveats(result)
-    doc = {"summary": {**views.summary(result), "model_limits": limits},
-           "instructions": views.explain_rows(result),
-           "timeline": views.timeline_rows(result)}
+    doc = registry.document(result, "explain")
     if html_out is not None:
         from sim.output import atomic_write
         from sim.reports import pipeline_html
@@ -220,18 +228,7 @@ def explain_cmd(source, entry, args_text, budget, assembler, cpu, memory, repeat
     if as_json:
         click.echo(json.dumps(doc, indent=2))
         return
-    console.print(views.summary_table(result))
-    _print_lines(views.caveat_lines(result, limits))
-    console.print(views.stall_table(result))
-    for table in views.explain_tables(result, console.width):
-        console.print(table)
-    for line in views.explain_legend(result):
-        console.print(line, markup=False, highlight=False)
-    _print_lines(views.caveat_details(result, limits))
-    text = views.timeline_text(result, columns=console.width)
-    if text:
-        console.print(f"[bold]timeline[/]: {iterations} iterations of the hot loop, from the middle of the last call")
-        console.print(text, markup=False, highlight=False, soft_wrap=True)
+    _print_views(registry.text(result, registry.TextContext("explain", console.width, iterations=iterations)))
 
 
 
@@ -288,7 +285,7 @@ def _loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, ali
     """One body's document and timings."""
     from sim.cpus import load_dram
     from sim.timing import loop
-    from sim.reports import views
+    from sim.reports import registry
 
     loop.placement(align, offset)
     if memory:
@@ -322,9 +319,7 @@ def _loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, ali
                         "instructions_per_iteration": t.per_iteration["instructions"],
                         "measured_iterations": t.iterations, "per_iteration": t.per_iteration,
                         "write_policy": t.write_policy,
-                        "model_limits": views.caveats(t.result),
-                        "instructions": views.explain_rows(t.result),
-                        "timeline": views.timeline_rows(t.result)} for t in timings]}
+                        **registry.document(t.result, "loop")} for t in timings]}
     return doc, timings
 
 
@@ -390,17 +385,12 @@ def _print_loop_section(doc, timings, name, iterations, timeline, align, offset,
     """The text output of one body (or region): per-instruction tables and timelines, the summary table
     and the lines under it."""
     from sim.timing import loop
-    from sim.reports import views
+    from sim.reports import registry, views
 
     not_timed = doc["not_timed"]
     if not brief:
         for t in timings:
-            for part in views.loop_tables(t.result, t.cpu, console.width):  # each names its CPU
-                console.print(part)
-            text_tl = views.timeline_text(t.result, columns=console.width)
-            if text_tl:
-                console.print(f"[bold]timeline[/] on {escape(t.cpu)}: {timeline} iterations from the middle of the measured pass")
-                console.print(text_tl, markup=False, highlight=False, soft_wrap=True)
+            _print_views(registry.text(t.result, registry.TextContext("loop", console.width, t.cpu, timeline)))
     table = Table(title=f"{escape(name)}: steady state per iteration (iterations {iterations // 2}..{iterations})")
     for col in ("cpu", "cycles", "instr", "uops", "IPC", "est.", "main stalls (cycles)"):
         table.add_column(col, justify="left" if col in ("cpu", "main stalls (cycles)") else "right",
