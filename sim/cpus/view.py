@@ -52,7 +52,8 @@ SUMMARY_STALLS = (("stall_dependency", "dependency", "dependency"), ("stall_port
                   ("stall_register_read", "register read", None))
 
 
-def _z(x) -> str:
+def blank_zero(x) -> str:
+    """A table cell: the figure, or nothing for zero (so the eye finds the stalls)."""
     return f"{x:g}" if x else ""
 
 
@@ -184,12 +185,12 @@ class FamilyView:
                 cells = []
                 for p in parts:
                     if p == "stalls":
-                        cells += [_z(r[k]) for k, _ in stall_cols]
+                        cells += [blank_zero(r[k]) for k, _ in stall_cols]
                     else:
                         cells.append({"pc": f"{r['pc']:#x}", "instruction": r["instruction"],
                                       "runs": f"{r['executions']:,}", "dec": r["decoder"], "ops": str(r["uops"]),
                                       "units": r["ports"], "i2r": f"{r['issue_to_retire']:g}",
-                                      "mispred": _z(r["mispredict_rate"]),
+                                      "mispred": blank_zero(r["mispredict_rate"]),
                                       "row": r["row"] + (" (est.)" if r["estimated"] else "")}[p])
                 out.append(cells)
             return TableSpec(title, cols, out)
@@ -236,7 +237,6 @@ class FamilyView:
         return {
             "causes": [[c, "" if c == "none" else v.stall_help.get(c, c)] for c in self.timeline_causes],
             "units": f"{v.unit}s " + ", ".join(v.port_label(k) for k in range(5)) + "".join(f", {n}" for _, n in v.extra_units),
-            "unit_heading": f"{v.unit}s",  # the table's column: P6 "ports", K6 "units"
             "op": v.op,
             "lanes": [decoder.get(r["pc"], "") for r in timeline],
             "show_units": True,

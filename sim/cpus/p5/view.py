@@ -8,11 +8,7 @@ import numpy as np
 
 from sim.cpus.lowering import GPRS
 from sim.cpus.p5 import core
-from sim.cpus.view import Column, FamilyView, TableSpec
-
-
-def _z(x) -> str:
-    return f"{x:g}" if x else ""
+from sim.cpus.view import Column, FamilyView, TableSpec, blank_zero as _z
 
 
 class P5View(FamilyView):
