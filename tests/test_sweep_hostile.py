@@ -437,7 +437,7 @@ def test_a_model_change_makes_stored_points_stale(tmp_path, monkeypatch):
     shutil.copytree(sweep.MODEL_DIR, model, ignore=shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc"))
     before = sweep.model_hash(model)
     assert before == sweep.model_hash(model)  # deterministic
-    table = model / "cpus" / "tables" / "p6_machine.toml"
+    table = model / "cpus" / "p6" / "p6_machine.toml"
     table.write_text(table.read_text().replace("entries = 40", "entries = 41", 1))
     assert sweep.model_hash(model) != before
     (model / "notes.txt").write_text("not part of the model")
