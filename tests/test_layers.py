@@ -1,5 +1,8 @@
-"""The import graph of sim/ (every import, module-level or inside a function, read with ast): no
-cycles among sim modules, and no module importing from a layer above its own.
+"""The import graph of sim/ (every import, module-level or inside a function, read with ast, plus
+the "module:Class" strings a module loads through importlib, and a submodule's imports from its
+package's __init__ when that __init__ holds code): no cycles among sim modules, and no module
+importing from a layer above its own. Also: a family is named only in its package and the
+registry, and only sim/guest imports the emulator.
 
 Layers, low to high (a module may import its own layer and the ones below):
 base (sim.errors, sim.output, sim.reference, sim.inputfile, sim.tomlfile, sim.stats,
