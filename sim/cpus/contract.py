@@ -2,10 +2,10 @@
 view, report and baseline reads, and the one way a family model is built.
 
 - The counter schema (``C_NAMES``, ``C_*`` indices): the counters of one segment (a call). A family's
-  core may append counters of its own after these (the K6: ``k6_core.C_NAMES``) or keep its own and
-  give these names in :meth:`CoreRun.segment` (the P5: ``p5.p6_aliases``); the slots mean different
-  hardware on each family (port 0 is a P6 port and the K6's X unit), which the family's vocabulary
-  (:class:`sim.cpus.vocabulary.Vocabulary`) names.
+  core may append counters of its own after these (the K6: ``sim.cpus.k6.core.C_NAMES``) or keep its own
+  and give these names in :meth:`CoreRun.segment` (the P5: ``sim.cpus.p5.model.p6_aliases``); the slots
+  mean different hardware on each family (port 0 is a P6 port and the K6's X unit), which the family's
+  view names (its :class:`sim.cpus.vocabulary.Vocabulary`, sim/cpus/NAME/view.py).
 - The per-instruction schema (``S_NAMES``, ``S_*``): one row per static instruction (explain).
 - The timeline schema (``T_NAMES``) and the stall causes (``CAUSES``) a timeline row names.
 - :class:`CoreRun`, the result of a model's ``run``; :func:`dram_cost`, memory behind the last
@@ -14,8 +14,8 @@ view, report and baseline reads, and the one way a family model is built.
   machine table's ``[tlb] dtlb``).
 
 The compiled helpers the cores share (port calendar, BTB victim, store queue) are in
-:mod:`sim.cpus.shared_core`; the family records (name, marker, estimates, ...) in
-:mod:`sim.cpus.families`.
+:mod:`sim.cpus.shared_core`; a family's record (name, marker, estimates, ...) in
+:mod:`sim.cpus.record`, the registry of families in :mod:`sim.cpus.families`.
 """
 
 from __future__ import annotations
