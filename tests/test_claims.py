@@ -6,7 +6,9 @@ import json
 import pytest
 
 from sim.scenes.zbuffer import report
-from sim.cpus import make_model, overridable, presets
+from sim.cpus import presets
+from sim.cpus.build import make_model
+from sim.cpus.overrides import overridable
 from sim.errors import RetrosimError
 from sim.scenes.registry import load_scene, run_scene
 from sim.scenes.schema import SceneError
@@ -107,7 +109,7 @@ def test_robustness_reruns_the_trace_with_each_estimate_at_its_ends(tmp_path):
 def test_an_integer_board_overhead_is_varied_over_whole_clocks_the_preset_accepts():
     """The P5 presets' board overhead is a whole number of bus clocks carried over from another
     system: its range (9 to 19.5) is widened to whole clocks, which make_model accepts."""
-    from sim.cpus import make_model
+    from sim.cpus.build import make_model
     from sim.scenes.claims import parameters
 
     (over,) = [p for p in parameters("pentium-mmx-166") if p.key == "memory.overhead_bus_clocks"]
@@ -205,7 +207,7 @@ def test_a_claim_naming_machines_the_scene_does_not_run_is_refused(tmp_path):
 
 def test_the_article_scene_runs_every_machine_its_claims_name():
     """The Z-buffer article's BSR claim covers P5 machines it runs; the SDRAM claim its three P6s."""
-    from sim.cpus import family_of
+    from sim.cpus.machine import family_of
 
     s = load_scene("scenes/zbuffer-article.toml")
     bsr = next(c for c in s.claims if c.families == ("p5", "k6"))

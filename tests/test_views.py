@@ -118,7 +118,7 @@ def test_entry_descriptions_continue_on_following_comment_lines(tmp_path):
 
 
 def test_views_take_their_words_from_the_model():
-    from sim.cpus import make_model
+    from sim.cpus.build import make_model
 
     assert vocabulary.of(make_model("k6-2-300")).ports == ("X", "Y", "load", "store", "branch")
     assert vocabulary.of(make_model("pentium3-500")).ports[0] == "p0"

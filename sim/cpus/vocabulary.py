@@ -71,7 +71,7 @@ def of(model) -> Vocabulary:
 @functools.cache
 def for_preset(cpu: str) -> Vocabulary:
     """The vocabulary of a CPU preset's model (GENERIC for a family with no model yet)."""
-    from sim.cpus import make_model
+    from sim.cpus.build import make_model
 
     try:
         return of(make_model(cpu))
