@@ -381,7 +381,7 @@ def run_group(group: dict) -> list[dict]:
     emulated once per instruction set among the points' CPUs (MMX, 3DNow!, SSE kernels assemble
     only for CPUs that have them); a scene's variant once (its kind builds it for every CPU)."""
     from sim.cpus.build import make_model
-    from sim.cpus.overrides import machine_label
+    from sim.cpus.machine import resolve
     from sim.timing.kernel import time_emulation
 
     emulations: dict = {}  # instruction-set key (None for a scene) -> (emulation, pixels) or the error
@@ -403,10 +403,9 @@ def run_group(group: dict) -> list[dict]:
     for p in group["points"]:
         try:
             emulation, pixels = emulation_for(p)
-            label = machine_label(p["cpu"], p["set"])
-            model = make_model(label, p["memory"])
-            counters = time_emulation(emulation, model).last
-            rows.append(_row(p, {"machine": label, "memory": model.dram.name, "pixels": pixels}, counters, ""))
+            machine = resolve(p["cpu"], p["set"], p["memory"])  # the point's text, resolved in its worker
+            counters = time_emulation(emulation, make_model(machine)).last
+            rows.append(_row(p, {"machine": machine.label, "memory": machine.memory.name, "pixels": pixels}, counters, ""))
         except Exception as e:  # recorded, the sweep goes on
             rows.append(_row(p, None, None, _error(e)))
     return rows

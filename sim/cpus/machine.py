@@ -62,15 +62,17 @@ class Machine:
 def resolve(cpu: str | Machine, overrides: dict | None = None, memory: str | None = None) -> Machine:
     """The :class:`Machine` a preset name or machine label names, with `overrides` added to the
     label's own (see :func:`sim.cpus.overrides.overridable`) and `memory` (None: the preset's
-    default). Every override is validated, and the cache geometry: an unknown name or an impossible
-    value is one clear error naming `cpu`. A Machine is returned as it is (a memory or overrides
-    given with it resolve its label again)."""
+    default). Every override is validated, then the bus and the cache geometry: an unknown name or
+    an impossible value is one clear error naming the preset (an override) or the machine's label
+    (its geometry). A Machine is returned as it is (a memory or overrides given with it resolve
+    its label again)."""
     if isinstance(cpu, Machine):
         if not overrides and memory is None:
             return cpu
         cpu, memory = cpu.label, memory if memory is not None else cpu.memory_named
     base, given = split_label(cpu)
     merged = {**given, **normalize_overrides(overrides)}
+    label = machine_label(base, merged)  # a value a label cannot hold is refused first, as the label's text
     preset, estimates, pages = apply(base, merged, memory)
     mem = load_dram(memory or preset.memory)
     if pages:  # a page figure replaced: the walk's page geometry and the hit costs follow it
@@ -79,9 +81,9 @@ def resolve(cpu: str | Machine, overrides: dict | None = None, memory: str | Non
     try:
         data, instruction = preset.data_caches(), preset.instruction_cache()
     except ValueError as e:  # an overridden cache geometry that is no cache
-        raise RetrosimError(f"CPU preset '{cpu}': {e}") from None
-    return Machine(machine_label(base, merged), preset, mem, memory, tuple(sorted(merged.items())),
-                   tuple(sorted(estimates.items())), data, instruction, costs)
+        raise RetrosimError(f"CPU preset '{label}': {e}") from None
+    return Machine(label, preset, mem, memory, tuple(sorted(merged.items())), tuple(sorted(estimates.items())),
+                   data, instruction, costs)
 
 
 def family_of(key: str) -> str:
