@@ -71,3 +71,19 @@ def test_the_cpus_package_holds_no_code():
                 for t in targets:
                     mod = t.removeprefix("sim.cpus.").split(".")[0]
                     assert mod not in order[i:], f"sim/cpus/{name}.py imports {t} (against presets < overrides < machine < build)"
+
+
+def test_overrides_replace_typed_fields_which_the_models_read():
+    """An override replaces the preset's typed field, not its file's dict (which stays as read): so a
+    model must read the typed field. The K6's board-cache latency is one the model used to take
+    from the dict."""
+    from sim.cpus import k6_core
+
+    m = resolve("pentium2-233", {"l2.size_kb": 256, "clock.core_mhz": 300, "clock.fsb_mhz": 100})
+    assert m.preset.l2.size_kb == 256 and m.preset.raw["l2"]["size_kb"] == 512  # the file's figure, unchanged
+    assert (m.preset.core_mhz, m.preset.fsb_mhz) == (300.0, 100.0)
+    for label, level in (("k6-2-300", "l2"), ("k6-3-450", "l3")):
+        plain, slow = make_model(label), make_model(resolve(label, {f"{level}.latency_cycles": 60}))
+        assert plain.params[k6_core.P_BOARD_LAT] != 60 and slow.params[k6_core.P_BOARD_LAT] == 60
+    with pytest.raises(RetrosimError, match=r"celeron-266' \(overridden\): missing field 'size_kb'"):
+        resolve("celeron-266", {"l2.present": True})  # its file has no L2 figures to turn on

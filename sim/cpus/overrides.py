@@ -23,7 +23,7 @@ input is bounded) and no run is slowed without end by an absurd figure (:data:`R
 
 from __future__ import annotations
 
-import copy
+import dataclasses
 import math
 import re
 from fractions import Fraction
@@ -31,6 +31,7 @@ from fractions import Fraction
 from sim.errors import RetrosimError
 from sim.memory import dram
 from sim.cpus import families, presets
+from sim.memory.cache import WRITE_ALLOCATE_MODES
 
 
 def memory_presets() -> list[str]:
@@ -58,8 +59,9 @@ def overridable(cpu: str, memory: str | None = None) -> dict[str, float]:
     ``memory.overhead_bus_clocks``, ``clock.core_mhz``, ...), the family model's numeric
     estimates as ``estimates.NAME``, and the page figures of the memory preset (`memory`, or the
     CPU preset's default) as ``pages.FIELD`` where it has a ``[pages]`` table. `cpu` may be a
-    machine label: the values are then its overridden ones."""
-    preset = load_preset(cpu)
+    machine label: the preset file's fields then have its overridden values."""
+    base, given = split_label(cpu)
+    preset = presets.load(base)
     out = {}
 
     def walk(d: dict, prefix: str):
@@ -72,7 +74,8 @@ def overridable(cpu: str, memory: str | None = None) -> dict[str, float]:
     walk(preset.raw, "")
     # only what a model reads: a documentation field (a measured figure, a multiplier note) would
     # be overridden without any effect
-    out = {k: v for k, v in out.items() if k.startswith(MODEL_FIELDS)}
+    out = {k: v for k, v in out.items() if k in MODEL_FIELDS}
+    out |= {k: v for k, v in checked(base, given).items() if k in out}  # a label's own values
     for key in CHOICES:  # non-numeric fields that may be overridden, where the preset has the section
         if key.split(".")[0] in preset.raw:
             out[key] = CHOICES[key][0]
@@ -152,10 +155,9 @@ def check_value(cpu: str, key: str, value, old) -> float | str | bool:
     return int(value) if isinstance(old, int) else float(value)
 
 
-def check_clocks(cpu: str, raw: dict) -> None:
+def check_clocks(cpu: str, core: float, fsb: float) -> None:
     """The core/bus ratio of an overridden preset: 1..MAX_BUS_RATIO in steps of 1/4 (checked before any
     work: a bus clock of a millionth of the core's would make every memory access last for ever)."""
-    core, fsb = raw["clock"]["core_mhz"], raw["clock"]["fsb_mhz"]
     ratio = Fraction(str(core)) / Fraction(str(fsb))
     if not 1 <= ratio <= MAX_BUS_RATIO:
         raise RetrosimError(f"CPU preset '{cpu}': override clock: core {format_value(core)} MHz / bus "
@@ -197,35 +199,62 @@ def normalize_overrides(overrides: dict | None) -> dict:
     return out
 
 
-def apply(cpu: str, overrides: dict, memory: str | None = None):
-    """(preset with `overrides` applied, estimate overrides, memory page overrides), every override
-    validated (a ``pages.FIELD`` against `memory`, or the preset's default memory)."""
-    preset = presets.load(cpu)
-    estimates, pages = {}, {}
+def checked(cpu: str, overrides: dict, memory: str | None = None) -> dict:
+    """`overrides` of the preset `cpu` with every value checked (:func:`check_value`; a
+    ``pages.FIELD`` against `memory`, or the preset's default memory), or one error naming it."""
     if not overrides:
-        return preset, estimates, pages
+        return {}
     allowed = overridable(cpu, memory)
-    raw = copy.deepcopy(preset.raw)
+    out = {}
     for key, value in overrides.items():
         if key not in allowed:
             near = sorted(k for k in allowed if k.rsplit(".", 1)[-1] == str(key).rsplit(".", 1)[-1])
             hint = f" (did you mean {', '.join(near)}?)" if near else f" (known: {', '.join(sorted(allowed))})"
             raise RetrosimError(f"CPU preset '{cpu}': unknown override '{key}'{hint}")
-        value = check_value(cpu, key, value, allowed[key])
+        out[key] = check_value(cpu, key, value, allowed[key])
+    return out
+
+
+# The typed field of a CpuPreset each preset-file override replaces: a section's cache level, or
+# one of these (a [write_allocate] mode is the L1D's write allocation).
+TOP_FIELDS = {"clock.core_mhz": "core_mhz", "clock.fsb_mhz": "fsb_mhz", "memory.overhead_bus_clocks": "overhead_bus_clocks"}
+LEVEL_FIELDS = {"l1i": "l1i", "l1d": "l1d", "l2": "l2", "l3": "board_cache", "board_cache": "board_cache"}
+CAST = {"size_kb": int, "ways": int, "line_bytes": int, "speed_ratio": float, "latency_cycles": lambda v: v,
+        "core_mhz": float, "fsb_mhz": float, "overhead_bus_clocks": lambda v: v}  # as presets.from_raw reads them
+
+
+def apply(cpu: str, overrides: dict, memory: str | None = None):
+    """(preset with `overrides` applied, estimate overrides, memory page overrides), every override
+    validated (:func:`checked`). The preset's typed fields are replaced (its file's dict is not
+    copied or changed: the models read the typed fields)."""
+    preset = presets.load(cpu)
+    estimates, pages, top, levels = {}, {}, {}, {}
+    for key, value in checked(cpu, overrides, memory).items():
         if key.startswith("estimates."):
             estimates[key.split(".", 1)[1]] = value
-            continue
-        if key.startswith("pages."):
+        elif key.startswith("pages."):
             pages[key.split(".", 1)[1]] = value
+        elif key in TOP_FIELDS:
+            top[TOP_FIELDS[key]] = CAST[TOP_FIELDS[key]](value)
+        elif key == "write_allocate.mode":
+            levels.setdefault("l1d", {})["write_allocate"] = WRITE_ALLOCATE_MODES[value]
+        else:
+            section, leaf = key.split(".")
+            levels.setdefault(section, {})[leaf] = value
+    for section, fields in levels.items():
+        name, present = LEVEL_FIELDS[section], fields.pop("present", True)
+        spec = getattr(preset, name)
+        if not present:
+            top[name] = None
             continue
-        *path, leaf = key.split(".")
-        section = raw
-        for part in path:
-            section = section[part]
-        section[leaf] = value
+        if spec is None:  # turned on where the preset file turns it off: its section's own figures
+            on = {**preset.raw, section: {**preset.raw[section], "present": True}}
+            spec = getattr(presets.from_raw(on, cpu, f"CPU preset '{cpu}' (overridden)"), name)
+        top[name] = dataclasses.replace(spec, **{k: CAST.get(k, lambda v: v)(v) for k, v in fields.items()})
+    preset = dataclasses.replace(preset, **top) if top else preset
     if any(k.startswith("clock.") for k in overrides):
-        check_clocks(cpu, raw)
-    return presets.from_raw(raw, cpu, f"CPU preset '{cpu}' (overridden)"), estimates, pages
+        check_clocks(cpu, preset.core_mhz, preset.fsb_mhz)
+    return preset, estimates, pages
 
 
 # -- machine labels: a preset with overrides, as one string --------------------------------------
