@@ -79,7 +79,7 @@ def test_overrides_replace_typed_fields_which_the_models_read():
     from the dict."""
     from sim.cpus import k6_core
 
-    m = resolve("pentium2-233", {"l2.size_kb": 256, "clock.core_mhz": 300, "clock.fsb_mhz": 100})
+    m = resolve("pentium2-233", {"l2.size_kb": 256, "clock.core_mhz": 300, "clock.fsb_mhz": 100}, "sdram-pc100")
     assert m.preset.l2.size_kb == 256 and m.preset.raw["l2"]["size_kb"] == 512  # the file's figure, unchanged
     assert (m.preset.core_mhz, m.preset.fsb_mhz) == (300.0, 100.0)
     for label, level in (("k6-2-300", "l2"), ("k6-3-450", "l3")):
