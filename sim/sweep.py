@@ -382,7 +382,6 @@ def run_group(group: dict) -> list[dict]:
     only for CPUs that have them); a scene's variant once (its kind builds it for every CPU)."""
     from sim.cpus.build import make_model
     from sim.cpus.machine import resolve
-    from sim.cpus.overrides import machine_label
     from sim.timing.kernel import time_emulation
 
     emulations: dict = {}  # instruction-set key (None for a scene) -> (emulation, pixels) or the error
@@ -404,8 +403,7 @@ def run_group(group: dict) -> list[dict]:
     for p in group["points"]:
         try:
             emulation, pixels = emulation_for(p)
-            # the point's text, resolved in its worker (an impossible geometry named by the point's label)
-            machine = resolve(machine_label(p["cpu"], p["set"]), None, p["memory"])
+            machine = resolve(p["cpu"], p["set"], p["memory"])  # the point's text, resolved in its worker
             counters = time_emulation(emulation, make_model(machine)).last
             rows.append(_row(p, {"machine": machine.label, "memory": machine.memory.name, "pixels": pixels}, counters, ""))
         except Exception as e:  # recorded, the sweep goes on

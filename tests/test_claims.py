@@ -175,7 +175,7 @@ def test_make_model_overrides():
     ({"l2.latency_cycles": 0}, r"override l2.latency_cycles: must be > 0"),
     ({"l2.latency_cycles": 2.5}, r"must be a whole number"),
     ({"l2.latency_cycles": "fast"}, r"expected a finite number"),
-    ({"l2.size_kb": 300}, r"CPU preset 'pentium2-233': .*L2"),  # not a cache geometry
+    ({"l2.size_kb": 300}, r"CPU preset 'pentium2-233\{l2.size_kb=300\}': .*L2"),  # not a cache geometry: the machine named
     ({"pages.open_pages": 3}, r"override pages.open_pages: must be a power of two"),
     ({"pages.page_bytes": 1 << 20}, r"override pages.page_bytes: must be between 512 and 65536"),
     ({"pages.hit_saving_bus_clocks": 17}, r"override pages.hit_saving_bus_clocks: must be between 0 and 16"),

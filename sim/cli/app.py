@@ -187,13 +187,12 @@ def resolve_machine(cpu: str, sets, memory: str | None = None):
     (which wins over a --set memory=...), validated now: the commands pass it down (its `label`,
     `memory_named`; sim.cpus.build.make_model(machine) is its timing model)."""
     from sim.cpus.machine import resolve
-    from sim.cpus.overrides import load_dram, machine_label
+    from sim.cpus.overrides import load_dram
 
     overrides, set_memory = _overrides(sets)
-    label = machine_label(cpu, overrides)
     if set_memory is not None:
         load_dram(set_memory)
-    return resolve(label, None, memory or set_memory)  # one clear error for an unknown key or an impossible value
+    return resolve(cpu, overrides, memory or set_memory)  # one clear error for an unknown key or an impossible value
 
 
 def with_timing_options(fn):

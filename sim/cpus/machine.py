@@ -63,8 +63,8 @@ def resolve(cpu: str | Machine, overrides: dict | None = None, memory: str | Non
     """The :class:`Machine` a preset name or machine label names, with `overrides` added to the
     label's own (see :func:`sim.cpus.overrides.overridable`) and `memory` (None: the preset's
     default). Every override is validated, then the bus and the cache geometry: an unknown name or
-    an impossible value is one clear error naming the preset (an override) or `cpu` as given (its
-    geometry). A Machine is returned as it is (a memory or overrides given with it resolve
+    an impossible value is one clear error naming the preset (an override) or the machine's label
+    (its geometry). A Machine is returned as it is (a memory or overrides given with it resolve
     its label again)."""
     if isinstance(cpu, Machine):
         if not overrides and memory is None:
@@ -81,7 +81,7 @@ def resolve(cpu: str | Machine, overrides: dict | None = None, memory: str | Non
     try:
         data, instruction = preset.data_caches(), preset.instruction_cache()
     except ValueError as e:  # an overridden cache geometry that is no cache
-        raise RetrosimError(f"CPU preset '{cpu}': {e}") from None
+        raise RetrosimError(f"CPU preset '{label}': {e}") from None
     return Machine(label, preset, mem, memory, tuple(sorted(merged.items())), tuple(sorted(estimates.items())),
                    data, instruction, costs)
 
