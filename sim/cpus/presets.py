@@ -1,9 +1,11 @@
 """CPU presets (sim/cpus/presets/*.toml): clocks, caches and default memory, each field sourced.
 
-This is the one module that reads a preset file's dict: :func:`from_raw` turns it into a typed
-:class:`CpuPreset` (its caches with their policies resolved against sim/memory/policies.toml, its
-instruction-set and assembler names, its board overhead), and every other layer reads those fields.
-A preset with overrides is :mod:`sim.cpus.overrides`'s; a whole machine is :mod:`sim.cpus.machine`'s.
+:func:`from_raw` turns a preset file's dict into a typed :class:`CpuPreset` (its caches with their
+policies resolved against sim/memory/policies.toml, its instruction-set and assembler names, its
+board overhead), and the layers read those fields, never the dict (``raw`` is kept for
+:mod:`sim.cpus.overrides`, which lists the file's numeric fields as what may be overridden, and for
+two family-only figures the P5 and K6 models read: a board cache's bus clocks). A preset with
+overrides is :mod:`sim.cpus.overrides`'s; a whole machine is :mod:`sim.cpus.machine`'s.
 """
 
 from __future__ import annotations
