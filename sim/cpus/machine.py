@@ -2,20 +2,21 @@
 
 Text names a machine only at the edges (files, tables, worker pickling): a *label* is the preset
 with its overrides sorted by key (``k6-233{l2.size_kb=256,write_allocate.mode=full}``,
-:func:`machine_label`), a *key* adds ``:memory`` when a memory preset is named
-(``pentium2-233:edo``; labels never contain ':', so the first ':' is the memory separator).
-Scene files, reports, baselines, claims and sweeps all name machines this way; :class:`MachineKey`
-is the one place that takes a key apart, :func:`split_label` a label.
+sim.cpus.overrides.machine_label and split_label), a *key* adds ``:memory`` when a memory preset
+is named (``pentium2-233:edo``; labels never contain ':', so the first ':' is the memory
+separator). Scene files, reports, baselines, claims and sweeps all name machines this way;
+:class:`MachineKey` is the one place that takes a key apart.
 
 :func:`resolve` turns a label (or a preset name, with overrides and a memory) into a
 :class:`Machine`: the preset with the overrides applied and validated, the memory preset with its
-page overrides, the model estimates overridden, and the cache geometries as plain data, checked
-(a size that is no cache, or a bus the memory cannot run on, is refused here, before any work). The commands, scene loaders and sweep
-points resolve once and hand the Machine down (sim.cpus.build.make_model builds its timing model;
-sim.guest.cpu.GuestCpu.from_preset(machine.preset) is the guest's view of it).
+page overrides, the model estimates overridden, the memory's line costs on this bus, and the cache
+geometries as plain data, checked (a size that is no cache, or a bus the memory cannot run on, is
+refused here, before any work). The commands (sim.cli.app.resolve_machine) and sweep points (in
+their worker) resolve once and hand the Machine down: sim.cpus.build.make_model builds its timing
+model, sim.guest.cpu.GuestCpu.from_preset(machine.preset) is the guest's view of it.
 
-Dependencies run one way: presets (a preset file) < overrides (a preset with overrides) < machine
-(labels, Machine) < build (the timing model).
+Dependencies run one way: presets (a preset file) < overrides (a preset with overrides, labels) <
+machine < build (the timing model).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from sim.memory.dram import DramTiming, LineCosts
 from sim.cpus import presets
 from sim.cpus.overrides import apply, load_dram, machine_label, normalize_overrides, split_label
 from sim.cpus.presets import CpuPreset
+
 
 @dataclass(frozen=True)
 class Machine:
