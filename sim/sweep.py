@@ -119,7 +119,7 @@ class Spec:
 
 
 def _text(value) -> str:
-    from sim.cpus import format_value
+    from sim.cpus.overrides import format_value
 
     return format_value(value)
 
@@ -184,7 +184,8 @@ def model_hash(root: Path | None = None) -> str:
 def load_spec(path: str | Path, max_points: int = MAX_POINTS) -> Spec:
     """The spec at `path`, checked: one SweepError naming the file and field for anything wrong,
     including more than `max_points` points (counted before any is built)."""
-    from sim.cpus import memory_presets, presets
+    from sim.cpus import presets
+    from sim.cpus.overrides import memory_presets
 
     path = Path(path)
 
@@ -379,7 +380,8 @@ def run_group(group: dict) -> list[dict]:
     """Rows of one group's points; a point that fails gets a row with its error. A kernel is
     emulated once per instruction set among the points' CPUs (MMX, 3DNow!, SSE kernels assemble
     only for CPUs that have them); a scene's variant once (its kind builds it for every CPU)."""
-    from sim.cpus import machine_label, make_model
+    from sim.cpus.build import make_model
+    from sim.cpus.machine import resolve
     from sim.timing.kernel import time_emulation
 
     emulations: dict = {}  # instruction-set key (None for a scene) -> (emulation, pixels) or the error
@@ -401,10 +403,9 @@ def run_group(group: dict) -> list[dict]:
     for p in group["points"]:
         try:
             emulation, pixels = emulation_for(p)
-            label = machine_label(p["cpu"], p["set"])
-            model = make_model(label, p["memory"])
-            counters = time_emulation(emulation, model).last
-            rows.append(_row(p, {"machine": label, "memory": model.dram.name, "pixels": pixels}, counters, ""))
+            machine = resolve(p["cpu"], p["set"], p["memory"])  # the point's text, resolved in its worker
+            counters = time_emulation(emulation, make_model(machine)).last
+            rows.append(_row(p, {"machine": machine.label, "memory": machine.memory.name, "pixels": pixels}, counters, ""))
         except Exception as e:  # recorded, the sweep goes on
             rows.append(_row(p, None, None, _error(e)))
     return rows
@@ -619,7 +620,8 @@ def _warm(spec: Spec) -> None:
     """Run each family's compiled core once here (sim.parallel.warm), so the on-disk numba cache is
     filled before several workers load it at once (a cold cache loaded concurrently has been seen
     to stall)."""
-    from sim.cpus import make_model, presets
+    from sim.cpus import presets
+    from sim.cpus.build import make_model
     from sim.parallel import warm
 
     families = {}

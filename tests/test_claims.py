@@ -6,7 +6,9 @@ import json
 import pytest
 
 from sim.scenes.zbuffer import report
-from sim.cpus import make_model, overridable, presets
+from sim.cpus import presets
+from sim.cpus.build import make_model
+from sim.cpus.overrides import overridable
 from sim.errors import RetrosimError
 from sim.scenes.registry import load_scene, run_scene
 from sim.scenes.schema import SceneError
@@ -107,7 +109,7 @@ def test_robustness_reruns_the_trace_with_each_estimate_at_its_ends(tmp_path):
 def test_an_integer_board_overhead_is_varied_over_whole_clocks_the_preset_accepts():
     """The P5 presets' board overhead is a whole number of bus clocks carried over from another
     system: its range (9 to 19.5) is widened to whole clocks, which make_model accepts."""
-    from sim.cpus import make_model
+    from sim.cpus.build import make_model
     from sim.scenes.claims import parameters
 
     (over,) = [p for p in parameters("pentium-mmx-166") if p.key == "memory.overhead_bus_clocks"]
@@ -173,7 +175,7 @@ def test_make_model_overrides():
     ({"l2.latency_cycles": 0}, r"override l2.latency_cycles: must be > 0"),
     ({"l2.latency_cycles": 2.5}, r"must be a whole number"),
     ({"l2.latency_cycles": "fast"}, r"expected a finite number"),
-    ({"l2.size_kb": 300}, r"CPU preset 'pentium2-233': .*L2"),  # not a cache geometry
+    ({"l2.size_kb": 300}, r"CPU preset 'pentium2-233\{l2.size_kb=300\}': .*L2"),  # not a cache geometry: the machine named
     ({"pages.open_pages": 3}, r"override pages.open_pages: must be a power of two"),
     ({"pages.page_bytes": 1 << 20}, r"override pages.page_bytes: must be between 512 and 65536"),
     ({"pages.hit_saving_bus_clocks": 17}, r"override pages.hit_saving_bus_clocks: must be between 0 and 16"),
@@ -205,7 +207,7 @@ def test_a_claim_naming_machines_the_scene_does_not_run_is_refused(tmp_path):
 
 def test_the_article_scene_runs_every_machine_its_claims_name():
     """The Z-buffer article's BSR claim covers P5 machines it runs; the SDRAM claim its three P6s."""
-    from sim.cpus import family_of
+    from sim.cpus.machine import family_of
 
     s = load_scene("scenes/zbuffer-article.toml")
     bsr = next(c for c in s.claims if c.families == ("p5", "k6"))

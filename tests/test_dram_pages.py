@@ -10,7 +10,9 @@ latency, CL2 = 2 clocks).
 import numpy as np
 import pytest
 
-from sim.cpus import make_model, presets
+from sim.cpus import presets
+
+from sim.cpus.build import make_model
 from sim.cpus.contract import dram_cost
 from sim.memory.dram import load_memory_preset
 from sim.memory.hierarchy import Hierarchy, memory_fill_page_hits, memory_fills, service
@@ -28,7 +30,7 @@ def _fills(h, addrs):
 
 
 def _hierarchy():
-    h = Hierarchy.from_preset(presets.load("pentium2-233"))
+    h = Hierarchy(presets.load("pentium2-233").data_caches())
     pages = load_memory_preset("sdram-pc100").pages
     h.set_dram_pages(pages.page_bytes, pages.open_pages)
     return h
@@ -58,7 +60,7 @@ def test_page_hit_saves_trp_plus_trcd_and_writes_save_cas():
 
 
 def test_without_page_model_every_fill_misses():
-    h = Hierarchy.from_preset(presets.load("pentium2-233"))
+    h = Hierarchy(presets.load("pentium2-233").data_caches())
     hits, fills = _fills(h, np.arange(0, 1 << 20, 32, dtype=np.int64))
     assert hits == 0 and fills > 0
 

@@ -12,7 +12,9 @@ import pytest
 from click.testing import CliRunner
 
 from sim import cli
-from sim.cpus import families, make_model, overridable, presets
+from sim.cpus import families, presets
+from sim.cpus.build import make_model
+from sim.cpus.overrides import overridable
 from sim.cpus.contract import C_NAMES, FamilyModel
 from sim.cpus.families import ALWAYS, FAMILIES
 from sim.cpus.record import machine_path, table_path

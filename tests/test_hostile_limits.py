@@ -13,7 +13,7 @@ from click.testing import CliRunner
 
 from conftest import cli_fails
 from sim.cli import main
-from sim.cpus import RANGES, overridable, value_range
+from sim.cpus.overrides import RANGES, overridable, value_range
 
 Z32 = ["zbuffer/z32.S", "--entry", "z32_span", "--args", "buf:u32:8,buf:u16:8,8,1,1,1"]
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from sim.reports import views
-from sim.cpus import contract, make_model, presets
+from sim.cpus import contract, presets
+from sim.cpus.build import make_model
 from sim.cpus.k6 import core as k6_core
 from sim.errors import RetrosimError
 from sim.timing.kernel import emulate, time_emulation, time_kernel

@@ -8,7 +8,7 @@ import pytest
 
 from sim.memory import (
     DIRTY_VICTIM, EVICT, FETCH, FORWARD, HIT, LOAD, STORE, CacheGeometry, CacheState, Hierarchy,
-    OpenRowModel, bus_ratio, line_costs, line_costs_for_cpu, line_span, lines_touched, load_memory_preset,
+    OpenRowModel, bus_ratio, line_costs, line_span, lines_touched, load_memory_preset,
     memory_fills, memory_writebacks, row_access, served_level, service, victim_address,
 )
 from sim.cpus import presets
@@ -231,10 +231,10 @@ def test_k6_presets_on_the_zbuffer_trace(fp16z_traces):
     and goes to the board cache; on the k6-2-300 (full write allocate) only the first per line."""
     trace = fp16z_traces[0]
     n_fb_writes = 20000
-    k6 = Hierarchy.from_preset(presets.load("k6-233")).run(trace)
+    k6 = Hierarchy(presets.load("k6-233").data_caches()).run(trace)
     assert k6.levels[0].store_misses >= n_fb_writes and k6.levels[0].forwarded == k6.levels[0].store_misses
     assert k6.levels[1].stores == k6.levels[0].forwarded
-    k62 = Hierarchy.from_preset(presets.load("k6-2-300")).run(trace)
+    k62 = Hierarchy(presets.load("k6-2-300").data_caches()).run(trace)
     assert k62.levels[0].forwarded == 0
     assert n_fb_writes * 2 // 32 <= k62.levels[0].store_misses < n_fb_writes * 2 // 32 + 10
 
@@ -316,24 +316,39 @@ def test_geometry_validation_messages():
 
 
 def test_hierarchy_from_cpu_presets():
-    h = Hierarchy.from_preset(presets.load("pentium2-233"))
+    """Memory builds its caches from the geometry a preset states (policies resolved in sim/cpus)."""
+    import copy
+
+    from sim.errors import RetrosimError
+
+    h = Hierarchy(presets.load("pentium2-233").data_caches())
     assert [(g.name, g.size_bytes, g.ways, g.sets) for g in h.geometries] == [
         ("L1D", 16 * KB, 4, 128), ("L2", 512 * KB, 4, 4096)]
     assert all(g.write_back and g.write_allocate and g.replacement == "lru" for g in h.geometries)
-    assert [g.name for g in Hierarchy.from_preset(presets.load("celeron-266")).geometries] == ["L1D"]  # no L2
-    k6 = {"name": "k6-test", "cpu_model": "k6", "l1d": {"size_kb": 32, "ways": 2, "line_bytes": 32},
-          "l2": {"size_kb": 512, "ways": 2, "write_back": False, "write_allocate": False}}
-    l1, l2 = Hierarchy.from_preset(k6).geometries
+    assert [g.name for g in presets.load("celeron-266").data_caches()] == ["L1D"]  # no L2
+    raw = copy.deepcopy(presets.load("k6-2-300").raw)
+    raw["l2"] |= {"write_back": False, "write_allocate": False}
+    l1, l2 = presets.from_raw(raw, "k6-test", "test").data_caches()
     assert (l1.replacement, l1.write_allocate) == ("fifo", True)  # LRA; WHCR-enabled write allocate
-    assert Hierarchy.from_preset(presets.load("k6-233")).geometries[0].write_allocate == "page+sector"  # as measured
-    assert [g.name for g in Hierarchy.from_preset(presets.load("k6-3-450")).geometries] == ["L1D", "L2", "L3"]
+    assert presets.load("k6-233").data_caches()[0].write_allocate == "page+sector"  # as measured
+    assert [g.name for g in presets.load("k6-3-450").data_caches()] == ["L1D", "L2", "L3"]
     assert (l2.write_back, l2.write_allocate) == (False, False)    # preset overrides the defaults
     with pytest.raises(presets.UnknownPreset, match=r"unknown CPU preset 'pentium5'.*celeron-300a"):
         presets.load("pentium5")
-    with pytest.raises(TypeError, match="not its name"):  # memory never reads CPU presets itself
-        Hierarchy.from_preset("pentium2-233")
-    with pytest.raises(ValueError, match="cpu_model 'z80'"):
-        Hierarchy.from_preset({"name": "x", "cpu_model": "z80", "l1d": {"size_kb": 8, "ways": 2}})
+    with pytest.raises(RetrosimError, match="cpu_model 'z80'"):
+        presets.from_raw({**raw, "cpu_model": "z80"}, "x", "test")
+    with pytest.raises(RetrosimError, match=r"\[write_allocate\] mode = 'some' is not one of"):
+        presets.from_raw({**raw, "write_allocate": {"mode": "some"}}, "x", "test")
+
+
+def test_write_allocation_in_words():
+    """One function says a level's write allocation in the words of `write_allocate.mode`."""
+    words = {n: presets.load(n).data_caches()[0].write_allocate_mode for n in ("pentium-133", "pentium2-233",
+                                                                              "k6-233", "k6-2-300")}
+    assert words == {"pentium-133": "none", "pentium2-233": "full", "k6-233": "page+sector only", "k6-2-300": "full"}
+    from sim.memory.cache import WRITE_ALLOCATE_MODES
+    for mode, setting in WRITE_ALLOCATE_MODES.items():  # the words and the settings are one table
+        assert CacheGeometry("L1D", 8 * KB, 2, write_allocate=setting).write_allocate_mode == mode
 
 
 def test_every_family_policy_names_its_source():
@@ -362,11 +377,11 @@ def test_line_fill_costs_in_core_clocks():
     expect = {"pentium2-233": {"edo": (39, 39), "sdram-pc66": (28, 21), "sdram-pc100": (25, 18)},
               "celeron-300a": {"edo": (50, 50), "sdram-pc66": (36, 27), "sdram-pc100": (32, 23)}}
     for cpu, per_memory in expect.items():
-        preset = presets.load(cpu).raw
+        preset = presets.load(cpu)
         for memory, clocks in per_memory.items():
-            costs = line_costs_for_cpu(preset, memory)
+            costs = presets.line_costs_on(preset, load_memory_preset(memory))
             assert (costs.fill, costs.writeback) == clocks, (cpu, memory)
-    assert line_costs_for_cpu(presets.load("pentium2-233").raw).memory == "edo"  # the article's PC
+    assert presets.load("pentium2-233").memory == "edo"  # the article's PC
     assert load_memory_preset("edo").burst == (5, 2, 2, 2)
     assert bus_ratio(233.33, 66.67) == bus_ratio(233.0, 66.6) == pytest.approx(3.5)
 
@@ -518,7 +533,7 @@ def test_replayed_cache_results_time_exactly_like_a_cache_walk(cpu, override):
     latency or an estimate changed, as the claims' robustness pass does) gives every counter,
     per-instruction row and timeline row a full walk gives; it did replay, reading every result."""
     from sim.timing import bench
-    from sim.cpus import make_model
+    from sim.cpus.build import make_model
     from sim.guest.kernels import kernels_root
     from sim.memory.replay import LOG_REPLAY, AccessLogs
     from sim.timing.kernel import emulate, time_emulation

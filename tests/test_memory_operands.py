@@ -24,7 +24,8 @@ import pytest
 
 from test_isa_forms import NOT_EMULATED, assemble_each, classify, end_to_end_kernel
 from isa_forms import forms
-from sim.cpus import make_model, presets
+from sim.cpus import presets
+from sim.cpus.build import make_model
 from sim.cpus.lowering import LOAD, STA
 from sim.cpus.table import load_table
 from sim.guest.cpu import GuestCpu

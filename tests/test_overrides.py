@@ -1,5 +1,5 @@
 """Preset overrides: `--set KEY=VALUE`, machine labels and scene [[run.machine]] tables, each
-validated through sim.cpus.make_model with one clear error."""
+validated through sim.cpus.build.make_model with one clear error."""
 
 import json
 
@@ -7,7 +7,8 @@ import pytest
 from click.testing import CliRunner
 
 from sim.cli import main
-from sim.cpus import machine_label, make_model, split_label
+from sim.cpus.build import make_model
+from sim.cpus.overrides import machine_label, split_label
 from sim.errors import RetrosimError
 from sim.scenes.registry import load_scene
 from sim.scenes.schema import SceneError

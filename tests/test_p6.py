@@ -6,7 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from sim.cpus import make_model, presets
+from sim.cpus import presets
+
+from sim.cpus.build import make_model
 from sim.timing.kernel import time_kernel
 
 from conftest import KERNELS, RDTSC_KERNEL

@@ -426,7 +426,9 @@ def test_preset_names_are_names_not_paths(tmp_path):
     # a request names its CPUs and memory: `../../x` must not read x.toml from anywhere, even a valid preset
     import shutil
 
-    from sim.cpus import load_dram, presets
+    from sim.cpus import presets
+
+    from sim.cpus.overrides import load_dram
     from sim.errors import RetrosimError
     from sim.memory import dram
 

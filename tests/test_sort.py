@@ -222,7 +222,7 @@ def test_bad_scenes_are_one_error_naming_file_line_and_field(tmp_path, edit, mes
 def test_sweep_emulation_is_the_table_run(tiny):
     """A sweep point of a sort variant times what the scene's table times: the same emulation (first
     distribution, table size, the copy then the sort) gives the table's counters on every machine."""
-    from sim.cpus import make_model
+    from sim.cpus.build import make_model
     from sim.cpus.machine import MachineKey
     from sim.timing.kernel import time_emulation
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from sim.cpus import make_model
+from sim.cpus.build import make_model
 from sim.errors import GuestFault
 from sim.guest.isa import IsaError
 from sim.guest.kernels import kernels_root

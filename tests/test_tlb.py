@@ -11,7 +11,8 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-from sim.cpus import families, make_model  # noqa: E402
+from sim.cpus import families  # noqa: E402
+from sim.cpus.build import make_model  # noqa: E402
 from sim.cpus.contract import data_tlb  # noqa: E402
 from sim.memory import CacheGeometry, Hierarchy, served_level, service  # noqa: E402
 from sim.memory.hierarchy import (  # noqa: E402

@@ -122,7 +122,7 @@ def row_latency(table, mnemonic: str, signature: str, precision: int | None = No
 @pytest.mark.parametrize("cpu", ["pentium2-233", "pentium3-500"])
 @pytest.mark.parametrize("discard", ["fstp st(0)", "ffreep st(0)", "ffree st(0)\n    fincstp"])
 def test_fldcw_waits_for_a_divide_whose_result_was_discarded(cpu, discard):
-    from sim.cpus import make_model
+    from sim.cpus.build import make_model
     from sim.timing import loop
     model = make_model(cpu)
     table = model.table

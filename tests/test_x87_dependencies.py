@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import pytest
 
-from sim.cpus import make_model
+from sim.cpus.build import make_model
 from sim.timing import loop
 
 

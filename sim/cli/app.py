@@ -167,7 +167,7 @@ timing_options = [
 
 def _overrides(sets) -> tuple[dict, str | None]:
     """--set KEY=VALUE items as (preset overrides, memory preset or None); checked by make_model."""
-    from sim.cpus import parse_value
+    from sim.cpus.overrides import parse_value
 
     out, memory = {}, None
     for item in sets:
@@ -182,18 +182,17 @@ def _overrides(sets) -> tuple[dict, str | None]:
     return out, memory
 
 
-def resolve_machine(cpu: str, sets, memory: str | None = None) -> tuple[str, str | None, object]:
-    """(machine label, memory preset or None, timing model) for a CPU preset, --set items and
-    --memory (which wins over a --set memory=...), validated now: the preset is resolved and the
-    model built once, here, and the commands pass the model down."""
-    from sim.cpus import load_dram, machine_label, make_model
+def resolve_machine(cpu: str, sets, memory: str | None = None):
+    """The resolved machine (sim.cpus.machine.Machine) of a CPU preset, --set items and --memory
+    (which wins over a --set memory=...), validated now: the commands pass it down (its `label`,
+    `memory_named`; sim.cpus.build.make_model(machine) is its timing model)."""
+    from sim.cpus.machine import resolve
+    from sim.cpus.overrides import load_dram
 
     overrides, set_memory = _overrides(sets)
-    label = machine_label(cpu, overrides)
     if set_memory is not None:
         load_dram(set_memory)
-    memory = memory or set_memory
-    return label, memory, make_model(label, memory)  # one clear error for an unknown key or an impossible value
+    return resolve(cpu, overrides, memory or set_memory)  # one clear error for an unknown key or an impossible value
 
 
 def with_timing_options(fn):

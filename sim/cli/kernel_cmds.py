@@ -119,12 +119,14 @@ def trace_cmd(source, entry, args_text, budget, assembler, isa_cpu, out):
 
 
 def _time(source, entry, args_text, budget, assembler, cpu, memory, repeat, iterations=0, sets=()):
+    from sim.cpus.build import make_model
     from sim.guest.cpu import GuestCpu
     from sim.guest.emu import Machine
     from sim.timing.kernel import time_kernel
 
     # the preset is resolved and the model built once, here; the model is not run until time_kernel
-    label, memory, model = resolve_machine(cpu, sets, memory)
+    machine = resolve_machine(cpu, sets, memory)
+    label, model = machine.label, make_model(machine)
     path = catalogue_mod.resolve(source)
     probe = Machine.from_source(path, assembler=assembler, cpu=GuestCpu.from_preset(model.preset))
     entry = choose_entry(probe, entry)  # resolve the entry and check --args once
@@ -283,7 +285,7 @@ def page_section(sections) -> tuple[dict, list]:
 def _loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline, assembler,
                    warn, syntax_warned=False, data=None):
     """One body's document and timings."""
-    from sim.cpus import load_dram
+    from sim.cpus.overrides import load_dram
     from sim.timing import loop
     from sim.reports import registry
 
@@ -298,9 +300,9 @@ def _loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, ali
         warn(warning)
     labels = []
     for cpu in cpu_list(cpus):  # --set applies to every CPU, as `time --set` does to its one
-        label, set_memory, _ = resolve_machine(cpu, sets)
-        labels.append(label)
-        memory = memory or set_memory
+        machine = resolve_machine(cpu, sets)  # checked here; the loop times each label once
+        labels.append(machine.label)
+        memory = memory or machine.memory_named
     timings, not_timed = loop.time_body_where_possible(text, list(dict.fromkeys(labels)), name, syntax, iterations,
                                                        loop.parse_regs(regs), assembler, timeline, memory, align,
                                                        offset, data=data or loop.DEFAULT_DATA)

@@ -17,7 +17,8 @@ from sim.cli.app import REPORTS_DIR, console, err_console, main
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
 def cpus_cmd(as_json):
     """List CPU and memory presets with their caches, clocks and default memory."""
-    from sim.cpus import load_dram, memory_presets, presets
+    from sim.cpus import presets
+    from sim.cpus.overrides import load_dram, memory_presets
 
     cpus = [presets.load(n) for n in presets.available()]
     if as_json:
@@ -45,11 +46,7 @@ def write_allocate_mode(preset) -> str:
     """The L1 data cache's write allocation, in the words of the `write_allocate.mode` override:
     "full", "page+sector only" or "none" (a loop writing fresh memory waits on the write buffer on
     all but "full": `retrosim loop --data`)."""
-    from sim.memory.cache import ALLOC_ALWAYS, ALLOC_NEVER
-    from sim.memory.hierarchy import Hierarchy
-
-    allocate = Hierarchy.from_preset(preset).geometries[0].allocate_id
-    return {ALLOC_ALWAYS: "full", ALLOC_NEVER: "none"}.get(allocate, "page+sector only")
+    return preset.data_caches()[0].write_allocate_mode
 
 
 def _write_allocate_caption(cpus, modes: dict, full: bool) -> str:
@@ -69,21 +66,20 @@ def _cpu_tables(cpus, width: int) -> list:
     sizes only, with the latencies and clock ratios one `--json` away."""
     from sim.reports.views import natural_width
 
-    modes = {c.name: write_allocate_mode(c) for c in cpus}  # one hierarchy built per preset, for both tables
+    modes = {c.name: write_allocate_mode(c) for c in cpus}  # once per preset, for both tables
 
-    def level(c, section: dict | None) -> str:
-        return ("board " if "motherboard" in str((section or {}).get("location", "")) else "") + f"{c.size_kb}"
+    def level(c) -> str:
+        return ("board " if c.on_board else "") + f"{c.size_kb}"
 
     def caches(c, full: bool) -> str:
         if c.l2 is None:
             return "no L2"
-        raw = c.raw
-        text = c.l2.describe() if full else level(c.l2, raw.get("l2"))
+        text = c.l2.describe() if full else level(c.l2)
         if not full and c.l2.speed_ratio != 1.0:
             text += f" at {c.l2.speed_ratio:g}x"
         if c.board_cache:
             text += " + " + (f"board {c.board_cache.describe()}" if full else
-                             level(c.board_cache, raw.get("l3") or raw.get("board_cache")))
+                             level(c.board_cache))
         return text
 
     def build(full: bool) -> Table:

@@ -111,9 +111,9 @@ def _with_sets(chosen, cpus, sets) -> list[str]:
     out = []
     for spec in (list(cpus) or [c for s in chosen for c in s.cpus]):
         key = MachineKey.parse(spec)
-        label, set_memory, _ = resolve_machine(key.label, sets)
-        memory = set_memory or key.memory
-        out.append(f"{label}:{memory}" if memory else label)
+        machine = resolve_machine(key.label, sets)
+        memory = machine.memory_named or key.memory
+        out.append(f"{machine.label}:{memory}" if memory else machine.label)
     return list(dict.fromkeys(out))
 
 

@@ -357,7 +357,8 @@ def warm_up(say=lambda line: None) -> None:
 
 
 def app_config() -> dict:
-    from sim.cpus import families, memory_presets, presets
+    from sim.cpus import families, presets
+    from sim.cpus.overrides import memory_presets
 
     # the CPUs by family (P5, P6, K6: the order the page shows them in), then by name
     cpus = sorted(presets.available(), key=lambda c: (families.order(presets.load(c).family), c))

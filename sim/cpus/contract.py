@@ -25,12 +25,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim.errors import RetrosimError
-from sim.memory.dram import DramTiming, line_costs
+from sim.memory.dram import DramTiming
 from sim.memory.hierarchy import Hierarchy
-from sim.memory.cache import CacheGeometry
 from sim.cpus import record as families  # the family's own record (not the registry above the models)
 from sim.cpus.lowering import StaticProgram
-from sim.cpus.presets import CpuPreset, dram_overhead
+from sim.cpus.presets import CpuPreset, line_costs_on
 from sim.cpus.table import InstructionTable, load_table
 
 # counter indices (per segment)
@@ -165,10 +164,7 @@ def dram_cost(memory: DramTiming, preset: CpuPreset) -> DramCost:
     board-cache tag check, chipset) + the memory's first transfer; a fill or writeback keeps the
     bus for the whole burst (``line_tenure``: a fill's whole bus cycle, overhead included, which
     the K6 charges instead)."""
-    try:
-        costs = line_costs(memory, preset.core_mhz, preset.fsb_mhz, dram_overhead(preset, memory.name))
-    except ValueError as e:
-        raise RetrosimError(f"{preset.name} with {memory.name}: {e}") from None
+    costs = line_costs_on(preset, memory)
     return DramCost(memory.name, costs.lead_off, costs.fill, costs.writeback, costs.lead_off_hit,
                     costs.fill_hit, costs.writeback_hit, costs.fill_tenure, costs.fill_tenure_hit)
 
@@ -179,14 +175,7 @@ def caches(preset: CpuPreset) -> tuple[Hierarchy, Hierarchy]:
     override them). The instruction side is the L1I alone, LRU, never allocating on a write: an
     L1I miss is charged by the core (the level below's latency) but does not enter the data
     side's caches. Kernels are a few hundred bytes, so code never competes with data for the L2."""
-    try:
-        dside = Hierarchy.from_preset(preset)
-    except ValueError as e:  # make_model names the machine (its label, overrides included)
-        raise ValueError(str(e).removeprefix(f"CPU preset {preset.raw.get('name', preset.name)}: ")) from None
-    i = preset.l1i
-    iside = Hierarchy([CacheGeometry("L1I", i.size_bytes, i.ways, i.line_bytes, replacement="lru",
-                                     write_allocate=False)])
-    return dside, iside
+    return Hierarchy(preset.data_caches()), Hierarchy([preset.instruction_cache()])
 
 
 def data_tlb(machine: dict, family: str) -> tuple[int, int]:

@@ -26,12 +26,11 @@ class GuestCpu:
 
     @classmethod
     def from_preset(cls, preset) -> GuestCpu:
-        """The guest's view of a CPU preset (a sim.cpus.presets.CpuPreset: its name, family, the
-        family record's display name and lacks, and its ``isa_extensions``, ``gnu_march``,
-        ``zig_mcpu`` and ``emulator_cpu`` fields)."""
-        raw = preset.raw
-        return cls(preset.name, preset.family, frozenset(raw.get("isa_extensions", ())), raw.get("gnu_march") or "",
-                   raw.get("zig_mcpu") or "", raw.get("emulator_cpu"), preset.family_name or preset.family,
+        """The guest's view of a CPU preset (a sim.cpus.presets.CpuPreset, or a resolved machine's
+        ``.preset``: its name, family, the family record's display name and lacks, and its
+        ``isa_extensions``, ``gnu_march``, ``zig_mcpu`` and ``emulator_cpu`` fields, typed)."""
+        return cls(preset.name, preset.family, frozenset(preset.isa_extensions), preset.gnu_march or "",
+                   preset.zig_mcpu or "", preset.emulator_cpu, preset.family_name or preset.family,
                    frozenset(preset.family_lacks))
 
     def march(self, assembler: str) -> str:

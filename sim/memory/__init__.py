@@ -9,7 +9,7 @@ from sim.memory.cache import (
 )
 from sim.memory.dram import (
     DramTiming, LineCosts, OpenRowModel, available_memory_presets, bus_ratio, core_clocks, line_costs,
-    line_costs_for_cpu, load_memory_preset, row_access, row_state,
+    load_memory_preset, row_access, row_state,
 )
 from sim.memory.hierarchy import (
     NSTATS, Hierarchy, HierarchyStats, LevelStats, MemoryStats, lines_touched, memory_fills,

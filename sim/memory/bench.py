@@ -27,9 +27,9 @@ def synthetic_trace(n: int, seed: int = 1998) -> tuple[np.ndarray, np.ndarray, n
 
 def cache_throughput(preset, n: int = 10_000_000, repeat: int = 3) -> float:
     """Accesses per second of :func:`simulate` over an ``n``-access synthetic trace on the data
-    caches of ``preset`` (a parsed CPU preset, see :meth:`Hierarchy.from_preset`; best of
+    caches of ``preset`` (a CPU preset: its ``data_caches()``, the geometry of each level; best of
     ``repeat`` runs, compilation excluded)."""
-    h = Hierarchy.from_preset(preset)
+    h = Hierarchy(preset.data_caches())
     addr, size, write = synthetic_trace(n)
     simulate(*h.arrays(), addr[:1000], size[:1000], write[:1000])  # compile (or load the cache)
     best = float("inf")

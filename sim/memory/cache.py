@@ -81,6 +81,10 @@ ALLOC_NEVER = 0
 ALLOC_ALWAYS = 1
 ALLOC_PAGE_SECTOR = 2  # the K6 with WHCR.WAELIM = 0: see the module docstring
 PAGE_SECTOR = "page+sector"
+
+# The words of a preset's ``[write_allocate] mode`` (and of the ``write_allocate.mode`` override)
+# for each write_allocate setting: the K6 presets choose, the other families' policies imply one.
+WRITE_ALLOCATE_MODES = {"full": True, "page+sector only": PAGE_SECTOR, "none": False}
 PAGE_BITS = 12         # 4 KB pages (the K6's CCR holds a page address)
 
 # Replacement policies (the ``replacement`` argument of :func:`access`).
@@ -163,6 +167,11 @@ class CacheGeometry:
         if self.write_allocate == PAGE_SECTOR:
             return ALLOC_PAGE_SECTOR
         return ALLOC_ALWAYS if self.write_allocate else ALLOC_NEVER
+
+    @property
+    def write_allocate_mode(self) -> str:
+        """The write allocation in words (WRITE_ALLOCATE_MODES): "full", "page+sector only" or "none"."""
+        return {ALLOC_ALWAYS: "full", ALLOC_NEVER: "none", ALLOC_PAGE_SECTOR: "page+sector only"}[self.allocate_id]
 
     def describe(self) -> str:
         allocate = {ALLOC_NEVER: "no-write-allocate", ALLOC_ALWAYS: "write-allocate",

@@ -329,15 +329,6 @@ def line_costs(timing: DramTiming, core_mhz: float, fsb_mhz: float,
                      core_clocks(over + timing.bus_busy(save), ratio))
 
 
-def line_costs_for_cpu(cpu_preset: dict, memory: str | None = None) -> LineCosts:
-    """:func:`line_costs` for a parsed CPU preset (a dict the caller read), with its default memory
-    unless ``memory`` names another preset, and the preset's ``[memory] overhead_bus_clocks``."""
-    clock = cpu_preset["clock"]
-    name = memory or cpu_preset["memory"]["default"]
-    return line_costs(load_memory_preset(name), clock["core_mhz"], clock["fsb_mhz"],
-                      cpu_preset["memory"].get("overhead_bus_clocks", 0))
-
-
 class OpenRowModel:
     """Builder for :func:`row_access`: the per-bank open-row array and the preset's row timings."""
 

@@ -35,6 +35,7 @@ level costs numba reference counting on every request (measured: ~65 ns, the who
 
 from __future__ import annotations
 
+import functools
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -45,7 +46,7 @@ from numba import njit
 
 from sim.memory.cache import (
     ALLOC_ALWAYS, ALLOC_PAGE_SECTOR, ALLOCATED, DIRTY_VICTIM, EVICT, FETCH, FORWARD, HIT, HOT, LOAD,
-    PAGE_BITS, PAGE_SECTOR, STORE, WRITEBACK, CacheGeometry, CacheState, lookup, victim_address,
+    PAGE_BITS, STORE, WRITEBACK, CacheGeometry, CacheState, lookup, victim_address,
 )
 
 MAX_LEVELS = 3
@@ -742,70 +743,10 @@ class Hierarchy:
             counts = simulate(*self.arrays(), addr, size, write)
         return HierarchyStats.from_counts(self.names, counts, addr.size, classified=classify)
 
-    @classmethod
-    def from_preset(cls, preset) -> Hierarchy:
-        """The data-cache hierarchy of a CPU preset: a parsed ``sim/cpus/presets/*.toml`` or a
-        :class:`sim.cpus.presets.CpuPreset` (the caller reads the preset: memory never does). Levels: ``[l1d]``, ``[l2]`` unless
-        ``present = false``, and an optional ``[l3]`` (the K6-III's board cache).
 
-        Policies default to the family's (``cpu_model``) in ``policies.toml``; a level's section may
-        override ``replacement``, ``write_back``, ``write_allocate`` or give ``write_policy =
-        "write-back" | "write-through"``, and a top-level ``[write_allocate] mode = "full" |
-        "page+sector only"`` sets the L1D's write allocation (the K6 presets).
-        """
-        if isinstance(preset, str):
-            raise TypeError(f"Hierarchy.from_preset({preset!r}): pass the parsed preset (sim.cpus.presets.load), "
-                            "not its name")
-        preset = getattr(preset, "raw", preset)
-        name = preset.get("name", "<preset>")
-        family = preset.get("cpu_model")
-        policies = family_policies()
-        if family not in policies:
-            raise ValueError(f"CPU preset {name}: cpu_model {family!r} has no cache policies in "
-                             f"{POLICIES_FILE.name} (known: {', '.join(sorted(policies))})")
-        geometries = []
-        for level in ("l1d", "l2", "l3"):
-            section = preset.get(level)
-            if section is None or not section.get("present", True):
-                continue
-            defaults = policies[family].get(level)
-            if defaults is None:
-                raise ValueError(f"CPU preset {name}: [{level}] given but {POLICIES_FILE.name} has no "
-                                 f"[{family}.{level}] policy")
-            try:
-                kwargs = dict(size_bytes=int(section["size_kb"] * 1024), ways=section["ways"],
-                              line_bytes=section.get("line_bytes", 32))
-            except KeyError as e:
-                raise ValueError(f"CPU preset {name}: [{level}] lacks field {e.args[0]}") from None
-            for key in ("replacement", "write_back", "write_allocate"):
-                kwargs[key] = section.get(key, defaults[key])
-            if "write_policy" in section:
-                kwargs["write_back"] = _choice(name, f"[{level}] write_policy", section["write_policy"],
-                                               {"write-back": True, "write-through": False})
-            if level == "l1d" and "write_allocate" in preset:
-                kwargs["write_allocate"] = _choice(name, "[write_allocate] mode", preset["write_allocate"].get("mode"),
-                                                   WRITE_ALLOCATE_MODES)
-            try:
-                geometries.append(CacheGeometry(level.upper(), **kwargs))
-            except ValueError as e:
-                raise ValueError(f"CPU preset {name}: {e}") from None
-        if not geometries:
-            raise ValueError(f"CPU preset {name}: no [l1d] section")
-        return cls(geometries)
-
-
-# The K6 presets' [write_allocate] mode (see sim/memory/cache.py for what each means).
-WRITE_ALLOCATE_MODES = {"full": True, "page+sector only": PAGE_SECTOR, "none": False}
-
-
-def _choice(preset: str, field: str, value, choices: dict):
-    if value not in choices:
-        raise ValueError(f"CPU preset {preset}: {field} = {value!r} is not one of "
-                         f"{', '.join(repr(c) for c in choices)}")
-    return choices[value]
-
-
+@functools.cache
 def family_policies() -> dict:
+    """policies.toml: the data caches' policies per family (read once; not to be mutated)."""
     with open(POLICIES_FILE, "rb") as f:
         return tomllib.load(f)
 

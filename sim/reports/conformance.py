@@ -19,7 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from sim import output
-from sim.cpus import make_model, presets
+from sim.cpus import presets
+from sim.cpus.build import make_model
 from sim.cpus.families import FAMILIES
 from sim.cpus.table import TimingRow, load_table
 from sim.errors import RetrosimError
@@ -298,7 +299,7 @@ def _emulation(machine, src: Path, entry: str, isa_cpu):
 
 def _runs_on(row: TimingRow, preset_name: str, model) -> bool:
     ext = mnemonic_extension(row.mnemonic)
-    if ext and ext not in presets.load(preset_name).raw.get("isa_extensions", ()):
+    if ext and ext not in presets.load(preset_name).isa_extensions:
         return False
     models = row.extra.get("models")
     return not (models and getattr(model, "key", None) not in models)

@@ -135,7 +135,7 @@ def divide_costs(cpu: str, n: int = 256) -> dict:
 
 def l1_miss_clocks(cpu: str) -> int | None:
     """A P5 load that misses L1 and hits the board cache: clocks until its data (the model's figure)."""
-    from sim.cpus import make_model
+    from sim.cpus.build import make_model
 
     return make_model(cpu).board_cache_hit_clocks()
 

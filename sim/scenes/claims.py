@@ -71,24 +71,23 @@ def _n(x: float) -> str:
 def parameters(cpu: str, memory: str | None = None) -> list[Param]:
     """The estimated parameters of a CPU preset on a memory preset (`memory`, or the CPU preset's
     default) and their plausible ranges."""
-    from sim.cpus import families, load_dram, overridable, presets
+    from sim.cpus import families
+    from sim.cpus.overrides import load_dram, load_preset, overridable
 
-    preset = presets.load(cpu)
+    preset = load_preset(cpu)
     values = overridable(cpu, memory)
     estimates = families.FAMILIES[preset.family].estimates.values() if preset.family in families.FAMILIES else ()
     out = [Param(e.key, values[e.key], e.low, e.high, e.range_reason, None if e.mechanism == families.ALWAYS else e.mechanism)
            for e in estimates if e.key in values and e.applies_to(preset)]  # applies_to: e.g. no on-die L2, never read
-    for level in ("l2", "l3"):
-        section = preset.raw.get(level) or {}
-        if section.get("present", True) and section.get("latency_estimated") and f"{level}.latency_cycles" in values:
+    for level, cache in (("l2", preset.l2), ("l3", preset.board_cache)):
+        if cache is not None and cache.estimated and f"{level}.latency_cycles" in values:
             v = values[f"{level}.latency_cycles"]
             out.append(Param(f"{level}.latency_cycles", v, max(1, round(v * (1 - CACHE_SPREAD))),
                              round(v * (1 + CACHE_SPREAD)), f"estimated {level.upper()} latency +-30 %",
                              MECHANISM[f"{level}.latency_cycles"]))
-    mem = preset.raw.get("memory", {})
     if "memory.overhead_bus_clocks" in values:
         v = float(values["memory.overhead_bus_clocks"])
-        if mem.get("overhead_estimated"):
+        if preset.overhead_estimated:
             lo, hi, why = min(v, OVERHEAD_CARRIED[0]), max(v, OVERHEAD_CARRIED[1]), "board overhead carried over from another system"
         else:
             lo, hi, why = max(0.0, v - OVERHEAD_MEASURED), v + OVERHEAD_MEASURED, "board overhead calibrated on this CPU: +-2 bus clocks"
@@ -113,7 +112,7 @@ def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, say=lambd
     """{(param key, value): counters of the last call} with each parameter at each end of its range;
     parameters whose mechanism does not fire reuse the nominal counters (their timing cannot move).
     `logs`: the sim.memory.replay.AccessLogs the nominal timing recorded into, if it did."""
-    from sim.cpus import make_model
+    from sim.cpus.build import make_model
     from sim.memory.replay import AccessLogs
     from sim.timing.kernel import time_emulation
 
@@ -141,7 +140,7 @@ def unrun(cpus, families, memories, machines) -> list[str]:
     each ``cpus`` entry (a preset, or ``preset:memory``) and each family that no machine of the
     scene (``machines``: objects with .preset and .memory) matches, within ``memories`` when the
     claim narrows them. The loaders refuse such a claim (sim.scenes.schema.Validator.require_cover)."""
-    from sim.cpus import family_of
+    from sim.cpus.machine import family_of
     from sim.cpus.machine import MachineKey
 
     ran = [(MachineKey(m.preset).preset, m.memory, family_of(m.preset)) for m in machines  # overrides aside
@@ -164,7 +163,7 @@ def holds(claim, ratio: float) -> bool:
 
 def covered(claim, result) -> tuple[list[str], list[str]]:
     """(machine keys of the run the claim covers, covered machines of the scene not in the run)."""
-    from sim.cpus import family_of
+    from sim.cpus.machine import family_of
     from sim.cpus.machine import MachineKey
 
     keys = {k: MachineKey.parse(k) for k in result.cpu_keys}

@@ -137,7 +137,9 @@ class Validator:
                 index: int | None = None) -> None:
         """Append the CpuChoice of a machine label (preset{overrides}) and memory to `machines`, with
         one error naming `field` for an unknown preset or memory, an unusable override, or a repeat."""
-        from sim.cpus import machine_label, make_model, memory_presets, presets, split_label
+        from sim.cpus import presets
+        from sim.cpus.build import make_model
+        from sim.cpus.overrides import machine_label, memory_presets, split_label
 
         try:
             preset, overrides = split_label(label)
@@ -181,7 +183,7 @@ class Validator:
         """A claim must cover at least one of the scene's machines (covers(preset, memory, family)),
         and the scene must run every machine it names (its `cpus`, `families`, within `memories`):
         otherwise part of the claim would go unchecked without a word (sim.scenes.claims.unrun)."""
-        from sim.cpus import family_of
+        from sim.cpus.machine import family_of
         from sim.scenes.claims import unrun
 
         if not any(covers(m.preset, m.memory, family_of(m.preset)) for m in machines):

@@ -100,7 +100,7 @@ def _end_to_end(zinit, z, dz, colour, pixels, cpu: str) -> float:
 def _model_only(zinit, z, dz, colour, pixels, cpu: str) -> float:
     """Seconds to time an already emulated call on `cpu` (decode, ISA check, model with its caches):
     the best of two, each on a fresh emulation object so that nothing decoded is reused."""
-    from sim.cpus import make_model
+    from sim.cpus.build import make_model
     from sim.timing.kernel import emulate, time_emulation
 
     def setup(m):

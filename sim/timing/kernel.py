@@ -16,7 +16,7 @@ from typing import Callable
 
 import numpy as np
 
-from sim.cpus import make_model
+from sim.cpus.build import make_model
 from sim.errors import LimitError, RetrosimError
 from sim.guest.cpu import GuestCpu
 from sim.guest.decode import Decoder
@@ -100,9 +100,9 @@ def guest_cpu(cpu: str | GuestCpu | None) -> GuestCpu | None:
     above the guest stages, which never read presets. A GuestCpu or None is returned as it is."""
     if cpu is None or isinstance(cpu, GuestCpu):
         return cpu
-    from sim.cpus import presets
+    from sim.cpus.overrides import load_preset
 
-    return GuestCpu.from_preset(presets.load(cpu))
+    return GuestCpu.from_preset(load_preset(cpu))
 
 
 def emulate(source: str | Path, entry: str, setup: Setup | None = None, repeat: int = 2,

@@ -21,7 +21,7 @@ after the trace (to the next iteration's first instruction), so the last back-ed
 nothing drains inside the window. An iteration starts where the PC reaches the first instruction
 from another instruction: a REP string instruction first in the body repeats at its own PC once
 per element, and its elements are one iteration. Any family's model from
-:func:`sim.cpus.make_model` serves, as for `retrosim time`.
+:func:`sim.cpus.build.make_model` serves, as for `retrosim time`.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ from sim.guest.body_source import MASM_ANON, from_masm, strip_comment, syntax_of
 from sim.guest import elf
 from sim.guest.cpu import GuestCpu
 from sim.guest import isa
-from sim.cpus import make_model
+from sim.cpus.build import make_model
 from sim.guest.decode import Decoder
 from sim.guest.emu import X87_RUN_LIMIT_WORDS, X87_RUN_WORDS, Machine
 from sim.errors import ArgumentError, AssemblerError, GuestFault, RetrosimError, UntranslatableCode
@@ -713,7 +713,8 @@ def time_body_where_possible(text: str, cpus: list[str], name: str = "<stdin>", 
     """Time the body on the CPUs in `cpus` that have every instruction it uses; return the timings
     and the others by what they lack ({"MMX": [cpu, ...]}). With no CPU able to run it (or
     `skip` false and one CPU unable), the first refusal is the error."""
-    from sim.cpus import presets, split_label
+    from sim.cpus import presets
+    from sim.cpus.overrides import split_label
 
     placement(align, offset)  # a bad --align / --offset (or --data) fails before any emulation
     if data not in DATA_STATES:

@@ -35,7 +35,7 @@ ATTEMPTS = 3  # a failing measurement is repeated (a burst of load); a regressio
 def measure(pixels: int = PIXELS, rounds: int = ROUNDS, cpus=CPUS, progress=None) -> dict:
     """Instructions per CPU-second of the native trace and of each model alone on the same trace,
     the best of `rounds` interleaved rounds, and each model's ratio to the native trace."""
-    from sim.cpus import make_model
+    from sim.cpus.build import make_model
     from sim.guest.emu import Machine
     from sim.guest.kernels import kernels_root
     from sim.timing.bench import SPAN_KERNEL, span_workload

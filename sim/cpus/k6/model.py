@@ -318,7 +318,7 @@ class K6Model(FamilyModel):
         level, section = self._board()
         P[core.P_BOARD_LEVEL] = level
         if level:
-            P[core.P_BOARD_LAT] = int(section["latency_cycles"])
+            P[core.P_BOARD_LAT] = int((p.board_cache if level == 2 else p.l2).latency_cycles)  # typed: overrides apply
             P[core.P_BOARD_BUSY] = core_clocks(sum(section.get("burst_bus_clocks", [3, 1, 1, 1])), self.ratio)
         if level == 2:
             P[core.P_ONDIE] = 1

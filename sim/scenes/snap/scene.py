@@ -246,7 +246,7 @@ def run_scene(scene: SnapScene, cpus: list[str] | None = None, progress=None, ro
     each variant on the timing workload on every machine (`jobs` forked workers share each
     emulation: sim.parallel; results do not depend on `jobs`). `robustness` is accepted for the
     generic runner's signature: no claim here depends on a model estimate's value alone."""
-    from sim.cpus import make_model
+    from sim.cpus.build import make_model
     from sim.guest.emu import Machine
     from sim.parallel import SharedPool
 
@@ -277,7 +277,7 @@ def run_scene(scene: SnapScene, cpus: list[str] | None = None, progress=None, ro
 # -- claims ------------------------------------------------------------------------------------
 def evaluate_claims(result: SnapResult) -> list[dict]:
     """Each claim's verdict ('reproduced' or 'not reproduced') with the numbers behind it."""
-    from sim.cpus import family_of
+    from sim.cpus.machine import family_of
 
     out = []
     for c in result.scene.claims:
@@ -372,7 +372,7 @@ def failure_rows(result: SnapResult) -> tuple[list[str], list[list[str]]]:
 
 def findings(result: SnapResult) -> list[str]:
     """Plain statements computed from the results."""
-    from sim.cpus import family_of
+    from sim.cpus.machine import family_of
 
     s, out = result.scene, []
     in_range = [w for w in s.workloads if w in snap.IN_RANGE]
@@ -478,7 +478,9 @@ def figure(result: SnapResult):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from sim.cpus import family_of, presets
+    from sim.cpus import presets
+
+    from sim.cpus.machine import family_of
     from sim.reports.render import row_offset
     from sim.reports.render import FAMILY_MARKERS
 

@@ -46,7 +46,7 @@ def _label(key: str) -> str:
 
 
 def _family(key: str) -> str:
-    from sim.cpus import family_of
+    from sim.cpus.machine import family_of
 
     return family_of(MachineKey.parse(key).label)
 
@@ -132,7 +132,7 @@ def evaluate_claims(result: SortResult) -> list[dict]:
                 continue
             per_cpu.append(_timed_claim(result, claim, key) if claim.expect in TIMED else _shape_claim(result, claim, key))
         for m in result.scene.machines:
-            from sim.cpus import family_of
+            from sim.cpus.machine import family_of
 
             if m.label not in result.cpu_keys and claim.covers(m.preset, family_of(m.preset)):
                 missing.append(m.label)

@@ -148,7 +148,7 @@ def emulate_case(scene: SortScene, name: str, distribution: str, size: int):
 
 def run_scene(scene: SortScene, cpus: list[str] | None = None, progress=None, robustness: bool = True,
               jobs: int = 1) -> SortResult:
-    from sim.cpus import make_model
+    from sim.cpus.build import make_model
     from sim.guest.emu import Machine
     from sim.parallel import SharedPool
 

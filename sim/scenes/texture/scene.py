@@ -53,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.cpus import family_of
+from sim.cpus.machine import family_of
 from sim.cpus.machine import MachineKey
 from sim.cpus.families import FAMILIES, order as family_order
 from sim.errors import RetrosimError
@@ -460,7 +460,7 @@ def run_scene(scene: TextureScene, cpus: list[str] | None = None, progress=None,
               jobs: int = 1) -> TextureResult:
     """Check every pixel of the frame against the model of each variant, measure the error against
     the exact mapping, time every timing_stride-th span on each machine, and run the probes."""
-    from sim.cpus import make_model
+    from sim.cpus.build import make_model
     from sim.parallel import SharedPool
 
     say = progress or (lambda msg: None)

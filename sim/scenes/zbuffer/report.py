@@ -74,9 +74,9 @@ def cycles_table(result: SceneResult) -> tuple[list[str], list[list[str]]]:
 
 
 def ns_table(result: SceneResult) -> tuple[list[str], list[list[str]]]:
-    from sim.cpus import presets
+    from sim.cpus.overrides import load_preset
 
-    mhz = {k: presets.load(MachineKey.parse(k).label).core_mhz for k in result.cpu_keys}
+    mhz = {k: load_preset(MachineKey.parse(k).label).core_mhz for k in result.cpu_keys}
     header = ["variant"] + [_cpu_label(k) for k in result.cpu_keys]
     rows = [[v] + [_f(1000.0 * result.timing(v, k).per_pixel("cycles") / mhz[k]) for k in result.cpu_keys]
             for v in result.scene.variants]
@@ -99,11 +99,12 @@ def accuracy_table(result: SceneResult) -> tuple[list[str], list[list[str]]]:
 def breakdown_table(result: SceneResult, key: str) -> tuple[list[str], list[list[str]]]:
     """Where one CPU's cycles go, per pixel, in its family's words (P6 ports p0-p4, K6 units X, Y,
     load, store, branch and FPU); 'no L2' where the CPU has none."""
-    from sim.cpus import families, presets
+    from sim.cpus import families
+    from sim.cpus.overrides import load_preset
 
     cpu = MachineKey.parse(key).label
     voc = families.vocabulary_for(cpu)
-    has_l2 = presets.load(cpu).l2 is not None
+    has_l2 = load_preset(cpu).l2 is not None
     units = list(voc.ports) + [name for counter, name in voc.extra_units]
     unit_counters = [f"port{p}" for p in range(len(voc.ports))] + [counter for counter, _ in voc.extra_units]
     title = {"uops": voc.op + "s", "decode_groups": voc.group.split(" (")[0]}
@@ -162,7 +163,8 @@ def work_precision_figure(result: SceneResult):
     fig_h = 1.3 + 0.22 * legend_rows + 0.45 * len(rows) * max(1.0, len(keys) / 4)
     fig, ax = plt.subplots(figsize=(8, fig_h), dpi=100, layout="constrained")
     # the same CPU has the same colour in every plot, the same memory the same marker
-    from sim.cpus import memory_presets, presets
+    from sim.cpus import presets
+    from sim.cpus.overrides import memory_presets
 
     cpu_names, memories = presets.available(), memory_presets()
     palette = plt.get_cmap("tab10" if len(cpu_names) <= 10 else "tab20")

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import numpy as np
 
-from sim.cpus import make_model
+from sim.cpus.build import make_model
 from sim.cpus.machine import MachineKey
 from sim.errors import RetrosimError
 from sim.parallel import SharedPool

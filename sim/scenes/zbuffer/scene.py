@@ -36,7 +36,7 @@ Format::
     cpu = "k6-233"                  #   run.cpus; required: the CPU preset
     memory = "sdram-pc66"           #   optional (default: the preset's)
     set = { "write_allocate.mode" = "full", "l2.size_kb" = 256 }   # required: preset fields or
-                                    #   estimates to change (sim.cpus.make_model's overrides, the
+                                    #   estimates to change (sim.cpus.build.make_model's overrides, the
                                     #   names `retrosim time --set` takes; "l2.size_kb" = "none"
                                     #   removes the L2)
     # Its label, in the report, baselines and claims, is the preset with its overrides sorted by
@@ -360,7 +360,7 @@ def _check_visits(v: Validator, geometry: GeometrySpec, width: int, height: int,
 def load(path: Path, text: str, doc: dict) -> Scene:
     """Validate a parsed Z-buffer scene (sim.scenes.registry.load_scene reads the file and dispatches
     on [scene].kind); raises SceneError with one line naming file and field."""
-    from sim.cpus import memory_presets
+    from sim.cpus.overrides import memory_presets
     from sim.cpus import presets as cpu_presets
     from sim.guest.emu import DEFAULT_ARENA
 
@@ -457,7 +457,7 @@ def load(path: Path, text: str, doc: dict) -> Scene:
         if met == "z_fighting" and gen != "coplanar_far":
             v.fail(f"run.metrics[{i}]", f"'z_fighting' needs coplanar pairs: generator 'coplanar_far', not '{gen}'",
                    "run", "metrics")
-    from sim.cpus import machine_label
+    from sim.cpus.overrides import machine_label
 
     known_cpus, known_mem = cpu_presets.available(), memory_presets()
     machines = []
