@@ -128,7 +128,8 @@ def wrapper_source(body: Body, copies: int, pad: int = 0) -> tuple[str, list[int
 
 @dataclass
 class LoopRun:
-    """The traced passes of a body: one trace (warm pass then measured pass) and the cut points."""
+    """What the timing side is handed: the assembled program, its traced passes (one trace, warm pass
+    then measured pass) and the marks (cut points, the PC after the trace, the body's address)."""
 
     body: Body
     machine: Machine = field(repr=False)
@@ -138,6 +139,11 @@ class LoopRun:
     iteration_length: int  # instructions in the first measured iteration (for the timeline)
     next_pc: int = -1      # where the body goes after the trace's last instruction (its back-edge's target)
     address: int = 0       # the body's first instruction
+
+    @property
+    def fetch(self):
+        """The program's code bytes by address (what a Decoder reads)."""
+        return self.machine.image.fetch
 
     @property
     def alignment(self) -> int:

@@ -81,7 +81,7 @@ def _run_model(model, run: LoopRun, timeline: tuple[int, int], data: str = DEFAU
     as falling through, a mispredict the loop never has, inside the measured window. With warm data
     the warm-up pass is fed first, then the lines of the measured pass are read into the caches
     (Hierarchy.prefill), then the measured pass is fed: the core's own state runs on unbroken."""
-    decoder = Decoder(run.machine.image.fetch)
+    decoder = Decoder(run.fetch)
     session_type = type(model.session(decoder, list(run.cuts), run.cuts[1]))
     session = session_type(model, decoder, list(run.cuts), timeline, run.cuts[1])
     if data == "warm":
