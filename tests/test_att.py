@@ -6,6 +6,7 @@ from click.testing import CliRunner
 
 from sim.guest import asm
 from sim.timing import loop
+from sim.guest import loop_body
 from sim.cli import main
 from sim.cpus import presets
 from sim.timing.kernel import time_kernel
@@ -64,7 +65,7 @@ def test_same_loop_in_either_syntax_gives_identical_cycles():
     att = loop.time_body(ATT_LOOP, presets.available(), iterations=40)
     intel = loop.time_body(INTEL_LOOP, presets.available(), iterations=40)
     assert [r.per_iteration for r in att] == [r.per_iteration for r in intel]
-    assert loop.parse_body(ATT_LOOP).syntax == "att" and loop.parse_body(INTEL_LOOP).syntax == "intel"
+    assert loop_body.parse_body(ATT_LOOP).syntax == "att" and loop_body.parse_body(INTEL_LOOP).syntax == "intel"
 
 
 def test_same_kernel_in_either_syntax_gives_identical_cycles(tmp_path):

@@ -65,7 +65,7 @@ def test_no_module_writes_a_file_except_through_the_checked_writer():
 
     root = Path(__file__).resolve().parent.parent / "sim"
     allowed = {"output.py", "asm.py"}
-    private_temp = {("timing", "loop.py"), ("reports", "conformance.py")}  # write_text into a TemporaryDirectory
+    private_temp = {("guest", "loop_program.py"), ("reports", "conformance.py")}  # write_text into a TemporaryDirectory
     pattern = re.compile(r"mkstemp|os\.replace|open\([^)]*['\"][wa]b?['\"]")
     for path in root.rglob("*.py"):
         if path.name in allowed:

@@ -8,6 +8,7 @@ import pytest
 from click.testing import CliRunner
 
 from sim.timing import loop
+from sim.guest import loop_body, loop_program
 from sim.cli import main
 from sim.cpus import presets
 from sim.errors import RetrosimError
@@ -47,7 +48,7 @@ TEXTURE_LOOP_MASM = "\n".join(line.replace("//", ";") for line in TEXTURE_LOOP.s
 
 
 def test_texture_loop_is_a_loop_of_nine_instructions():
-    body = loop.parse_body(TEXTURE_LOOP, "texture")
+    body = loop_body.parse_body(TEXTURE_LOOP, "texture")
     assert body.loop and body.instructions == 9 and body.head_labels == {"ml5"}
 
 
@@ -78,7 +79,7 @@ def test_semicolon_comments_in_intel_syntax():
 
 
 def test_unconditional_back_edge_is_a_loop():
-    body = loop.parse_body("top:\n  add eax, ebx\n  add ecx, ebx\n  jmp top\n")
+    body = loop_body.parse_body("top:\n  add eax, ebx\n  add ecx, ebx\n  jmp top\n")
     assert body.loop
     r, = loop.time_body("top:\n  add eax, ebx\n  add ecx, ebx\n  jmp top\n", ["k6-233"], iterations=20)
     assert r.per_iteration["instructions"] == 3 and r.per_iteration["branches"] == 1
@@ -87,7 +88,7 @@ def test_unconditional_back_edge_is_a_loop():
 def test_block_without_back_edge_is_repeated_without_a_counter():
     # four instructions, no branch: nothing is added to what is timed
     block = "add eax, ebx\nadd ecx, edx\nxor esi, edi\nmov ebp, eax\n"
-    body = loop.parse_body(block)
+    body = loop_body.parse_body(block)
     assert not body.loop
     for r in loop.time_body(block, ["pentium2-233", "k6-233"], iterations=40):
         assert r.per_iteration["instructions"] == 4
@@ -106,15 +107,15 @@ def test_demand_zero_data_and_reg_override():
     # default registers: every address is mapped on first use and reads zero
     r, = loop.time_body(text, ["pentium2-233"], iterations=20)
     assert r.per_iteration["l1d_loads"] == 1 and r.per_iteration["l1d_stores"] == 1
-    regs = loop.parse_regs(["edx=0x10", "esi=0x3000000"])
-    assert regs["edx"] == 0x10 and regs["esi"] == 0x3000000 and regs["edi"] == loop.REG_DEFAULTS["edi"]
-    run = loop.run_body(loop.parse_body(text), 20, regs)
+    regs = loop_program.parse_regs(["edx=0x10", "esi=0x3000000"])
+    assert regs["edx"] == 0x10 and regs["esi"] == 0x3000000 and regs["edi"] == loop_program.REG_DEFAULTS["edi"]
+    run = loop_program.run_body(loop_body.parse_body(text), 20, regs)
     assert int(run.trace.mem_addr[0]) == 0x3000000 + 0x40
 
 
 def test_att_gcc_loop_cycles_on_every_preset():
     att = ".L3:\n\tmovl\t(%esi,%eax,4), %edx\n\taddl\t%edx, %ecx\n\taddl\t$1, %eax\n\tcmpl\t%ebx, %eax\n\tjne\t.L3\n"
-    body = loop.parse_body(att)
+    body = loop_body.parse_body(att)
     assert body.syntax == "att" and body.loop
     for r in loop.time_body(att, presets.available(), iterations=20):
         assert r.per_iteration["instructions"] == 5 and r.cycles_per_iteration > 0
@@ -141,7 +142,7 @@ def test_bad_bodies_get_one_error_line(tmp_path, text, regs, message):
 def test_too_many_iterations_of_a_long_body_say_so(tmp_path, monkeypatch):
     # a body that does iterate, but whose iterations asked for exceed the per-pass bound: the error
     # says so and how many would fit, not that the back-edge was never reached
-    monkeypatch.setattr(loop, "MAX_INSTRUCTIONS", 5_000)
+    monkeypatch.setattr(loop_program, "MAX_INSTRUCTIONS", 5_000)
     src = tmp_path / "long.s"
     src.write_text("top:\n" + "  add eax, ebx\n" * 98 + "  dec ecx\n  jnz top\n")  # 100 per iteration
     result = CliRunner().invoke(main, ["loop", str(src), "--iterations", "100"])
@@ -222,7 +223,7 @@ def test_unknown_cpu_is_one_line():
 
 def test_empty_body():
     with pytest.raises(RetrosimError, match="no instructions"):
-        loop.parse_body("// nothing\n; nothing\n\n")
+        loop_body.parse_body("// nothing\n; nothing\n\n")
 
 
 # -- harness artefacts (issue 20 item 4) ------------------------------------------------------
@@ -249,7 +250,7 @@ def test_no_phantom_mispredict_two_pairs():
 
 def test_block_last_copy_is_not_the_end_of_the_run():
     # a block repeated back to back: the copy after the measured window follows, so nothing drains in it
-    run = loop.run_body(loop.parse_body("add eax, ebx\nadd ecx, edx\n"), 20)
+    run = loop_program.run_body(loop_body.parse_body("add eax, ebx\nadd ecx, edx\n"), 20)
     assert run.next_pc == run.machine.symbol("retrosim_iter_20")
 
 
@@ -261,7 +262,7 @@ def test_rep_first_body_is_counted_per_iteration(cpu):
     # the trace holds one REP STOSD execution per element at the same PC: the 64 elements (64 stores)
     # belong to one iteration, and a NOP put first costs about one NOP (at most a clock), not a
     # factor of 64
-    regs = loop.parse_regs(["ecx=64"])
+    regs = loop_program.parse_regs(["ecx=64"])
     rep, = loop.time_body(REP_FIRST, [cpu], regs=regs, iterations=20)
     nop, = loop.time_body(REP_FIRST.replace("top:\n", "top:\n  nop\n"), [cpu], regs=regs, iterations=20)
     assert rep.iterations == nop.iterations == 10
@@ -284,13 +285,13 @@ FETCH_BOUND = ("top:\n  mov eax, [esi+0x1000]\n  add ebx, 0x12345678\n  mov [edi
 
 
 def test_placement_is_reported_and_chosen():
-    body = loop.parse_body(FETCH_BOUND)
-    default = loop.run_body(body, 20)
+    body = loop_body.parse_body(FETCH_BOUND)
+    default = loop_program.run_body(body, 20)
     assert default.address % 64 == 0 and default.alignment == 64  # the default: unchanged from before
-    run = loop.run_body(body, 20, align=16, offset=3)
+    run = loop_program.run_body(body, 20, align=16, offset=3)
     assert run.address % 64 == 19 and run.alignment == 1
-    assert loop.run_body(body, 20, align=16).address % 64 == 16
-    assert loop.run_body(body, 20, align=8).alignment == 8
+    assert loop_program.run_body(body, 20, align=16).address % 64 == 16
+    assert loop_program.run_body(body, 20, align=8).alignment == 8
 
 
 def test_alignment_changes_a_front_end_bound_loop():

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from sim.cli import main, serve
 from sim.errors import RetrosimError
-from sim.guest import asm, body_source
+from sim.guest import asm, body_source, loop_body
 from sim.timing import loop
 
 FIXTURES = Path(__file__).parent / "fixtures" / "compiler"
@@ -155,8 +155,8 @@ def test_the_text_handed_on_never_holds_an_outside_directive():
             assert words <= {".p2align", ".intel_syntax", ".att_syntax"}, (path.name, words)
             with asm.served_sources():  # each region passes the served check line by line
                 for n, line in enumerate(r.text.splitlines(), 1):
-                    loop.check_served_line(loop.strip_comment(line, "intel" if "intel" in path.name else "att"),
-                                           f"{path.name}:{n}")
+                    loop_body.check_served_line(body_source.strip_comment(line, "intel" if "intel" in path.name else "att"),
+                                                f"{path.name}:{n}")
 
 
 # -- the caches' state ------------------------------------------------------------------------
@@ -207,8 +207,9 @@ def test_the_write_policy_line_appears_exactly_when_it_decides(cpu, data, said):
     flat = " ".join(out.output.split())
     assert ("the write policy decides this result" in flat) == said
     assert f"data: {data}" in flat
-    if said and cpu.startswith("k6"):
-        assert "--set write_allocate.mode=full" in flat
+    if said:  # how to make writes allocate: only where the family's L1 may (policies.toml full_allocation)
+        assert ("--set write_allocate.mode=full makes write misses allocate (a K6 whose BIOS programs WHCR)" in flat
+                ) == cpu.startswith("k6")
 
 
 def test_a_read_loop_gets_no_write_policy_line():

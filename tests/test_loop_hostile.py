@@ -158,7 +158,7 @@ def test_a_macro_in_a_block_is_defined_once():
 
 
 def test_a_hash_inside_a_string_is_not_a_comment():
-    from sim.timing.loop import strip_comment
+    from sim.guest.body_source import strip_comment
 
     assert strip_comment('mov eax, "#"  # comment', "intel") == 'mov eax, "#"'
     assert strip_comment(".ascii \"a#b\" ; c", "intel") == '.ascii "a#b"'
@@ -220,18 +220,19 @@ def test_x87_stack_growth_is_warned():
 
 # -- MASM/TASM listings paste as printed (README) -------------------------------------------
 def test_masm_hex_and_anonymous_labels():
+    from sim.guest import body_source, loop_body
     from sim.timing import loop
 
-    assert loop.from_masm("@@: add eax, 0FFh") == "1986: add eax, 0x0FF"
-    assert loop.from_masm("jnz @B") == "jnz 1986b" and loop.from_masm("jmp @f") == "jmp 1986f"
+    assert body_source.from_masm("@@: add eax, 0FFh") == "1986: add eax, 0x0FF"
+    assert body_source.from_masm("jnz @B") == "jnz 1986b" and body_source.from_masm("jmp @f") == "jmp 1986f"
     # only numeric tokens: registers and symbols ending in h stay as they are, and strings too
     for same in ("mov al, bh", "mov eax, abh", "call x1h", '.ascii "0FFh"'):
-        assert loop.from_masm(same) == same
+        assert body_source.from_masm(same) == same
     masm = "@@:  add eax, 0FFh   ; a listing's comment\n     and ebx, 0ffffh\n     dec ecx\n     jnz @b\n"
     gnu = "l: add eax, 0xff\n and ebx, 0xffff\n dec ecx\n jnz l\n"
     a, = loop.time_body(masm, ["pentium2-233"], iterations=20)
     b, = loop.time_body(gnu, ["pentium2-233"], iterations=20)
-    assert loop.parse_body(masm).loop
+    assert loop_body.parse_body(masm).loop
     assert a.per_iteration == b.per_iteration
 
 

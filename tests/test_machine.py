@@ -77,7 +77,7 @@ def test_overrides_replace_typed_fields_which_the_models_read():
     """An override replaces the preset's typed field, not its file's dict (which stays as read): so a
     model must read the typed field. The K6's board-cache latency is one the model used to take
     from the dict."""
-    from sim.cpus import k6_core
+    from sim.cpus.k6 import core as k6_core
 
     m = resolve("pentium2-233", {"l2.size_kb": 256, "clock.core_mhz": 300, "clock.fsb_mhz": 100}, "sdram-pc100")
     assert m.preset.l2.size_kb == 256 and m.preset.raw["l2"]["size_kb"] == 512  # the file's figure, unchanged

@@ -20,7 +20,7 @@ from click.testing import CliRunner
 
 from sim.cli import main, serve
 from sim.guest import asm
-from sim.timing import loop
+from sim.guest import loop_body
 
 SECRET = "SECRET-LINE-31:not-for-clients"
 LOOP_TAIL = "  dec edx\n  jnz top\n"
@@ -98,7 +98,7 @@ def test_allowed_directives_still_time():
 def test_the_assembler_wall_holds_without_the_directive_check(kind, secret, monkeypatch):
     # second wall: with the allow-list and the text scan taken away, an assembly that read another
     # file is refused without a word of it, and no message about another file is shown
-    monkeypatch.setattr(loop, "check_served_line", lambda line, where: None)
+    monkeypatch.setattr(loop_body, "check_served_line", lambda line, where: None)
     monkeypatch.setattr(asm, "_refuse_served_reads", lambda text, source: None)
     secret.write_text(SECRET + "\n" + SECRET + "\n")
     answer = serve.compute({"body": attacks(secret)[kind], "cpus": ["pentium2-233"]})

@@ -286,14 +286,15 @@ def _loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, ali
                    warn, syntax_warned=False, data=None):
     """One body's document and timings."""
     from sim.cpus.overrides import load_dram
+    from sim.guest import loop_body, loop_program
     from sim.timing import loop
     from sim.reports import registry
 
-    loop.placement(align, offset)
+    loop_program.placement(align, offset)
     if memory:
         load_dram(memory)
     try:  # a forced --syntax that contradicts the body: said before the assembler's complaints
-        syntax_warnings = [] if syntax_warned else loop.parse_body(text, name, syntax).warnings
+        syntax_warnings = [] if syntax_warned else loop_body.parse_body(text, name, syntax).warnings
     except RetrosimError:
         syntax_warnings = []  # refused below, with the CPU named
     for warning in syntax_warnings:
@@ -304,14 +305,14 @@ def _loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, ali
         labels.append(machine.label)
         memory = memory or machine.memory_named
     timings, not_timed = loop.time_body_where_possible(text, list(dict.fromkeys(labels)), name, syntax, iterations,
-                                                       loop.parse_regs(regs), assembler, timeline, memory, align,
+                                                       loop_program.parse_regs(regs), assembler, timeline, memory, align,
                                                        offset, data=data or loop.DEFAULT_DATA)
     warnings = list(dict.fromkeys(w for t in timings for w in t.warnings))
     for warning in warnings:
         warn(warning)
     warnings = syntax_warnings + warnings
     doc = {"source": name, "data": data or loop.DEFAULT_DATA,
-           "registers": {k: f"{v:#010x}" for k, v in loop.parse_regs(regs).items()},
+           "registers": {k: f"{v:#010x}" for k, v in loop_program.parse_regs(regs).items()},
            "placement": _placement(timings, align, offset),
            "not_timed": not_timed,
            "warnings": warnings,
@@ -356,11 +357,11 @@ def _loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, ali
 def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset, data, timeline, brief, assembler,
              as_json, html_out):
     """Time a bare loop body or basic block (FILE, or - for standard input): steady-state cycles per iteration."""
-    from sim.timing import loop
+    from sim.guest import loop_body
     from sim.reports import views
 
     html_out = _check_html(html_out)
-    text, name = loop.read_body(source, sys.stdin.buffer)
+    text, name = loop_body.read_body(source, sys.stdin.buffer)
     doc, sections = loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline,
                                   assembler, warn=lambda w: click.echo(f"retrosim: warning: {w}", err=True), data=data)
     if html_out is not None:
@@ -386,7 +387,7 @@ def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset
 def _print_loop_section(doc, timings, name, iterations, timeline, align, offset, brief) -> None:
     """The text output of one body (or region): per-instruction tables and timelines, the summary table
     and the lines under it."""
-    from sim.timing import loop
+    from sim.guest import loop_program
     from sim.reports import registry, views
 
     not_timed = doc["not_timed"]
@@ -409,7 +410,7 @@ def _print_loop_section(doc, timings, name, iterations, timeline, align, offset,
     console.print(table)
     place = _placement(timings, align, offset)
     lines = [f"body at {place['address']} ({place['alignment']}-byte aligned, {place['past_boundary']} past a "
-             f"{loop.ALIGN_SPAN}-byte boundary: --align {align} --offset {offset}); est.: executed instructions "
+             f"{loop_program.ALIGN_SPAN}-byte boundary: --align {align} --offset {offset}); est.: executed instructions "
              "timed with estimated table rows", DATA_LINES[doc["data"]]]
     lines += [t.write_policy for t in timings if t.write_policy]
     lines += [f"not timed (no {what}): {', '.join(cpus_)}" for what, cpus_ in not_timed.items()]
@@ -425,11 +426,11 @@ DATA_LINES = {"cold": "data: cold (caches as the warm-up pass left them; writes 
 
 
 def _placement(timings, align: int, offset: int) -> dict:
-    from sim.timing import loop
+    from sim.guest import loop_program
 
     address = timings[0].address
     return {"address": f"{address:#010x}", "align": align, "offset": offset,
-            "alignment": timings[0].alignment, "past_boundary": address % loop.ALIGN_SPAN}
+            "alignment": timings[0].alignment, "past_boundary": address % loop_program.ALIGN_SPAN}
 
 
 @main.command("bench")

@@ -61,7 +61,7 @@ top:
     jnz   top
 """
 WARM_BODY = "top:\n  add eax, [esi]\n  imul ebx, ecx\n  add esi, 4\n  dec edx\n  jnz top\n"
-MAX_REQUEST_BYTES = (1 << 20) + (64 << 10)  # a body (loop.MAX_BODY_BYTES) and its options
+MAX_REQUEST_BYTES = (1 << 20) + (64 << 10)  # a body (loop_body.MAX_BODY_BYTES) and its options
 MAX_CPUS = 32
 MAX_ANSWER_BYTES = 64 << 20
 MAX_JSON_DEPTH = 8  # a request is an object of lists: 2 levels; json.loads recurses once per level

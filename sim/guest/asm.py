@@ -202,7 +202,7 @@ def _shown(path: Path, source: Path) -> str:
 # The command line assembles the user's own files, and .include/.incbin read whatever the user can read:
 # that is the point of them. A body sent to the web app is another matter: whoever sent it must not
 # read the server's files, by an error message that quotes a line or by timings that depend on its
-# bytes. sim/timing/loop.py refuses every directive but an allow-list in such a body; here, as a second
+# bytes. sim/guest/loop_body.py refuses every directive but an allow-list in such a body; here, as a second
 # wall, no such source may name an include at all, an assembly that read any file but the source is
 # refused without a word of it, and a message about another file is never shown.
 _served: ContextVar[bool] = ContextVar("retrosim_served", default=False)

@@ -173,6 +173,13 @@ class CacheGeometry:
         """The write allocation in words (WRITE_ALLOCATE_MODES): "full", "page+sector only" or "none"."""
         return {ALLOC_ALWAYS: "full", ALLOC_NEVER: "none", ALLOC_PAGE_SECTOR: "page+sector only"}[self.allocate_id]
 
+    @property
+    def write_miss_words(self) -> str:
+        """What the cache does on a write miss, as a sentence's verb phrase (the loop's write-policy line)."""
+        return {ALLOC_ALWAYS: "allocates a line on every write miss", ALLOC_NEVER: "does not allocate a line on a write miss",
+                ALLOC_PAGE_SECTOR: "allocates on a write miss only to the page of the last line fill or a present "
+                "sector"}[self.allocate_id]
+
     def describe(self) -> str:
         allocate = {ALLOC_NEVER: "no-write-allocate", ALLOC_ALWAYS: "write-allocate",
                     ALLOC_PAGE_SECTOR: "write-allocate on page/sector hit"}[self.allocate_id]

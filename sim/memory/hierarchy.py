@@ -751,6 +751,13 @@ def family_policies() -> dict:
         return tomllib.load(f)
 
 
+def write_allocate_full_when(family: str) -> str | None:
+    """Where a preset of `family` may set its L1 data cache's write allocation
+    (``[write_allocate] mode``): the machine whose L1 allocates every write miss, in words
+    (policies.toml ``full_allocation``); None where the family's allocation is fixed."""
+    return family_policies().get(family, {}).get("l1d", {}).get("full_allocation")
+
+
 __all__ = [
     "Hierarchy", "HierarchyStats", "LevelStats", "MemoryStats", "service", "simulate",
     "simulate_classified", "served_level", "memory_fills", "memory_writebacks",

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from sim import stats
+from sim.guest import loop_program
 from sim.timing import loop
 from sim.reports import views
 from sim.errors import RetrosimError
@@ -212,7 +213,7 @@ def families(directory: Path = VALIDATION_DIR, only: list[str] | None = None) ->
 def run_case(case: Case, cpu: str, keys: tuple[str, ...] = (), machine: list[str] | None = None) -> CaseResult:
     try:
         t, = loop.time_body(case.body, [case.cpu or cpu], name=case.name, iterations=ITERATIONS,
-                            regs=loop.parse_regs(case.regs), timeline_iterations=0)
+                            regs=loop_program.parse_regs(case.regs), timeline_iterations=0)
     except RetrosimError as e:
         return CaseResult(case, error=str(e))
     rows = views.explain_rows(t.result)
