@@ -94,7 +94,7 @@ def test_the_contract_counters_are_in_every_familys_run(counters):
 
 
 def test_family_lists_read_the_registry():
-    from sim.reports import conformance
+    from sim.studies import conformance
     from sim.scenes.texture import scene as texture_scene
     from sim.scenes import schema
     from sim.reports import render
