@@ -19,13 +19,18 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from sim import output
 from sim.cpus import make_model, presets
 from sim.cpus.families import FAMILIES
 from sim.cpus.table import TimingRow, load_table
 from sim.errors import RetrosimError
+from sim.guest.emu import Machine
 from sim.guest.isa import mnemonic_extension
+from sim.guest.trace import Trace
 from sim.reports.conformance import Method, render
+from sim.timing.kernel import Emulation, guest_cpu, time_emulation
 
 TOLERANCE = 0.05
 COPIES = 48       # instructions per loop iteration
@@ -288,11 +293,6 @@ def _benchable(row: TimingRow) -> str:
 def _emulation(machine, src: Path, entry: str, isa_cpu):
     """Two calls of `entry` in one machine (the second is timed warm), as timing.emulate does,
     without building a machine per benchmark."""
-    import numpy as np
-
-    from sim.timing.kernel import Emulation
-    from sim.guest.trace import Trace
-
     machine.reset_fpu()
     parts = [machine.call(entry, budget=BUDGET, trace=True).trace for _ in range(2)]
     bounds = np.cumsum([p.instructions for p in parts]).tolist()
@@ -301,7 +301,7 @@ def _emulation(machine, src: Path, entry: str, isa_cpu):
 
 def _runs_on(row: TimingRow, preset_name: str, model) -> bool:
     ext = mnemonic_extension(row.mnemonic)
-    if ext and ext not in presets.load(preset_name).raw.get("isa_extensions", ()):
+    if ext and ext not in guest_cpu(preset_name).extensions:
         return False
     models = row.extra.get("models")
     return not (models and getattr(model, "key", None) not in models)
@@ -309,9 +309,6 @@ def _runs_on(row: TimingRow, preset_name: str, model) -> bool:
 
 def run_family(family: str, progress=None, only: set[str] | None = None) -> tuple[list[RowResult], list[str]]:
     """Benchmark every row of `family` (or the rows whose key is in `only`) on each of its presets."""
-    from sim.guest.emu import Machine
-    from sim.timing.kernel import guest_cpu, time_emulation
-
     table = load_table(family)
     rows = sorted(table.rows.values(), key=lambda r: (r.mnemonic, r.signature))
     if only is not None:

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from sim import stats
+from sim.cpus import presets
 from sim.cpus.families import FAMILIES
 from sim.timing import loop
 from sim.reports.views import explain_rows
@@ -161,8 +162,6 @@ _CASE_FIELDS = {"name": str, "body": str, "published": (int, float), "source": s
 
 
 def load_family(path: Path) -> Family:
-    from sim.cpus import presets
-
     _, data = read_toml(path, "validation case file")
     for key in ("family", "cpu", "case"):
         if key not in data:
