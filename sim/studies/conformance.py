@@ -304,7 +304,7 @@ def _runs_on(row: TimingRow, preset_name: str, model) -> bool:
     if ext and ext not in guest_cpu(preset_name).extensions:
         return False
     models = row.extra.get("models")
-    return not (models and getattr(model, "key", None) not in models)
+    return not (models and model.key not in models)
 
 
 def run_family(family: str, progress=None, only: set[str] | None = None) -> tuple[list[RowResult], list[str]]:
@@ -356,14 +356,14 @@ def run_family(family: str, progress=None, only: set[str] | None = None) -> tupl
 
 
 def _expected(row: TimingRow, model) -> tuple[float | None, float | None]:
-    over = row.extra.get("model_overrides", {}).get(getattr(model, "key", ""), {})
+    over = row.extra.get("model_overrides", {}).get(model.key, {})
     # the chain the source measured, where the row's latency is the execution latency and the
     # measured chain was slower for another reason the row names (a K6 row's `measured_latency`:
     # ADD r16,imm16 executes in 1 clock, its chain runs at the 2-clock decode rate)
     lat = over.get("latency", row.extra.get("measured_latency", row.latency))
     # the system the preset reproduces, where its board and not the core set the measured figure
     # (k6-233: IL-K6 stores to lines never read at 36 clocks, no write allocation)
-    thr = row.extra.get("measured_system", {}).get(getattr(model, "key", ""), over.get("throughput", row.throughput))
+    thr = row.extra.get("measured_system", {}).get(model.key, over.get("throughput", row.throughput))
     return (None if lat is None else float(lat), None if thr is None else float(thr))
 
 
