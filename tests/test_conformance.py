@@ -2,7 +2,8 @@
 
 import pytest
 
-from sim.reports.conformance import RowResult, _judge, _operands, render, run_family
+from sim.reports.conformance import render
+from sim.studies.conformance import METHOD, RowResult, _judge, _operands, run_family
 from sim.cpus.table import load_table
 
 
@@ -41,7 +42,7 @@ def test_chains_avoid_zero_idioms_and_copies_are_independent():
 
 def test_report_counts_estimated_rows_apart():
     results, presets = run_family("k6", only={"add r32,r32", "clc"})
-    text = render({"k6": (results, presets)})
+    text = render({"k6": (results, presets)}, METHOD)
     est = sum(r.row.estimated for r in results)
     assert f"| k6 | 2 | 2 | {sum(r.ok for r in results if not r.row.estimated)} / {2 - est} " in text
 
@@ -72,7 +73,7 @@ def test_rows_below_the_k6_decode_rate_are_listed_with_the_reason_and_counted():
     by_key = {r.row.key: r for r in results}
     assert by_key["add r32,r32"].ok and not by_key["add r32,i8"].ok
     assert "length-determining bytes inside one line" in by_key["add r32,i8"].reason
-    text = render({"k6": (results, presets)})
+    text = render({"k6": (results, presets)}, METHOD)
     line = next(ln for ln in text.splitlines() if ln.startswith("| K6 front end"))
     assert line.endswith("| 1 | 0 |")
 
@@ -124,7 +125,7 @@ def test_k6_rows_are_timed_in_instlat_loop_and_the_line_crossing_rule_reproduces
     assert abs(by_key["add r16,r16"].measured["k6-2-300"][1] - 13 / 12) < 0.01
     assert abs(by_key["shl r16,i8"].measured["k6-2-300"][1] - 1.0) < 0.01
     assert abs(by_key["paddb mm,mm"].measured["k6-233"][1] - 13 / 12) < 0.01
-    from sim.reports.conformance import _source
+    from sim.studies.conformance import _source
     text, _ = _source([by_key["add r16,r16"].row], instlat=True)
     assert text.count(".p2align 5, 0x90") == 4  # every loop start aligned
     # the subtracted loop skips its first dozen (never executed), so the timed dozen keeps InstLat's addresses

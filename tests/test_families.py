@@ -5,6 +5,7 @@ into another family's (they share only sim/cpus/contract.py and sim/cpus/shared_
 
 import ast
 import json
+import string
 import tomllib
 from pathlib import Path
 
@@ -80,6 +81,11 @@ def test_explain_columns_are_counters_of_the_family(name, counters):
     f = families.family(name)
     for column in f.explain + f.loop_counters:
         assert column in counters[name], f"{name}: {column!r} is no counter of its model"
+    # the texture-loops report's line templates ([family.texture_loops]) fill in counters of the run
+    # (a misspelt one would read 0, the value of a counter the run did not record)
+    for key in ("tex5", "pairing"):
+        fields = {f_name for _, f_name, _, _ in string.Formatter().parse(f.texture_loops.get(key, "")) if f_name}
+        assert fields - {"name"} <= counters[name], f"{name}: [family.texture_loops] {key} names {fields - counters[name]}"
 
 
 def test_overrides_are_the_registered_estimates():
@@ -98,7 +104,7 @@ def test_the_contract_counters_are_in_every_familys_run(counters):
 
 
 def test_family_lists_read_the_registry():
-    from sim.reports import conformance
+    from sim.studies import conformance
     from sim.scenes.texture import scene as texture_scene
     from sim.scenes import schema
     from sim.reports import render

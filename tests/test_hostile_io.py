@@ -24,7 +24,7 @@ def _never(*a, **k):
 
 @pytest.mark.parametrize("command", ["texture-loops", "conformance", "validate"])
 def test_report_writers_refuse_a_fifo_a_folder_and_a_missing_folder_before_the_work(command, tmp_path, monkeypatch):
-    from sim.reports import conformance, texture_loops, validation
+    from sim.studies import conformance, texture_loops, validation
 
     monkeypatch.setattr(texture_loops, "report", _never)
     monkeypatch.setattr(conformance, "run_family", _never)
@@ -42,11 +42,11 @@ def test_report_writers_refuse_a_fifo_a_folder_and_a_missing_folder_before_the_w
 
 
 def test_report_writers_follow_the_umask_and_leave_no_temporary_file(tmp_path, monkeypatch):
-    from sim.reports import conformance, texture_loops
+    from sim.studies import conformance, texture_loops
 
     monkeypatch.setattr(texture_loops, "report", lambda cpus=None: "# texture\n")
     monkeypatch.setattr(conformance, "run_family", lambda fam, progress=None: ([], []))
-    monkeypatch.setattr(conformance, "render", lambda results: "# conformance\n")
+    monkeypatch.setattr(conformance, "render", lambda results, method: "# conformance\n")
     old = os.umask(0o022)
     try:
         texture_loops.write_report(tmp_path / "t.md")
@@ -65,7 +65,7 @@ def test_no_module_writes_a_file_except_through_the_checked_writer():
 
     root = Path(__file__).resolve().parent.parent / "sim"
     allowed = {"output.py", "asm.py"}
-    private_temp = {("guest", "loop_program.py"), ("reports", "conformance.py")}  # write_text into a TemporaryDirectory
+    private_temp = {("guest", "loop_program.py"), ("studies", "conformance.py")}  # write_text into a TemporaryDirectory
     pattern = re.compile(r"mkstemp|os\.replace|open\([^)]*['\"][wa]b?['\"]")
     for path in root.rglob("*.py"):
         if path.name in allowed:

@@ -121,7 +121,7 @@ def test_time_kernel_streams_and_matches_the_classic_path(cpu):
 
 
 def test_a_kernel_reading_rdtsc_is_timed_with_its_answers():
-    from sim.reports import texture_loops as texture
+    from sim.studies import texture_loops as texture
 
     streamed = time_kernel(kernels_root() / texture.FDIV_KERNEL, "timesnap", None, cpu="pentium2-233", repeat=2)
     emu = emulate(kernels_root() / texture.FDIV_KERNEL, "timesnap", None, repeat=2, isa_cpu="pentium2-233")
@@ -134,7 +134,7 @@ def test_a_kernel_reading_rdtsc_is_timed_with_its_answers():
 def test_p5_rdtsc_answers_survive_any_cut(cut):
     # PUSH EDX; RDTSC: the PUSH, first run, waits for its successor's static (held back), and
     # the RDTSC after it is timed with it: later RDTSCs of that chunk still get their own answers
-    from sim.reports import texture_loops as texture
+    from sim.studies import texture_loops as texture
 
     emu = emulate(kernels_root() / texture.FDIV_KERNEL, "timesnap", None, repeat=2)
     model = make_model("pentium-mmx-233")

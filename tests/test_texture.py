@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim.reports import texture_loops as T
+from sim.studies import texture_loops as T
 from sim.guest.emu import Machine
 from sim.guest.kernels import kernels_root
 

@@ -2,7 +2,7 @@
 
 from click.testing import CliRunner
 
-from sim.reports import validation
+from sim.studies import validation
 from sim.cli import main
 from sim.errors import RetrosimError
 

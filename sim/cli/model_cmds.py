@@ -114,13 +114,14 @@ def validate_cmd(fams, out, check):
     import time as _time
 
     from sim import output
-    from sim.reports import validation
+    from sim.reports.validation import markdown
+    from sim.studies import validation
 
     start = _time.perf_counter()
     if not check:  # before the work: a device, pipe, folder or missing folder fails at once
         output.check_output_file(out, "--out")
     results = [validation.run_family(f) for f in validation.families(only=list(fams) or None)]
-    text = validation.markdown(results)
+    text = markdown(results)
     if check:
         # a regular file of sane size only: a FIFO would block, a huge file is not the committed report
         committed = out.read_text() if out.is_file() and out.stat().st_size <= 16 << 20 else ""
@@ -147,7 +148,7 @@ def validate_cmd(fams, out, check):
 def conformance_cmd(out, families):
     """Run every table row's generated latency/throughput benchmark through the model on each preset
     of its family and write the comparison with the row's sourced figures (about 90 s of CPU time)."""
-    from sim.reports.conformance import FAMILY_ISA, write_report
+    from sim.studies.conformance import FAMILY_ISA, write_report
 
     unknown = [f for f in families if f not in FAMILY_ISA]
     if unknown:

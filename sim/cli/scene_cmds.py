@@ -19,7 +19,7 @@ from sim.cli.app import (
 @click.option("--out", default=None, type=click.Path(path_type=Path), help="Markdown file to write")
 def texture_loops_cmd(cpus, out):
     """Cycles per pixel of the texture-mapping article's span loops on every preset (reports/texture-loops.md)."""
-    from sim.reports import texture_loops as texture
+    from sim.studies import texture_loops as texture
 
     out = out or REPORTS_DIR / "texture-loops.md"
     texture.write_report(out, list(cpus) or None)  # also part of `retrosim report` and `check --reports`
@@ -167,18 +167,15 @@ def report_cmd(scenes, cpus, sets, out, jobs):
 
 
 def _write_texture_report(out: Path) -> Path:
-    from sim.reports import texture_loops as texture
+    from sim.studies import texture_loops as texture
 
     return texture.write_report(Path(out) / "texture-loops.md")
 
 
 def _write_conversion_report(out: Path) -> Path:
-    from sim.reports.conversion import conversion_markdown, conversion_results
-    from sim.reports.render import atomic_write
+    from sim.studies import conversion
 
-    path = Path(out) / "conversion.md"
-    atomic_write(path, conversion_markdown(conversion_results()).encode())
-    return path
+    return conversion.write_report(Path(out) / "conversion.md")
 
 
 @main.command("check")

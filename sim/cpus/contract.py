@@ -197,6 +197,7 @@ class FamilyModel:
     parameters, ``lower``, ``run`` and ``session``."""
 
     family: str = ""
+    key: str = ""  # the model within the family a table row's `models` names (the K6's "k6-2"); "" if none
 
     def __init__(self, preset: CpuPreset, memory: DramTiming, estimates: dict | None = None):
         if preset.family != self.family:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import functools
 import math
 import tomllib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from sim.errors import RetrosimError
@@ -79,6 +79,8 @@ class Family:
     table_fields: frozenset[str]  # the instruction table's family-specific row fields
     estimates: dict[str, Estimate]
     rules: dict[str, str]       # estimated rules that are not numbers: name -> reason
+    conformance: dict = field(default_factory=dict)    # [family.conformance]: the conformance study's notes
+    texture_loops: dict = field(default_factory=dict)  # [family.texture_loops]: the texture-loops report's lines
 
     @property
     def machine(self) -> dict:
@@ -104,7 +106,8 @@ def _record(name: str) -> Family:
                                       bool(e.get("overridable", True)), e.get("only_with", ""))
         return Family(name, fam["display_name"], fam["marker"], frozenset(fam["lacks"]),
                       fam.get("conformance_isa"), tuple(fam["explain"]), tuple(fam["loop_counters"]),
-                      frozenset(fam["table_fields"]), estimates, dict(table.get("rules", {})))
+                      frozenset(fam["table_fields"]), estimates, dict(table.get("rules", {})),
+                      dict(fam.get("conformance", {})), dict(fam.get("texture_loops", {})))
     except (KeyError, TypeError, ValueError) as e:
         raise RetrosimError(f"{where}: [family] or [estimates]: missing or bad field {e}") from None
 

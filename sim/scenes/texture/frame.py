@@ -105,7 +105,7 @@ def grid_scene(width: int, height: int, columns: int, rows: int, seed: int, w_ra
 
 
 def texture(seed: int = 1997) -> np.ndarray:
-    """A 256x256 8-bit texture (the same as sim.reports.texture_loops's, so both reports read one bitmap)."""
+    """A 256x256 8-bit texture (the same as sim.studies.texture_loops's, so both reports read one bitmap)."""
     return np.random.default_rng(seed).integers(0, 256, TEX_SIZE * TEX_SIZE, dtype=np.uint8)
 
 

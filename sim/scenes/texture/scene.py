@@ -364,7 +364,7 @@ def _diff(runs: tuple[dict, dict], per: int) -> dict:
 
 def measure_probes(cpu: str, memory: str, first_span: F.SpanParams) -> dict:
     """The article's component figures on one machine, each the difference of two runs."""
-    from sim.reports import texture_loops as texture
+    from sim.studies import texture_loops as texture
     from sim.timing.kernel import time_kernel
 
     path = kernels_root() / F.KERNEL
