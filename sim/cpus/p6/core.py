@@ -31,8 +31,8 @@ Branches: BTB of BTB_SETS x BTB_WAYS entries with HIST_BITS of local history and
 counters per entry (two-level adaptive); static prediction on a BTB miss (backward taken); a
 return stack; the front end restarts MISPREDICT cycles after a mispredicted branch executes.
 REP strings: the trace holds one execution per element. The first is decoded and runs its row's
-uops; the later ones are the microcode loop's (:func:`_rep_element`): no decode and no uops of their
-own, each `rep_element` clocks after the last (after the row's start-up), its accesses through the
+uops; the later ones are the microcode loop's (simulate's `rep_later` branch): no decode and no uops of
+their own, each `rep_element` clocks after the last (after the row's start-up), its accesses through the
 memory model (the loop waits for a miss). Fast strings (REP MOVS/STOS, rows with
 `fast_string_startup`; Intel SDM vol. 3 sec. 8.2.4, Agner Fog sec. 26.3): when ESI and EDI are
 8-aligned, |EDI - ESI| >= 32, the copy runs forward and ECX >= 64, the elements take the row's
@@ -418,10 +418,10 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     max_retire = sv[V_MAX_RETIRE]
     prev_pc = sv[V_PREV_PC]
     rep_sid = sv[V_REP_SID]
-    rep_count = sv[V_REP_COUNT]
-    rep_next = sv[V_REP_NEXT]  # hundredths of a cycle: when the loop's latest element was issued
-    rep_mode = sv[V_REP_MODE]
-    rep_addr = sv[V_REP_ADDR]
+    # the open run's other state (V_REP_COUNT; V_REP_NEXT, in hundredths of a cycle: when the loop's
+    # latest element was issued; V_REP_MODE; V_REP_ADDR) is read and written in sv itself, not in
+    # locals: the loop then carries four values fewer and the hot path runs faster (measured in one
+    # process against the locals: 1.04-1.29x), though the REP code never runs on most traces
     # Plain L1 hits (the common case) are done here, not by sim.memory.hierarchy.service: the same
     # updates (LRU clock and stamp, dirty bit, request and hit counts), with the clock and the
     # counts kept in locals (written back around each service call and at the end)
@@ -463,8 +463,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         prev_pc = pc
         if rep_sid >= 0 and not rep_later:
             # the run ended without a closing execution (REPE/REPNE on the flags): settle it
-            rep_next = _rep_settle(s_rep, rep_sid, rep_count, rep_next, rep_mode)
-            rep_end = -(-rep_next // OCC_SCALE)
+            sv[V_REP_NEXT] = _rep_settle(s_rep, rep_sid, sv[V_REP_COUNT], sv[V_REP_NEXT], sv[V_REP_MODE])
+            rep_end = -(-sv[V_REP_NEXT] // OCC_SCALE)
             if rep_end > dec_cycle:
                 dec_cycle = rep_end
             rep_sid = -1
@@ -477,20 +477,20 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             acc_next = acc_end
             if acc_end == acc:
                 # the closing execution (ECX = 0): the run ends
-                rep_next = _rep_settle(s_rep, sid, rep_count, rep_next, rep_mode)
+                sv[V_REP_NEXT] = _rep_settle(s_rep, sid, sv[V_REP_COUNT], sv[V_REP_NEXT], sv[V_REP_MODE])
                 rep_sid = -1
-                t = -(-rep_next // OCC_SCALE)
+                t = -(-sv[V_REP_NEXT] // OCC_SCALE)
                 wait = 0
             else:
-                rep_count += 1
+                sv[V_REP_COUNT] += 1
                 a = np.int64(mem_addr[acc])
-                if rep_count == 2:
-                    rep_mode |= REP_FORWARD if a > rep_addr else REP_BACKWARD
-                fast = (rep_mode & (REP_CAPABLE | REP_FORWARD)) == REP_CAPABLE | REP_FORWARD
-                rep_next += s_rep[sid, R_FAST] if fast else s_rep[sid, R_ELEMENT]
-                if fast and rep_count == FAST_MIN_COUNT:
-                    rep_next += max(0, s_rep[sid, R_FAST_START] - s_rep[sid, R_START]) * OCC_SCALE
-                t = -(-rep_next // OCC_SCALE)
+                if sv[V_REP_COUNT] == 2:
+                    sv[V_REP_MODE] |= REP_FORWARD if a > sv[V_REP_ADDR] else REP_BACKWARD
+                fast = (sv[V_REP_MODE] & (REP_CAPABLE | REP_FORWARD)) == REP_CAPABLE | REP_FORWARD
+                sv[V_REP_NEXT] += s_rep[sid, R_FAST] if fast else s_rep[sid, R_ELEMENT]
+                if fast and sv[V_REP_COUNT] == FAST_MIN_COUNT:
+                    sv[V_REP_NEXT] += max(0, s_rep[sid, R_FAST_START] - s_rep[sid, R_START]) * OCC_SCALE
+                t = -(-sv[V_REP_NEXT] // OCC_SCALE)
                 wait = 0
                 while acc < acc_end:
                     a = np.int64(mem_addr[acc])
@@ -523,7 +523,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                         tlb_page = dclock[TLB_LAST]
                         if w > wait:
                             wait = w  # the loop waits for its memory
-                rep_next += wait * OCC_SCALE
+                sv[V_REP_NEXT] += wait * OCC_SCALE
             done = t + wait + 1
             for j in range(s_ndst[sid]):
                 rid = s_dst[sid, j, 0]
@@ -906,12 +906,12 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         if s_rep[sid, R_KIND] != REP_NONE:
             # the first element of a REP string: the microcode loop starts after it
             rep_sid = sid
-            rep_count = 1 if acc_end > acc_first else 0
-            rep_next = (inst_complete + s_rep[sid, R_START]) * OCC_SCALE
-            rep_mode = 0
-            rep_addr = np.int64(mem_addr[acc_first]) if acc_end > acc_first else 0
+            sv[V_REP_COUNT] = 1 if acc_end > acc_first else 0
+            sv[V_REP_NEXT] = (inst_complete + s_rep[sid, R_START]) * OCC_SCALE
+            sv[V_REP_MODE] = 0
+            sv[V_REP_ADDR] = np.int64(mem_addr[acc_first]) if acc_end > acc_first else 0
             if s_rep[sid, R_KIND] == REP_FAST:
-                rep_mode = REP_CAPABLE
+                sv[V_REP_MODE] = REP_CAPABLE
                 src, dst = np.int64(-1), np.int64(-1)
                 for q in range(acc_first, acc_end):
                     if mem_write[q]:
@@ -919,7 +919,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     else:
                         src = np.int64(mem_addr[q])
                 if dst < 0 or dst % 8 != 0 or (src >= 0 and (src % 8 != 0 or abs(dst - src) < 32)):
-                    rep_mode = 0
+                    sv[V_REP_MODE] = 0
         if is_store:
             # commit after retirement, in order; a write miss first fetches the line (write-allocate)
             commit = max(inst_retire, last_commit + 1)
@@ -1096,10 +1096,6 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     sv[V_MAX_RETIRE] = max_retire
     sv[V_PREV_PC] = prev_pc
     sv[V_REP_SID] = rep_sid
-    sv[V_REP_COUNT] = rep_count
-    sv[V_REP_NEXT] = rep_next
-    sv[V_REP_MODE] = rep_mode
-    sv[V_REP_ADDR] = rep_addr
     return max_retire
 
 
