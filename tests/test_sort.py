@@ -185,7 +185,7 @@ def test_synthetic_keys_never_rasterize(tmp_path, monkeypatch):
     monkeypatch.setattr(K, "zbuffer_keys", refuse)
     result = run_scene(load_scene(write(tmp_path)), cpus=["pentium2-233"], robustness=False)
     assert result.zbuffer is None and result.timings
-    code = ("import sys, sim.scenes.sort.kind; "
+    code = ("import sys, sim.scenes.sort.scene, sim.scenes.sort.runner, sim.scenes.sort.report; "
             "print(sorted(m for m in sys.modules if m in ('sim.scenes.raster', 'sim.scenes.zbuffer.scene')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT).stdout
     assert out.strip() == "[]"

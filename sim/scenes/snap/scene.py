@@ -1,6 +1,6 @@
 """Vertex-snapping scenes ([scene] kind = "snap"): load, run and report (workload.py has the
-kernels' variants, the workloads, the exact reference and the error measures; kind.py puts this
-module behind the scene-kind interface, sim.scenes.kind).
+kernels' variants, the workloads, the exact reference and the error measures; sim.scenes.registry
+puts this module behind the scene-kind interface, sim.scenes.kind).
 
 Format::
 
@@ -567,3 +567,8 @@ def summary_tables(result: SnapResult) -> list:
             out += [Padding(Text(f"- {c['text']}: {c['verdict']}"), (0, 0, 0, 3))
                     for c in claims if c["verdict"] != "reproduced"]
     return out
+
+
+def sweep_emulation(scene: SnapScene, variant: str):
+    """The variant snapping the timing workload, as run_scene times it; the units are its vertices."""
+    return emulate_variant(scene, variant), scene.vertices

@@ -1,6 +1,6 @@
 """Sort scenes ([scene] kind = "sort"): the format and its loader. The kind's other parts: keys.py
 (the key distributions), variants.py (the kernels and the correctness check), runner.py (runs
-it), report.py (claims and reports), kind.py (the scene-kind interface, sim.scenes.kind).
+it), report.py (claims and reports); sim.scenes.registry joins them (sim.scenes.kind).
 
 Format::
 

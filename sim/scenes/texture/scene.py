@@ -42,7 +42,7 @@ Format::
 
 Claims are checked on every covered machine of the run, each with the counters that explain it;
 they are not re-timed over the models' estimates (sim.scenes.claims does that for Z-buffer scenes
-only). The kind's interface (sim.scenes.kind) is in kind.py; this module loads, runs and reports.
+only). This module loads, runs and reports; sim.scenes.registry puts it behind sim.scenes.kind.
 """
 
 from __future__ import annotations
@@ -840,3 +840,10 @@ def summary_tables(result: TextureResult) -> list:
             per = ", ".join(f"{f.upper()} {a}/{b}" for f, (a, b) in sorted(counts.items()))
             out.append(Padding(Text(f"- {per}: {c['text']}"), (0, 0, 0, 3)))  # counts first: the text wraps
     return out
+
+
+def sweep_emulation(scene: TextureScene, variant: str):
+    """The variant drawing the timed spans (every timing_stride-th), as run_scene times it; the units
+    are the timed pixels."""
+    timed = timed_spans(scene, F.span_params(scene.build_geometry(), scene.width, scene.height))
+    return emulate_variant(variant, timed, scene.width, scene.height, F.texture()), timed.pixels

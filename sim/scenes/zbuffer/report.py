@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 
 from sim.cpus.machine import MachineKey
 from sim.reports.render import FAMILY_MARKERS, FORMATS, add_label_column, console_label, finish_rows, md_table, png_bytes, row_offset, timings_csv, wants_image, write_report_set
+from sim.scenes.kind import BASELINE_COUNTERS
 from sim.scenes.zbuffer.frames import VARIANT_LABELS
 
 if TYPE_CHECKING:
@@ -374,3 +375,8 @@ def write_reports(result: SceneResult, out_dir: Path, formats: tuple[str, ...] =
     md = to_markdown(result, f"{name}.png" if has_plot else None, findings(result))
     return write_report_set(out_dir, name, md, png, json.dumps(to_json(result), indent=2, sort_keys=False) + "\n",
                             to_csv(result), formats)
+
+
+def baseline_entries(result: SceneResult) -> dict[str, dict[str, int]]:
+    """reports/baselines.json cases: one per variant and machine."""
+    return {f"{t.variant}@{t.key}": {c: int(t.counters[c]) for c in BASELINE_COUNTERS} for t in result.timings}

@@ -1,6 +1,6 @@
 """Z-buffer scene files (scenes/*.toml, [scene] kind = "zbuffer" or none): the format, a loader
 that validates it, and what a scene needs. The kind's other parts: runner.py runs it, report.py
-reports it, kind.py joins them behind the scene-kind interface (sim.scenes.kind).
+reports it; sim.scenes.registry joins them behind the scene-kind interface (sim.scenes.kind).
 
 Format::
 
