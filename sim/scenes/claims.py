@@ -1,6 +1,6 @@
 """Claims checked as widely as they are stated, and how robust each verdict is to the model's estimates.
 
-A scene's ``[[claims]]`` (sim.scenes.zbuffer.scene.Claim) name the machines their words cover. :func:`evaluate`
+A scene's ``[[claims]]`` (:class:`Claim`) name the machines their words cover. :func:`evaluate`
 checks each claim on every covered machine of the run (holds / does not hold, with the counters
 that explain the difference) and lists the covered machines of the scene that the run left out.
 
@@ -135,6 +135,43 @@ def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, say=lambd
 
 
 # -- what a claim names --------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Claim:
+    """A published claim a scene's report checks: `variants` (of run.variants) and what is expected
+    of them (`expect`, within `tolerance`), on every machine its words cover. The Z-buffer kind's
+    claims are these (variants[0] is similar to / faster / slower than variants[1]); a kind whose
+    claims say more adds its fields in a subclass (texture: a measured quantity; snap: workloads;
+    sort: distributions and sizes).
+
+    Coverage: ``cpus`` (``preset`` = that preset with any memory, or ``preset:memory``) and
+    ``families`` (every preset of those CPU families), narrowed by ``memories`` when given. The
+    report checks the claim on each covered machine of the run and names the covered machines of
+    the scene that the run left out ("not checked (CPU not in this run)")."""
+
+    text: str
+    variants: tuple[str, ...]
+    expect: str
+    tolerance: float | None = 0.0
+    cpus: tuple[str, ...] = ()
+    families: tuple[str, ...] = ()
+    memories: tuple[str, ...] = ()
+
+    def covers(self, preset: str, memory: str | None, family: str) -> bool:
+        """Whether the claim's words cover `preset` (a machine label: with overrides it is still
+        that preset) on `memory` of CPU family `family`."""
+        from sim.cpus.machine import MachineKey
+
+        if self.memories and memory not in self.memories:
+            return False
+        preset = MachineKey(preset).preset
+        return family in self.families or preset in self.cpus or f"{preset}:{memory}" in self.cpus
+
+    def describe_coverage(self) -> str:
+        parts = list(self.cpus) + [f"every {f.upper()} preset" for f in self.families]
+        text = ", ".join(parts)
+        return text + (f" (memory {', '.join(self.memories)})" if self.memories else "")
+
 
 def unrun(cpus, families, memories, machines) -> list[str]:
     """What a claim names that the scene does not run, so that its verdict would silently skip it:

@@ -124,7 +124,7 @@ def evaluate_claims(result: SortResult) -> list[dict]:
     for claim in result.scene.claims:
         per_cpu, refused, missing = [], [], []
         for key in result.cpu_keys:
-            if not claim.covers(MachineKey.parse(key).label, _family(key)):
+            if not claim.covers(MachineKey.parse(key).label, None, _family(key)):
                 continue
             why = [result.refused[(v, key)] for v in claim.variants if (v, key) in result.refused]
             if why:
@@ -134,7 +134,7 @@ def evaluate_claims(result: SortResult) -> list[dict]:
         for m in result.scene.machines:
             from sim.cpus import family_of
 
-            if m.label not in result.cpu_keys and claim.covers(m.preset, family_of(m.preset)):
+            if m.label not in result.cpu_keys and claim.covers(m.preset, None, family_of(m.preset)):
                 missing.append(m.label)
         verdicts = list(dict.fromkeys(e["verdict"] for e in per_cpu))
         if len(verdicts) == 1:

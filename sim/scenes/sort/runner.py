@@ -98,7 +98,7 @@ def _robust_cases(scene: SortScene, models: list) -> set:
         if claim.expect not in TIMED:
             continue
         for key, model in models:
-            if claim.covers(MachineKey.parse(key).label, model.preset.family):
+            if claim.covers(MachineKey.parse(key).label, None, model.preset.family):
                 out.update((v, claim.distributions[0], claim.sizes[0], key) for v in claim.variants)
     return out
 

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from sim.cpus.machine import MachineKey
-from sim.reports.render import FAMILY_MARKERS, FORMATS, add_label_column, console_label, finish_rows, md_table, png_bytes, row_offset, timings_csv, wants_image, write_report_set
+from sim.reports.render import FORMATS, add_label_column, console_label, finish_rows, md_table, png_bytes, row_offset, timings_csv, wants_image, write_report_set
 from sim.scenes.kind import BASELINE_COUNTERS
 from sim.scenes.zbuffer.frames import VARIANT_LABELS
 
