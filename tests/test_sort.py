@@ -211,6 +211,9 @@ def test_zbuffer_keys_are_built_when_asked_for(tmp_path, monkeypatch):
     (lambda t: t.replace('expect = "faster"', 'expect = "quicker"'), r"claims\[0\]\.expect: unknown expectation 'quicker'"),
     (lambda t: t.replace('distribution = "uniform"\nsize = 64', 'distribution = "unifrom"\nsize = 64'),
      r"claims\[0\]\.distribution: unknown distribution 'unifrom'"),
+    # an empty sweep list left the linear claims' default distribution to an IndexError
+    (lambda t: t.replace("sizes = [16, 64]", "sizes = [16, 64]\nsweep_distributions = []"),
+     r"keys\.sweep_distributions: must not be empty"),
 ])
 def test_bad_scenes_are_one_error_naming_file_line_and_field(tmp_path, edit, message):
     p = write(tmp_path)

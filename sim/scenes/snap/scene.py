@@ -32,7 +32,7 @@ Format::
                                     #   (variants[0] is exact there, every other listed one is not)
     variants = ["portable-64", "trick-24"]   # required: of run.variants (two for slower/faster)
     cpus = ["k6-2-300"]             # slower/faster: the machines it covers: presets and/or
-    families = ["p5", "p6", "k6"]   #   families (at least one in run.cpus)
+    families = ["FAMILY"]           #   CPU families by name, see `retrosim cpus` (at least one in run.cpus)
     workloads = ["screen"]          # exact/inexact/only-exact: of workloads.names (default all)
 
 A scene builds only what it names: the variants' entry points, its workloads, its presets. Every

@@ -40,7 +40,7 @@ Format::
                                     #   within tolerance, the same way)
     variants = ["merge-sbb", "merge-branchy"]   # required: of run.variants (two for faster/slower)
     cpus = ["k6-2-300"]             # the machines it covers: presets and/or
-    families = ["p5", "p6", "k6"]   #   families (at least one machine of run.cpus)
+    families = ["FAMILY"]           #   CPU families by name, see `retrosim cpus` (at least one machine of run.cpus)
     distribution = "uniform"        # faster/slower, linear (default the first sweep distribution)
     distributions = ["uniform"]     # distribution-independent (default every table distribution)
     size = 1024                     # faster/slower, distribution-independent (default table_size)
@@ -77,7 +77,7 @@ KEYS = (Field("distributions", "strlist", True, nonempty=True, unique=True, choi
         Field("zbuffer_scene", "str", doc="a Z-buffer scene file next to this one, whose depth codes are the keys"),
         Field("table_size", "int", True, span=(1, MAX_KEYS + 1, f"between 1 and {MAX_KEYS:,} keys")),
         Field("sizes", "intlist", doc="the size sweep (default [table_size])"),
-        Field("sweep_distributions", "strlist", unique=True, choices=tuple(K.DISTRIBUTIONS), noun="distribution"))
+        Field("sweep_distributions", "strlist", nonempty=True, unique=True, choices=tuple(K.DISTRIBUTIONS), noun="distribution"))
 CLAMP = (Field("lo", "int", default=16384), Field("hi", "int", default=49152))
 RUN = (Field("variants", "strlist", True, nonempty=True, unique=True, choices=tuple(VARIANTS), noun="variant"),
        Field("cpus", "strlist", True, nonempty=True, unique=True, doc="CPU preset[:memory preset]"),

@@ -38,7 +38,8 @@ Format::
     within = 2.0                    # ... or an absolute margin instead
     range = [0.0, 1.0]              # between
     cpus = ["pentium-133"]          # the machines its words cover (presets, any memory) ...
-    families = ["p5"]               # ... and/or whole families; at least one covered machine must run
+    families = ["FAMILY"]           # ... and/or whole CPU families by name (see `retrosim cpus`); at
+                                    #   least one covered machine must run
 
 Claims are checked on every covered machine of the run, each with the counters that explain it;
 they are not re-timed over the models' estimates (sim.scenes.claims does that for Z-buffer scenes

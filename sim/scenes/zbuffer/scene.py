@@ -49,7 +49,7 @@ Format::
     expect = "slower"               # required: similar | faster | slower (variants[0] than variants[1])
     tolerance = 0.0                 # optional fraction
     cpus = ["k6-2-300", "pentium2-233:edo"]   # the machines its words cover: presets (any memory)
-    families = ["k6"]               # ... and/or whole families (p5 p6 k6)
+    families = ["FAMILY"]           # ... and/or whole CPU families by name (see `retrosim cpus`)
     memories = ["sdram-pc100"]      # optional: only with these memory presets
     # (cpu = "..." is accepted as a one-entry cpus). Every entry of cpus and families must match a
     # machine of run.cpus or run.machine (within memories): a claim naming one the scene does not
