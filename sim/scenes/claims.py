@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from sim.cpus.machine import MachineKey
 from sim.memory import dram
 
 # Estimated cache latencies (preset ``latency_estimated = true``): +-30 % of the estimate, the
@@ -160,8 +161,6 @@ class Claim:
     def covers(self, preset: str, memory: str | None, family: str) -> bool:
         """Whether the claim's words cover `preset` (a machine label: with overrides it is still
         that preset) on `memory` of CPU family `family`."""
-        from sim.cpus.machine import MachineKey
-
         if self.memories and memory not in self.memories:
             return False
         preset = MachineKey(preset).preset
@@ -179,7 +178,6 @@ def unrun(cpus, families, memories, machines) -> list[str]:
     scene (``machines``: objects with .preset and .memory) matches, within ``memories`` when the
     claim narrows them. The loaders refuse such a claim (sim.scenes.schema.Validator.require_cover)."""
     from sim.cpus import family_of
-    from sim.cpus.machine import MachineKey
 
     ran = [(MachineKey(m.preset).preset, m.memory, family_of(m.preset)) for m in machines  # overrides aside
            if not memories or m.memory in memories]
@@ -202,7 +200,6 @@ def holds(claim, ratio: float) -> bool:
 def covered(claim, result) -> tuple[list[str], list[str]]:
     """(machine keys of the run the claim covers, covered machines of the scene not in the run)."""
     from sim.cpus import family_of
-    from sim.cpus.machine import MachineKey
 
     keys = {k: MachineKey.parse(k) for k in result.cpu_keys}
     run = [k for k, m in keys.items() if claim.covers(m.label, m.memory, family_of(k))]
@@ -251,8 +248,6 @@ def robustness_rows(claim, pa: dict | None, pb: dict | None, key: str, verdict: 
     re-timed). Shared by every scene kind with such claims."""
     if pa is None or pb is None:
         return None
-    from sim.cpus.machine import MachineKey
-
     rows = []
     machine = MachineKey.parse(key)
     for p in parameters(machine.label, machine.memory or None):

@@ -189,9 +189,10 @@ def load(path: Path, text: str, doc: dict) -> TextureScene:
     v = Validator(path, text)
     sc = v.scene_header(doc, "texture", ("scene", "geometry", "run", "claims"), SCENE)
     width, height = sc["width"], sc["height"]
-    ge = v.section(v.table(doc, "geometry"), GEOMETRY, "geometry", note=" for kind 'texture'")
-    w_range = _pair(v, ge, "w_range", (1.0, 3.0), 0.0, 1e6, True)
-    st_range = _pair(v, ge, "st_range", (40.0, 216.0), 0.0, 256.0, False)
+    table = v.table(doc, "geometry")
+    ge = v.section(table, GEOMETRY, "geometry", note=" for kind 'texture'")
+    w_range = _pair(v, table, "w_range", (1.0, 3.0), 0.0, 1e6, True)
+    st_range = _pair(v, table, "st_range", (40.0, 216.0), 0.0, 256.0, False)
 
     ru = v.section(v.table(doc, "run"), RUN, "run", note=" for kind 'texture'")
     variants, stride = ru["variants"], ru["timing_stride"]

@@ -103,7 +103,7 @@ RUN = (Field("variants", "strlist", True, nonempty=True, unique=True, choices=VA
        Field("cpus", "strlist", True, nonempty=True, unique=True, doc="CPU preset[:memory preset]"),
        Field("metrics", "strlist", default=(), unique=True, choices=METRICS, noun="metric"),
        Field("frames", "int", default=1, min=1, max=1000, doc="frames drawn in one machine state"),
-       Field("machine", "tables", default=[], doc="[[run.machine]]: a CPU preset with overrides"))
+       Field("machine", "tables", default=(), doc="[[run.machine]]: a CPU preset with overrides"))
 MACHINE = (Field("cpu", "str", True), Field("memory", "str"), Field("set", "any", True, doc="{ field = value }"))
 CLAIM = (CLAIM_TEXT, Field("cpu", "str", doc="a one-entry cpus"),
          replace(CLAIM_CPUS, doc="presets (any memory) or preset:memory"), CLAIM_FAMILIES,
