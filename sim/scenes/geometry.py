@@ -121,7 +121,7 @@ def read_geometry(v: Validator, doc: dict) -> GeometrySpec:
 
 def _triangle(v: Validator, t: dict, i: int) -> TriangleSpec:
     tname, field = "geometry.triangle", f"geometry.triangle[{i}]"
-    v.keys(t, {f.name: (f.type, f.required) for f in TRIANGLE}, tname, i, field)
+    v.keys(t, TRIANGLE, tname, i, field)
     if not _numbers(t["xy"], (3, 2)):
         v.fail(f"{field}.xy", f"expected three [x, y] pairs of finite numbers, got {show(t['xy'])}", tname, "xy", i)
     if any(abs(float(c)) > MAX_COORDINATE for p in t["xy"] for c in p):

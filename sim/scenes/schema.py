@@ -12,7 +12,7 @@ kind's loader checks after it.
 Every problem raises one :class:`SceneError` whose message names the file (with a line when one can
 be found) and the dotted field: ``scenes/a.toml:12: run.variants[1]: unknown variant 'z24' ...``.
 The formats themselves are documented in each kind's module (sim.scenes.zbuffer.scene,
-sim.scenes.texture.scene, sim.scenes.snap.scene).
+sim.scenes.texture.scene, sim.scenes.snap.scene, sim.scenes.sort.scene).
 """
 
 from __future__ import annotations
@@ -37,8 +37,8 @@ SEED_RANGE = (0, 1 << 63, "between 0 and 2^63 - 1")  # every generator's seed (n
 
 @dataclass(frozen=True)
 class Field:
-    """One key of a scene table, declared. ``type``: int, number, str, strlist, range (two numbers
-    in [0, 1]), tables (an array of tables), any (checked by the kind's loader). A field is
+    """One key of a scene table, declared. ``type``: int, number, str, strlist, intlist, range (two
+    numbers in [0, 1]), tables (an array of tables), table or any (checked by the kind's loader). A field is
     ``required`` or has a ``default`` (None: absent). Checks, in this order, each failing with one
     message naming the field: ``nonempty`` (a list); ``unique`` (a list: the repeat's index, or no
     index when ``unique == "bare"``); ``choices`` (a str, or each item of a strlist: "unknown
@@ -221,7 +221,7 @@ class Validator:
                           "claims", "families", index)
 
     def claim_cpus(self, field: str, index: int, cpus) -> None:
-        """A claim's cpus = [...] name known presets (no memory: the kinds but Z-buffer take presets only)."""
+        """A claim's cpus = [...] name known presets (plain presets: only Z-buffer claims take preset:memory)."""
         from sim.cpus import presets
 
         for p in cpus:
@@ -254,15 +254,17 @@ class Validator:
             self.fail("claims", "expected an array of tables [[claims]]", None, "claims")
         return raw
 
-    def keys(self, data: dict, allowed: dict, table: str, index: int | None = None, field: str | None = None,
-             note: str = "") -> None:
+    def keys(self, data: dict, fields: tuple[Field, ...], table: str, index: int | None = None,
+             field: str | None = None, note: str = "") -> None:
+        """`data` holds no key but the fields' and every required one."""
         field = field or table
         for key in data:
-            if key not in allowed:
-                self.fail(f"{field}.{key}", f"unknown key{note} (allowed: {', '.join(allowed)})", table, key, index)
-        for key, (_, required) in allowed.items():
-            if required and key not in data:
-                self.fail(f"{field}.{key}", f"missing required field{note}", table, None, index)
+            if not any(f.name == key for f in fields):
+                self.fail(f"{field}.{key}", f"unknown key{note} (allowed: {', '.join(f.name for f in fields)})",
+                          table, key, index)
+        for f in fields:
+            if f.required and f.name not in data:
+                self.fail(f"{field}.{f.name}", f"missing required field{note}", table, None, index)
 
     def typed(self, data: dict, key: str, kind: str, table: str, index: int | None = None,
               field: str | None = None, default=None):
@@ -323,7 +325,7 @@ class Validator:
         messages use (default `table`); `note` follows "unknown key" and "missing required field".
         `later`: fields of `fields` the kind reads later (:meth:`values`), once the others say
         whether they apply."""
-        self.keys(data, {f.name: (f.type, f.required) for f in fields}, table, index, field, note)
+        self.keys(data, fields, table, index, field, note)
         return self.values(data, tuple(f for f in fields if f not in later), table, index, field)
 
     def values(self, data: dict, fields: tuple[Field, ...], table: str, index: int | None = None,
@@ -359,12 +361,3 @@ class Validator:
             fail(f"must be >= {f.min}, got {value}")
         if f.max is not None and value > f.max:
             fail(f"must be <= {f.max}{f.max_note}, got {value}")
-
-    def at_least(self, value, minimum, field: str, table: str, key: str, what: str = "") -> None:
-        if value is not None and value < minimum:
-            self.fail(field, f"must be >= {minimum}{what}, got {value}", table, key)
-
-    def at_most(self, value, maximum, field: str, table: str, key: str, what: str = "") -> None:
-        if value is not None and value > maximum:
-            self.fail(field, f"must be <= {maximum}{what}, got {value}", table, key)
-

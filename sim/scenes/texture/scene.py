@@ -49,7 +49,7 @@ only). This module loads, runs and reports; sim.scenes.registry puts it behind s
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -95,9 +95,9 @@ GEOMETRY = (Field("generator", "str", True, choices=("grid",), noun="generator")
             Field("columns", "int", True, min=1, max=64), Field("rows", "int", True, min=1, max=64),
             Field("w_range", "any", doc="vertex depths (0 < lo <= hi)"),
             Field("st_range", "any", doc="vertex texture coordinates in texels (0 <= lo <= hi <= 256)"))
+TIMING_STRIDE = Field("timing_stride", "int", default=1, min=1, doc="time every n-th span of the frame")
 RUN = (Field("variants", "strlist", True, nonempty=True, unique="bare", choices=F.VARIANTS, noun="variant"),
-       Field("cpus", "strlist", True, nonempty=True, unique="bare", doc="CPU preset[:memory preset]"),
-       Field("timing_stride", "int", default=1, min=1, doc="time every n-th span of the frame"))
+       Field("cpus", "strlist", True, nonempty=True, unique="bare", doc="CPU preset[:memory preset]"), TIMING_STRIDE)
 CLAIM = (CLAIM_TEXT, Field("quantity", "str", True, choices=tuple(QUANTITIES), noun="quantity"),
          Field("variants", "strlist", default=()),
          Field("expect", "str", True, choices=EXPECTATIONS, noun="expectation"),
@@ -198,7 +198,7 @@ def load(path: Path, text: str, doc: dict) -> TextureScene:
     variants, stride = ru["variants"], ru["timing_stride"]
     # the grid covers the screen, so a frame has at least one span per row: a larger stride could
     # time a single span (run_scene also checks MIN_TIMED_SPANS once the spans are known)
-    v.at_most(stride, height, "run.timing_stride", "run", "timing_stride", " (the frame's height: at least one span per row)")
+    v.check(replace(TIMING_STRIDE, max=height, max_note=" (the frame's height: at least one span per row)"), stride, "run")
     machines = v.machines(ru["cpus"])
 
     claims = []

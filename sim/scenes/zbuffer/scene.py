@@ -56,7 +56,9 @@ Format::
     # run is refused, so no part of it goes unchecked (sim.scenes.claims.unrun).
 
 Generators are those of sim.scenes.raster (random_scene, coplanar_far_scene, ...) with the keys above as
-their arguments. Metrics: "visibility" (wrong winners), "depth_error" (stored vs exact depth),
+their arguments. [scene] and [geometry], the frame, are declared and read in sim.scenes.geometry (the
+sort kind reads a Z-buffer scene's frame for its depth keys); [run] and [[claims]] here (the claims
+are sim.scenes.claims.Claim). Metrics: "visibility" (wrong winners), "depth_error" (stored vs exact depth),
 "fp16_precision" (the format table, needs no frame), "z_fighting" (coplanar_far only).
 
 Every problem raises one :class:`SceneError` (sim.scenes.schema) whose message names the file (with
