@@ -185,7 +185,7 @@ def test_synthetic_keys_never_rasterize(tmp_path, monkeypatch):
     monkeypatch.setattr(K, "zbuffer_keys", refuse)
     result = run_scene(load_scene(write(tmp_path)), cpus=["pentium2-233"], robustness=False)
     assert result.zbuffer is None and result.timings
-    code = ("import sys, sim.scenes.sort.kind; "
+    code = ("import sys, sim.scenes.sort.scene, sim.scenes.sort.runner, sim.scenes.sort.report; "
             "print(sorted(m for m in sys.modules if m in ('sim.scenes.raster', 'sim.scenes.zbuffer.scene')))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=ROOT).stdout
     assert out.strip() == "[]"
@@ -211,6 +211,9 @@ def test_zbuffer_keys_are_built_when_asked_for(tmp_path, monkeypatch):
     (lambda t: t.replace('expect = "faster"', 'expect = "quicker"'), r"claims\[0\]\.expect: unknown expectation 'quicker'"),
     (lambda t: t.replace('distribution = "uniform"\nsize = 64', 'distribution = "unifrom"\nsize = 64'),
      r"claims\[0\]\.distribution: unknown distribution 'unifrom'"),
+    # an empty sweep list left the linear claims' default distribution to an IndexError
+    (lambda t: t.replace("sizes = [16, 64]", "sizes = [16, 64]\nsweep_distributions = []"),
+     r"keys\.sweep_distributions: must not be empty"),
 ])
 def test_bad_scenes_are_one_error_naming_file_line_and_field(tmp_path, edit, message):
     p = write(tmp_path)

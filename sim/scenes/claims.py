@@ -1,6 +1,6 @@
 """Claims checked as widely as they are stated, and how robust each verdict is to the model's estimates.
 
-A scene's ``[[claims]]`` (sim.scenes.zbuffer.scene.Claim) name the machines their words cover. :func:`evaluate`
+A scene's ``[[claims]]`` (:class:`Claim`) name the machines their words cover. :func:`evaluate`
 checks each claim on every covered machine of the run (holds / does not hold, with the counters
 that explain the difference) and lists the covered machines of the scene that the run left out.
 
@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from sim.cpus.machine import MachineKey
 from sim.memory import dram
 
 # Estimated cache latencies (preset ``latency_estimated = true``): +-30 % of the estimate, the
@@ -135,13 +136,47 @@ def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, say=lambd
 
 # -- what a claim names --------------------------------------------------------------------------
 
+@dataclass(frozen=True)
+class Claim:
+    """A published claim a scene's report checks: `variants` (of run.variants) and what is expected
+    of them (`expect`, within `tolerance`), on every machine its words cover. The Z-buffer kind's
+    claims are these (variants[0] is similar to / faster / slower than variants[1]); a kind whose
+    claims say more adds its fields in a subclass (texture: a measured quantity; snap: workloads;
+    sort: distributions and sizes).
+
+    Coverage: ``cpus`` (``preset`` = that preset with any memory, or ``preset:memory``) and
+    ``families`` (every preset of those CPU families), narrowed by ``memories`` when given. The
+    report checks the claim on each covered machine of the run and names the covered machines of
+    the scene that the run left out ("not checked (CPU not in this run)")."""
+
+    text: str
+    variants: tuple[str, ...]
+    expect: str
+    tolerance: float | None = 0.0
+    cpus: tuple[str, ...] = ()
+    families: tuple[str, ...] = ()
+    memories: tuple[str, ...] = ()
+
+    def covers(self, preset: str, memory: str | None, family: str) -> bool:
+        """Whether the claim's words cover `preset` (a machine label: with overrides it is still
+        that preset) on `memory` of CPU family `family`."""
+        if self.memories and memory not in self.memories:
+            return False
+        preset = MachineKey(preset).preset
+        return family in self.families or preset in self.cpus or f"{preset}:{memory}" in self.cpus
+
+    def describe_coverage(self) -> str:
+        parts = list(self.cpus) + [f"every {f.upper()} preset" for f in self.families]
+        text = ", ".join(parts)
+        return text + (f" (memory {', '.join(self.memories)})" if self.memories else "")
+
+
 def unrun(cpus, families, memories, machines) -> list[str]:
     """What a claim names that the scene does not run, so that its verdict would silently skip it:
     each ``cpus`` entry (a preset, or ``preset:memory``) and each family that no machine of the
     scene (``machines``: objects with .preset and .memory) matches, within ``memories`` when the
     claim narrows them. The loaders refuse such a claim (sim.scenes.schema.Validator.require_cover)."""
     from sim.cpus.machine import family_of
-    from sim.cpus.machine import MachineKey
 
     ran = [(MachineKey(m.preset).preset, m.memory, family_of(m.preset)) for m in machines  # overrides aside
            if not memories or m.memory in memories]
@@ -164,7 +199,6 @@ def holds(claim, ratio: float) -> bool:
 def covered(claim, result) -> tuple[list[str], list[str]]:
     """(machine keys of the run the claim covers, covered machines of the scene not in the run)."""
     from sim.cpus.machine import family_of
-    from sim.cpus.machine import MachineKey
 
     keys = {k: MachineKey.parse(k) for k in result.cpu_keys}
     run = [k for k, m in keys.items() if claim.covers(m.label, m.memory, family_of(k))]
@@ -213,8 +247,6 @@ def robustness_rows(claim, pa: dict | None, pb: dict | None, key: str, verdict: 
     re-timed). Shared by every scene kind with such claims."""
     if pa is None or pb is None:
         return None
-    from sim.cpus.machine import MachineKey
-
     rows = []
     machine = MachineKey.parse(key)
     for p in parameters(machine.label, machine.memory or None):
@@ -338,3 +370,11 @@ def verdict_summary(claims: list[dict], cpu_label, reading: list[str]) -> list[s
     for sentence in reading:
         lines += ([] if lines[-1] == "" else [""]) + [sentence]
     return lines + [""]
+
+
+def report_head(scene, claims: list[dict], cpu_label, reading: list[str]) -> list[str]:
+    """The Markdown lines every scene report opens with, whatever its kind: the scene's name, the
+    verdict summary (:func:`verdict_summary`), its description and what generated the report."""
+    return ([f"# {scene.name}", ""] + verdict_summary(claims, cpu_label, reading)
+            + [scene.description.strip(), "",
+               f"Generated by `retrosim report {scene.name}` from `scenes/{scene.name}.toml`; do not edit.", ""])

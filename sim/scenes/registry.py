@@ -2,8 +2,9 @@
 command line, the baselines and the sweeps use for a scene of any kind: each reads the kind of
 its scene (or result) and hands over to it (sim.scenes.kind.SceneKind).
 
-Adding a kind: a package sim/scenes/NAME/ whose kind.py defines ``KIND`` (a SceneKind with
-``name = "NAME"``), and one line in :data:`KINDS` here.
+Adding a kind: a package sim/scenes/NAME/ (its scene module declares the file's schema and loads
+it through sim.scenes.schema; its runner and report modules run and report it), and one entry in
+:data:`KINDS` here naming those functions.
 """
 
 from __future__ import annotations
@@ -13,13 +14,26 @@ from pathlib import Path
 from sim.reports.render import FORMATS
 from sim.scenes.kind import SceneKind
 from sim.scenes.schema import Validator, read_scene, show
-from sim.scenes.snap.kind import KIND as SNAP
-from sim.scenes.sort.kind import KIND as SORT
-from sim.scenes.texture.kind import KIND as TEXTURE
-from sim.scenes.zbuffer.kind import KIND as ZBUFFER
+from sim.scenes.snap import scene as snap
+from sim.scenes.sort import report as sort_report
+from sim.scenes.sort import runner as sort_runner
+from sim.scenes.sort import scene as sort_scene
+from sim.scenes.texture import scene as texture
+from sim.scenes.zbuffer import report as zbuffer_report
+from sim.scenes.zbuffer import runner as zbuffer_runner
+from sim.scenes.zbuffer import scene as zbuffer_scene
 
-DEFAULT_KIND = ZBUFFER.name  # a scene file without [scene] kind
-KINDS: dict[str, SceneKind] = {k.name: k for k in (ZBUFFER, TEXTURE, SNAP, SORT)}
+KINDS: dict[str, SceneKind] = {k.name: k for k in (
+    SceneKind("zbuffer", zbuffer_scene.load, zbuffer_runner.run_scene, zbuffer_report.write_reports,
+              zbuffer_report.summary_tables, zbuffer_report.baseline_entries, zbuffer_runner.sweep_emulation),
+    SceneKind("texture", texture.load, texture.run_scene, texture.write_reports, texture.summary_tables,
+              texture.baseline_entries, texture.sweep_emulation),
+    SceneKind("snap", snap.load, snap.run_scene, snap.write_reports, snap.summary_tables, snap.baseline_entries,
+              snap.sweep_emulation, unit="vertex"),
+    SceneKind("sort", sort_scene.load, sort_runner.run_scene, sort_report.write_reports, sort_report.summary_tables,
+              sort_report.baseline_entries, sort_runner.sweep_emulation, unit="key"),
+)}
+DEFAULT_KIND = "zbuffer"  # a scene file without [scene] kind
 
 
 def kind_of(item) -> SceneKind:

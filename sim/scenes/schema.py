@@ -1,11 +1,18 @@
 """What every scene file shares, whatever its kind: reading it (bounded, see sim.tomlfile), the
-one error type, the validator every kind's loader checks its tables with, and the machines a
-scene runs on.
+one error type, the declared schema every kind's tables are validated from (:class:`Field`,
+:meth:`Validator.section`), and the machines a scene runs on.
+
+A kind declares each table as a tuple of :class:`Field` (name, type, required or default, range or
+choices, a line of doc) and reads it with one call, ``v.section(doc_table, FIELDS, "run")``: the
+unknown and missing keys, each value's type, its range, its choices, emptiness and repeats are
+checked there, each with the same one-line message in every kind. What a declaration cannot say
+(one field against another: a claim's variants among run.variants, a range within the z range) the
+kind's loader checks after it.
 
 Every problem raises one :class:`SceneError` whose message names the file (with a line when one can
 be found) and the dotted field: ``scenes/a.toml:12: run.variants[1]: unknown variant 'z24' ...``.
 The formats themselves are documented in each kind's module (sim.scenes.zbuffer.scene,
-sim.scenes.texture.scene, sim.scenes.snap.scene).
+sim.scenes.texture.scene, sim.scenes.snap.scene, sim.scenes.sort.scene).
 """
 
 from __future__ import annotations
@@ -14,6 +21,7 @@ import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from sim.cpus.families import FAMILIES as REGISTERED
 from sim.cpus.machine import MachineKey
@@ -24,6 +32,44 @@ MAX_SCENE_BYTES = 64 << 20  # 65535 explicit triangles take about 6 MB
 FAMILIES = tuple(REGISTERED)  # CPU families a claim may name (the registry, sim/cpus/families.py)
 _KIND_NAMES = {"int": "an integer", "number": "a number", "str": "a string", "strlist": "an array of strings",
                "range": "an array of two numbers [lo, hi]", "tables": "an array of tables", "any": "a value"}
+SEED_RANGE = (0, 1 << 63, "between 0 and 2^63 - 1")  # every generator's seed (numpy's default_rng takes it)
+
+
+@dataclass(frozen=True)
+class Field:
+    """One key of a scene table, declared. ``type``: int, number, str, strlist, intlist, range (two
+    numbers in [0, 1]), tables (an array of tables), table or any (checked by the kind's loader). A field is
+    ``required`` or has a ``default`` (None: absent). Checks, in this order, each failing with one
+    message naming the field: ``nonempty`` (a list); ``unique`` (a list: the repeat's index, or no
+    index when ``unique == "bare"``); ``choices`` (a str, or each item of a strlist: "unknown
+    NOUN 'x' (known: ...)" with ``noun``); ``span`` = (lo, hi, words): lo <= value < hi, else "must
+    be WORDS"; ``min`` / ``max``: "must be >= / <= N" (``max_note`` follows N)."""
+
+    name: str
+    type: str
+    required: bool = False
+    default: Any = None
+    min: int | float | None = None
+    max: int | float | None = None
+    max_note: str = ""
+    span: tuple | None = None
+    choices: tuple = ()
+    noun: str = ""
+    nonempty: bool = False
+    unique: bool | str = False
+    doc: str = ""
+
+
+# [scene]: every kind's header (each kind lists them, in the order its messages name them, with its own fields)
+SCENE_KIND = Field("kind", "str", True, doc="the kind of scene (sim.scenes.registry.KINDS)")
+SCENE_NAME = Field("name", "str", True, doc="must equal the file's stem")
+SCENE_DESCRIPTION = Field("description", "str", default="", doc="one line for the report")
+
+
+# A claim's coverage: the presets and the families its words cover (sim.scenes.claims.Claim).
+CLAIM_TEXT = Field("text", "str", True, doc="the claim's words, as published")
+CLAIM_CPUS = Field("cpus", "strlist", default=(), doc="presets the words cover (any memory)")
+CLAIM_FAMILIES = Field("families", "strlist", default=(), doc="CPU families the words cover (see `retrosim cpus`)")
 
 
 class SceneError(RetrosimError):
@@ -118,20 +164,18 @@ class Validator:
             self.fail(name, f"expected a table [{name}], got {toml_type(value)}", None, name)
         return value
 
-    def scene_header(self, doc: dict, kind: str, tables: tuple[str, ...], scene_keys: dict) -> tuple[dict, str, str]:
-        """What every kind's file shares: only the kind's top-level tables, a [scene] table with
-        `scene_keys`, and scene.name equal to the file's name. Returns ([scene], name, description)."""
+    def scene_header(self, doc: dict, kind: str, tables: tuple[str, ...], fields: tuple[Field, ...]) -> dict:
+        """What every kind's file shares: only the kind's top-level tables, a [scene] table declared
+        by `fields`, and scene.name equal to the file's name. The [scene] values (Validator.section)."""
         for key in doc:
             if key not in tables:
                 here = isinstance(doc[key], dict)
                 self.fail(key, f"unknown table (allowed for kind '{kind}': {', '.join(tables)})",
                           key if here else None, None if here else key)
-        sc = self.table(doc, "scene")
-        self.keys(sc, scene_keys, "scene", note=f" for kind '{kind}'")
-        name = self.typed(sc, "name", "str", "scene")
-        if name != self.path.stem:
-            self.fail("scene.name", f"'{name}' must equal the file name '{self.path.stem}'", "scene", "name")
-        return sc, name, self.typed(sc, "description", "str", "scene", default="")
+        values = self.section(self.table(doc, "scene"), fields, "scene", note=f" for kind '{kind}'")
+        if values["name"] != self.path.stem:
+            self.fail("scene.name", f"'{values['name']}' must equal the file name '{self.path.stem}'", "scene", "name")
+        return values
 
     def machine(self, machines: list, label: str, memory: str | None, field: str, table: str, key: str,
                 index: int | None = None) -> None:
@@ -178,15 +222,24 @@ class Validator:
                 self.fail(f"{field}.families", f"unknown family '{fam}' (known: {', '.join(FAMILIES)})",
                           "claims", "families", index)
 
-    def require_cover(self, field: str, index: int, machines: list, covers, cpus=(), families=(),
-                      memories=()) -> None:
-        """A claim must cover at least one of the scene's machines (covers(preset, memory, family)),
-        and the scene must run every machine it names (its `cpus`, `families`, within `memories`):
-        otherwise part of the claim would go unchecked without a word (sim.scenes.claims.unrun)."""
+    def claim_cpus(self, field: str, index: int, cpus) -> None:
+        """A claim's cpus = [...] name known presets (plain presets: only Z-buffer claims take preset:memory)."""
+        from sim.cpus import presets
+
+        for p in cpus:
+            if p not in presets.available():
+                self.fail(f"{field}.cpus", f"unknown CPU preset '{p}' (known: {', '.join(presets.available())})",
+                          "claims", "cpus", index)
+
+    def require_cover(self, field: str, index: int, machines: list, claim) -> None:
+        """A claim (sim.scenes.claims.Claim) must cover at least one of the scene's machines, and the
+        scene must run every machine it names (its `cpus`, `families`, within `memories`): otherwise
+        part of the claim would go unchecked without a word (sim.scenes.claims.unrun)."""
         from sim.cpus.machine import family_of
         from sim.scenes.claims import unrun
 
-        if not any(covers(m.preset, m.memory, family_of(m.preset)) for m in machines):
+        cpus, families, memories = claim.cpus, claim.families, claim.memories
+        if not any(claim.covers(m.preset, m.memory, family_of(m.preset)) for m in machines):
             self.fail(field, f"covers none of run.cpus ({', '.join(m.label for m in machines)})", "claims", None,
                       index)
         missing = unrun(cpus, families, memories, machines)
@@ -203,15 +256,17 @@ class Validator:
             self.fail("claims", "expected an array of tables [[claims]]", None, "claims")
         return raw
 
-    def keys(self, data: dict, allowed: dict, table: str, index: int | None = None, field: str | None = None,
-             note: str = "") -> None:
+    def keys(self, data: dict, fields: tuple[Field, ...], table: str, index: int | None = None,
+             field: str | None = None, note: str = "") -> None:
+        """`data` holds no key but the fields' and every required one."""
         field = field or table
         for key in data:
-            if key not in allowed:
-                self.fail(f"{field}.{key}", f"unknown key{note} (allowed: {', '.join(allowed)})", table, key, index)
-        for key, (_, required) in allowed.items():
-            if required and key not in data:
-                self.fail(f"{field}.{key}", f"missing required field{note}", table, None, index)
+            if not any(f.name == key for f in fields):
+                self.fail(f"{field}.{key}", f"unknown key{note} (allowed: {', '.join(f.name for f in fields)})",
+                          table, key, index)
+        for f in fields:
+            if f.required and f.name not in data:
+                self.fail(f"{field}.{f.name}", f"missing required field{note}", table, None, index)
 
     def typed(self, data: dict, key: str, kind: str, table: str, index: int | None = None,
               field: str | None = None, default=None):
@@ -254,17 +309,57 @@ class Validator:
             if not (0.0 <= lo < hi <= 1.0):
                 self.fail(field, f"need 0 <= lo < hi <= 1, got {show(value)}", table, key, index)
             return lo, hi
+        if kind == "intlist":
+            if not isinstance(value, list) or any(isinstance(x, bool) or not isinstance(x, int) for x in value):
+                self.fail(field, f"expected an array of integers, got {show(value)}", table, key, index)
+            return tuple(value)
         if kind == "tables":
             if not isinstance(value, list) or not all(isinstance(v, dict) for v in value):
                 wrong()
             return value
         return value
 
-    def at_least(self, value, minimum, field: str, table: str, key: str, what: str = "") -> None:
-        if value is not None and value < minimum:
-            self.fail(field, f"must be >= {minimum}{what}, got {value}", table, key)
+    def section(self, data: dict, fields: tuple[Field, ...], table: str, index: int | None = None,
+                field: str | None = None, note: str = "", later: tuple[Field, ...] = ()) -> dict:
+        """The values of a table declared by `fields` (name -> value, or the field's default when
+        absent): its keys, then every value's type, then each field's checks in declaration order.
+        `table` and `index` find the line ([[table]] number `index`); `field` is the dotted name the
+        messages use (default `table`); `note` follows "unknown key" and "missing required field".
+        `later`: fields of `fields` the kind reads later (:meth:`values`), once the others say
+        whether they apply."""
+        self.keys(data, fields, table, index, field, note)
+        return self.values(data, tuple(f for f in fields if f not in later), table, index, field)
 
-    def at_most(self, value, maximum, field: str, table: str, key: str, what: str = "") -> None:
-        if value is not None and value > maximum:
-            self.fail(field, f"must be <= {maximum}{what}, got {value}", table, key)
+    def values(self, data: dict, fields: tuple[Field, ...], table: str, index: int | None = None,
+               field: str | None = None) -> dict:
+        """The typed and checked values of `fields` in `data` (its keys already checked: :meth:`section`)."""
+        values = {f.name: self.typed(data, f.name, f.type, table, index, field, default=f.default) for f in fields}
+        for f in fields:
+            if f.name in data:
+                self.check(f, values[f.name], table, index, field)
+        return values
 
+    def check(self, f: Field, value, table: str, index: int | None = None, field: str | None = None) -> None:
+        """`f`'s declared checks of its (typed) `value`."""
+        name = f"{field or table}.{f.name}"
+
+        def fail(message, where=name):
+            self.fail(where, message, table, f.name, index)
+
+        if f.nonempty and not value:
+            fail("must not be empty")
+        items = value if isinstance(value, tuple) and f.type == "strlist" else None
+        if items is not None:
+            for i, x in enumerate(items):
+                if f.unique and x in items[:i]:
+                    fail(f"'{x}' is listed twice", name if f.unique == "bare" else f"{name}[{i}]")
+                if f.choices and x not in f.choices:
+                    fail(f"unknown {f.noun} '{x}' (known: {', '.join(f.choices)})", f"{name}[{i}]")
+        elif f.choices and value not in f.choices:
+            fail(f"unknown {f.noun} '{value}' (known: {', '.join(f.choices)})")
+        if f.span is not None and not f.span[0] <= value < f.span[1]:
+            fail(f"must be {f.span[2]}, got {value}")
+        if f.min is not None and value < f.min:
+            fail(f"must be >= {f.min}, got {value}")
+        if f.max is not None and value > f.max:
+            fail(f"must be <= {f.max}{f.max_note}, got {value}")

@@ -1,6 +1,6 @@
 """Vertex-snapping scenes ([scene] kind = "snap"): load, run and report (workload.py has the
-kernels' variants, the workloads, the exact reference and the error measures; kind.py puts this
-module behind the scene-kind interface, sim.scenes.kind).
+kernels' variants, the workloads, the exact reference and the error measures; sim.scenes.registry
+puts this module behind the scene-kind interface, sim.scenes.kind).
 
 Format::
 
@@ -32,7 +32,7 @@ Format::
                                     #   (variants[0] is exact there, every other listed one is not)
     variants = ["portable-64", "trick-24"]   # required: of run.variants (two for slower/faster)
     cpus = ["k6-2-300"]             # slower/faster: the machines it covers: presets and/or
-    families = ["p5", "p6", "k6"]   #   families (at least one in run.cpus)
+    families = ["FAMILY"]           #   CPU families by name, see `retrosim cpus` (at least one in run.cpus)
     workloads = ["screen"]          # exact/inexact/only-exact: of workloads.names (default all)
 
 A scene builds only what it names: the variants' entry points, its workloads, its presets. Every
@@ -48,16 +48,11 @@ from pathlib import Path
 from sim.cpus.machine import MachineKey
 from sim.reports.render import FORMATS, add_label_column, console_label, md_table, timings_csv, wants_image, write_report_set
 from sim.scenes.kind import BASELINE_COUNTERS, Timing
-from sim.scenes.claims import verdict_summary
-from sim.scenes.schema import CpuChoice, Validator, show
+from sim.scenes.claims import Claim, report_head
+from sim.scenes.schema import (CLAIM_CPUS, CLAIM_FAMILIES, CLAIM_TEXT, SCENE_DESCRIPTION, SCENE_KIND, SCENE_NAME,
+                               SEED_RANGE, CpuChoice, Field, Validator, show)
 from sim.scenes.snap import workload as snap
 
-_SCENE_KEYS = {"name": ("str", True), "kind": ("str", True), "description": ("str", False)}
-_WORKLOAD_KEYS = {"names": ("strlist", True), "vertices": ("int", True), "seed": ("int", True),
-                  "width": ("int", False), "height": ("int", False)}
-_RUN_KEYS = {"variants": ("strlist", True), "cpus": ("strlist", True), "timing_workload": ("str", False)}
-_CLAIM_KEYS = {"text": ("str", True), "expect": ("str", True), "variants": ("strlist", True),
-               "cpus": ("strlist", False), "families": ("strlist", False), "workloads": ("strlist", False)}
 TIMED = ("slower", "faster")
 NUMERIC = ("exact", "inexact", "only-exact")
 # Host memory grows with the vertices (each variant's traced emulation and timing, the workloads):
@@ -70,17 +65,24 @@ VERTEX_BYTES = 4_800  # peak bytes per vertex of the largest scene (above: 1,219
 REPEAT = 2  # calls in one machine state; the last is timed (caches warm)
 
 
-@dataclass(frozen=True)
-class SnapClaim:
-    text: str
-    expect: str
-    variants: tuple[str, ...]
-    cpus: tuple[str, ...] = ()
-    families: tuple[str, ...] = ()
-    workloads: tuple[str, ...] = ()
+SCENE = (SCENE_NAME, SCENE_KIND, SCENE_DESCRIPTION)
+WORKLOADS = (
+    Field("names", "strlist", True, nonempty=True, unique=True, choices=tuple(snap.WORKLOADS), noun="workload"),
+    Field("vertices", "int", True, min=1, max=MAX_VERTICES, max_note=f" (host memory: about {VERTEX_BYTES:,} bytes per vertex)"),
+    Field("seed", "int", True, span=SEED_RANGE),
+    Field("width", "int", default=640, min=1, max=1 << 15, doc="the screen the coordinates fall on"),
+    Field("height", "int", default=480, min=1, max=1 << 15))
+RUN = (Field("variants", "strlist", True, nonempty=True, unique=True, choices=tuple(snap.VARIANTS), noun="variant"),
+       Field("cpus", "strlist", True, nonempty=True, unique=True, doc="CPU preset[:memory preset]"),
+       Field("timing_workload", "str", doc="default: the first of workloads.names"))
+CLAIM = (CLAIM_TEXT, Field("expect", "str", True, choices=TIMED + NUMERIC, noun="expectation"),
+         Field("variants", "strlist", True), CLAIM_CPUS, CLAIM_FAMILIES,
+         Field("workloads", "strlist", doc="default: every workload"))
 
-    def covers(self, preset: str, family: str) -> bool:
-        return family in self.families or MachineKey(preset).preset in self.cpus
+
+@dataclass(frozen=True)
+class SnapClaim(Claim):
+    workloads: tuple[str, ...] = ()  # exact / inexact / only-exact: the workloads checked
 
 
 @dataclass(frozen=True)
@@ -113,69 +115,25 @@ class SnapScene:
 
 def load(path: Path, text: str, doc: dict) -> SnapScene:
     """Validate a parsed kind = "snap" scene (sim.scenes.registry.load_scene reads the file and dispatches)."""
-    from sim.cpus import presets
-
     v = Validator(path, text)
-    sc, name, description = v.scene_header(doc, "snap", ("scene", "workloads", "run", "claims"), _SCENE_KEYS)
-
-    wl = v.table(doc, "workloads")
-    v.keys(wl, _WORKLOAD_KEYS, "workloads")
-    names = v.typed(wl, "names", "strlist", "workloads")
-    vertices = v.typed(wl, "vertices", "int", "workloads")
-    seed = v.typed(wl, "seed", "int", "workloads")
-    width = v.typed(wl, "width", "int", "workloads", default=640)
-    height = v.typed(wl, "height", "int", "workloads", default=480)
-    if not names:
-        v.fail("workloads.names", "must not be empty", "workloads", "names")
-    for i, w in enumerate(names):
-        if w not in snap.WORKLOADS:
-            v.fail(f"workloads.names[{i}]", f"unknown workload '{w}' (known: {', '.join(snap.WORKLOADS)})",
-                   "workloads", "names")
-        if w in names[:i]:
-            v.fail(f"workloads.names[{i}]", f"'{w}' is listed twice", "workloads", "names")
-    v.at_least(vertices, 1, "workloads.vertices", "workloads", "vertices")
-    v.at_most(vertices, MAX_VERTICES, "workloads.vertices", "workloads", "vertices",
-              f" (host memory: about {VERTEX_BYTES:,} bytes per vertex)")
-    if not 0 <= seed < 1 << 63:
-        v.fail("workloads.seed", f"must be between 0 and 2^63 - 1, got {seed}", "workloads", "seed")
-    for key, value in (("width", width), ("height", height)):
-        v.at_least(value, 1, f"workloads.{key}", "workloads", key)
-        v.at_most(value, 1 << 15, f"workloads.{key}", "workloads", key)
-
-    ru = v.table(doc, "run")
-    v.keys(ru, _RUN_KEYS, "run")
-    variants = v.typed(ru, "variants", "strlist", "run")
-    cpus = v.typed(ru, "cpus", "strlist", "run")
-    timing_workload = v.typed(ru, "timing_workload", "str", "run", default=names[0])
-    for key, items in (("variants", variants), ("cpus", cpus)):
-        if not items:
-            v.fail(f"run.{key}", "must not be empty", "run", key)
-        for i, x in enumerate(items):
-            if x in items[:i]:
-                v.fail(f"run.{key}[{i}]", f"'{x}' is listed twice", "run", key)
-    for i, x in enumerate(variants):
-        if x not in snap.VARIANTS:
-            v.fail(f"run.variants[{i}]", f"unknown variant '{x}' (known: {', '.join(snap.VARIANTS)})", "run", "variants")
+    sc = v.scene_header(doc, "snap", ("scene", "workloads", "run", "claims"), SCENE)
+    wl = v.section(v.table(doc, "workloads"), WORKLOADS, "workloads")
+    names = wl["names"]
+    ru = v.section(v.table(doc, "run"), RUN, "run")
+    variants = ru["variants"]
+    timing_workload = names[0] if ru["timing_workload"] is None else ru["timing_workload"]
     if timing_workload not in names:
         v.fail("run.timing_workload", f"'{timing_workload}' is not one of workloads.names ({', '.join(names)})",
                "run", "timing_workload")
-    machines = v.machines(cpus)
+    machines = v.machines(ru["cpus"])
 
     claims = []
     for i, c in enumerate(v.claim_tables(doc)):
         f = f"claims[{i}]"
-        v.keys(c, _CLAIM_KEYS, "claims", i, f)
-        text = v.typed(c, "text", "str", "claims", i, f)
-        expect = v.typed(c, "expect", "str", "claims", i, f)
-        pair = v.typed(c, "variants", "strlist", "claims", i, f)
-        ccpus = v.typed(c, "cpus", "strlist", "claims", i, f, default=())
-        families = v.typed(c, "families", "strlist", "claims", i, f, default=())
-        works = v.typed(c, "workloads", "strlist", "claims", i, f, default=tuple(names))
+        cl = v.section(c, CLAIM, "claims", i, f)
+        expect, pair, works = cl["expect"], cl["variants"], tuple(names) if cl["workloads"] is None else cl["workloads"]
         if not works:  # a claim over no workload would be "reproduced" by any variant
             v.fail(f"{f}.workloads", "must not be empty (leave it out to check every workload)", "claims", "workloads", i)
-        if expect not in TIMED + NUMERIC:
-            v.fail(f"{f}.expect", f"unknown expectation '{expect}' (known: {', '.join(TIMED + NUMERIC)})",
-                   "claims", "expect", i)
         if not pair or any(x not in variants for x in pair) or (expect in TIMED + ("only-exact",) and len(pair) < 2) \
                 or (expect in TIMED and len(pair) != 2):
             need = "two" if expect in TIMED else ("at least two" if expect == "only-exact" else "one or more")
@@ -185,19 +143,16 @@ def load(path: Path, text: str, doc: dict) -> SnapScene:
             if w not in names:
                 v.fail(f"{f}.workloads", f"'{w}' is not one of workloads.names ({', '.join(names)})",
                        "claims", "workloads", i)
-        for p in ccpus:
-            if p not in presets.available():
-                v.fail(f"{f}.cpus", f"unknown CPU preset '{p}' (known: {', '.join(presets.available())})", "claims", "cpus", i)
-        v.families(f, families, i)
-        claim = SnapClaim(text, expect, tuple(pair), tuple(ccpus), tuple(families), tuple(works))
+        v.claim_cpus(f, i, cl["cpus"])
+        v.families(f, cl["families"], i)
+        claim = SnapClaim(cl["text"], tuple(pair), expect, cpus=cl["cpus"], families=cl["families"], workloads=works)
         if expect in TIMED:
-            if not ccpus and not families:
+            if not claim.cpus and not claim.families:
                 v.fail(f, "names no CPU: give cpus = [...] and/or families = [...]", "claims", None, i)
-            v.require_cover(f, i, machines, lambda preset, memory, family: claim.covers(preset, family),
-                            claim.cpus, claim.families)
+            v.require_cover(f, i, machines, claim)
         claims.append(claim)
-    return SnapScene(path, name, description, tuple(names), vertices, seed, width, height, tuple(variants),
-                     tuple(machines), timing_workload, tuple(claims))
+    return SnapScene(path, sc["name"], sc["description"], tuple(names), wl["vertices"], wl["seed"], wl["width"],
+                     wl["height"], tuple(variants), tuple(machines), timing_workload, tuple(claims))
 
 
 # -- running -----------------------------------------------------------------------------------
@@ -286,7 +241,7 @@ def evaluate_claims(result: SnapResult) -> list[dict]:
             per = []
             for key in result.cpu_keys:
                 cpu = MachineKey.parse(key).label
-                if not c.covers(cpu, family_of(cpu)):
+                if not c.covers(cpu, None, family_of(cpu)):
                     continue
                 a, b = (result.cycles_per_vertex(v, key) for v in c.variants)
                 held = a > b if c.expect == "slower" else a < b
@@ -422,11 +377,8 @@ def to_csv(result: SnapResult) -> str:
 
 def to_markdown(result: SnapResult, png_name: str | None) -> str:
     s = result.scene
-    parts = [f"# {s.name}", ""] + verdict_summary(evaluate_claims(result), lambda k: MachineKey.parse(k).display,
-                                                 findings(result)[:2])
-    parts += [s.description.strip(), "",
-             f"Generated by `retrosim report {s.name}` from `scenes/{s.name}.toml`; do not edit.", "",
-             "Variants (`kernels/snap/snap.S`):", ""]
+    parts = report_head(s, evaluate_claims(result), lambda k: MachineKey.parse(k).display, findings(result)[:2])
+    parts += ["Variants (`kernels/snap/snap.S`):", ""]
     parts += [f"- `{v}`: {snap.VARIANTS[v].label}" for v in s.variants] + [""]
     parts += [f"Workloads: {s.vertices:,} (x, y) vertices each (seed {s.seed}, screen {s.width}x{s.height}):", ""]
     parts += [f"- `{w}`: {snap.WORKLOADS[w]}" for w in s.workloads] + [""]
@@ -569,3 +521,8 @@ def summary_tables(result: SnapResult) -> list:
             out += [Padding(Text(f"- {c['text']}: {c['verdict']}"), (0, 0, 0, 3))
                     for c in claims if c["verdict"] != "reproduced"]
     return out
+
+
+def sweep_emulation(scene: SnapScene, variant: str):
+    """The variant snapping the timing workload, as run_scene times it; the units are its vertices."""
+    return emulate_variant(scene, variant), scene.vertices

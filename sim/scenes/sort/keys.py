@@ -4,8 +4,8 @@ the depth keys of a Z-buffer scene.
 Synthetic distributions (:data:`SYNTHETIC`) are numpy draws from ``default_rng([seed, index of the
 distribution, n])`` ("sorted" and "reversed" order the "uniform" draw), so each (distribution,
 size) has its own keys and adding a size or a distribution changes no other. The Z-buffer keys are built only when a scene lists them
-(:func:`zbuffer_keys`): only then is the Z-buffer scene loaded and rasterized (sim.scenes.raster,
-imported inside the function, never at module level).
+(:func:`zbuffer_keys`): only then is the Z-buffer scene's frame read (sim.scenes.geometry) and
+rasterized (sim.scenes.raster, imported inside the function, never at module level).
 
 The Z-buffer keys are the 16-bit float depth codes of the article "A 16-bit floating-point
 Z-buffer" (fp16z: exponent in the top 5 bits, 11 mantissa bits below, sim.reference.fp16z_encode)
@@ -84,11 +84,9 @@ def zbuffer_keys(path: Path) -> DepthKeys:
     (z0 + k dz, modulo 2^32) and encoded without hazards (sim.reference.fp16z_encode)."""
     from sim.reference import fp16z_encode
     from sim.scenes import raster
-    from sim.scenes.schema import read_scene
-    from sim.scenes.zbuffer.scene import load
+    from sim.scenes.geometry import load_frame
 
-    text, doc = read_scene(path)
-    zscene = load(path, text, doc)
+    zscene = load_frame(path)
     geometry = zscene.build_geometry()
     spans = raster.rasterize(geometry, zscene.width, zscene.height)
     z0, dz = raster.span_parameters(spans, "fp16z")

@@ -98,7 +98,7 @@ def _robust_cases(scene: SortScene, models: list) -> set:
         if claim.expect not in TIMED:
             continue
         for key, model in models:
-            if claim.covers(MachineKey.parse(key).label, model.preset.family):
+            if claim.covers(MachineKey.parse(key).label, None, model.preset.family):
                 out.update((v, claim.distributions[0], claim.sizes[0], key) for v in claim.variants)
     return out
 
@@ -215,3 +215,9 @@ def run_scene(scene: SortScene, cpus: list[str] | None = None, progress=None, ro
         result.zbuffer = {"scene": d.scene, "pixels": int(d.codes.size), "spans": d.spans, "triangles": d.triangles,
                           "distinct_codes": int(len(set(d.codes.tolist())))}
     return result
+
+
+def sweep_emulation(scene: SortScene, variant: str):
+    """The variant on the scene's first distribution at table_size, as run_scene emulates it; the
+    units are its keys."""
+    return emulate_case(scene, variant, scene.distributions[0], scene.table_size), scene.table_size

@@ -1,6 +1,6 @@
 """Sort scenes ([scene] kind = "sort"): the format and its loader. The kind's other parts: keys.py
 (the key distributions), variants.py (the kernels and the correctness check), runner.py (runs
-it), report.py (claims and reports), kind.py (the scene-kind interface, sim.scenes.kind).
+it), report.py (claims and reports); sim.scenes.registry joins them (sim.scenes.kind).
 
 Format::
 
@@ -40,7 +40,7 @@ Format::
                                     #   within tolerance, the same way)
     variants = ["merge-sbb", "merge-branchy"]   # required: of run.variants (two for faster/slower)
     cpus = ["k6-2-300"]             # the machines it covers: presets and/or
-    families = ["p5", "p6", "k6"]   #   families (at least one machine of run.cpus)
+    families = ["FAMILY"]           #   CPU families by name, see `retrosim cpus` (at least one machine of run.cpus)
     distribution = "uniform"        # faster/slower, linear (default the first sweep distribution)
     distributions = ["uniform"]     # distribution-independent (default every table distribution)
     size = 1024                     # faster/slower, distribution-independent (default table_size)
@@ -62,39 +62,39 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sim.cpus.machine import MachineKey
-from sim.scenes.schema import CpuChoice, Validator, show
+from sim.scenes.claims import Claim
+from sim.scenes.schema import (CLAIM_CPUS, CLAIM_FAMILIES, CLAIM_TEXT, SCENE_DESCRIPTION, SCENE_KIND, SCENE_NAME,
+                               SEED_RANGE, CpuChoice, Field, Validator, show)
 from sim.scenes.sort import keys as K
 from sim.scenes.sort.variants import VARIANTS
 
 MAX_KEYS = 1 << 16  # the issue's range (256 to 64 K); 16-bit keys, and the arena holds 3 x 128 KB
 TIMED = ("faster", "slower")
 SHAPES = ("linear", "distribution-independent")
-_SCENE_KEYS = {"name": ("str", True), "kind": ("str", True), "description": ("str", False)}
-_KEYS_KEYS = {"distributions": ("strlist", True), "seed": ("int", True), "zbuffer_scene": ("str", False),
-              "table_size": ("int", True), "sizes": ("intlist", False), "sweep_distributions": ("strlist", False)}
-_CLAMP_KEYS = {"lo": ("int", False), "hi": ("int", False)}
-_RUN_KEYS = {"variants": ("strlist", True), "cpus": ("strlist", True), "max_size": ("table", False),
-             "limits": ("str", False)}
-_CLAIM_KEYS = {"text": ("str", True), "expect": ("str", True), "variants": ("strlist", True),
-               "cpus": ("strlist", False), "families": ("strlist", False), "distribution": ("str", False),
-               "distributions": ("strlist", False), "size": ("int", False), "sizes": ("intlist", False),
-               "tolerance": ("number", False)}
+SCENE = (SCENE_NAME, SCENE_KIND, SCENE_DESCRIPTION)
+KEYS = (Field("distributions", "strlist", True, nonempty=True, unique=True, choices=tuple(K.DISTRIBUTIONS), noun="distribution"),
+        Field("seed", "int", True, span=SEED_RANGE),
+        Field("zbuffer_scene", "str", doc="a Z-buffer scene file next to this one, whose depth codes are the keys"),
+        Field("table_size", "int", True, span=(1, MAX_KEYS + 1, f"between 1 and {MAX_KEYS:,} keys")),
+        Field("sizes", "intlist", doc="the size sweep (default [table_size])"),
+        Field("sweep_distributions", "strlist", nonempty=True, unique=True, choices=tuple(K.DISTRIBUTIONS), noun="distribution"))
+CLAMP = (Field("lo", "int", default=16384), Field("hi", "int", default=49152))
+RUN = (Field("variants", "strlist", True, nonempty=True, unique=True, choices=tuple(VARIANTS), noun="variant"),
+       Field("cpus", "strlist", True, nonempty=True, unique=True, doc="CPU preset[:memory preset]"),
+       Field("max_size", "table", doc="{ variant = keys }: the largest size a variant runs at"),
+       Field("limits", "str", default="", doc="why the sizes and limits are what they are"))
+CLAIM = (CLAIM_TEXT, Field("expect", "str", True, choices=TIMED + SHAPES, noun="expectation"),
+         Field("variants", "strlist", True), CLAIM_CPUS, CLAIM_FAMILIES,
+         # which runs it compares (read once expect says which of them it takes; defaults: the table's)
+         Field("distribution", "str"), Field("distributions", "strlist"), Field("size", "int"), Field("sizes", "intlist"),
+         Field("tolerance", "number", default=0.0, span=(0, 10, "between 0 and 10")))
+CLAIM_RUNS = tuple(f for f in CLAIM if f.name in ("distribution", "distributions", "size", "sizes"))
 
 
 @dataclass(frozen=True)
-class SortClaim:
-    text: str
-    expect: str
-    variants: tuple[str, ...]
-    cpus: tuple[str, ...] = ()
-    families: tuple[str, ...] = ()
+class SortClaim(Claim):
     distributions: tuple[str, ...] = ()   # one for faster/slower and linear
     sizes: tuple[int, ...] = ()           # one for faster/slower and distribution-independent
-    tolerance: float = 0.0
-
-    def covers(self, preset: str, family: str) -> bool:
-        return family in self.families or MachineKey(preset).preset in self.cpus
 
     def describe_coverage(self) -> str:
         parts = [f"the {f.upper()} family" for f in self.families] + list(self.cpus)
@@ -150,16 +150,6 @@ class SortScene:
                 "cpus": list(dict.fromkeys(m.preset for m in self.machines))}
 
 
-def _int_list(v: Validator, data: dict, key: str, table: str, index: int | None = None, field: str | None = None):
-    if key not in data:
-        return None
-    value = data[key]
-    name = f"{field or table}.{key}"
-    if not isinstance(value, list) or any(isinstance(x, bool) or not isinstance(x, int) for x in value):
-        v.fail(name, f"expected an array of integers, got {show(value)}", table, key, index)
-    return tuple(value)
-
-
 def _sizes_ok(v: Validator, sizes, field: str, table: str, key: str, index: int | None = None) -> None:
     for i, n in enumerate(sizes):
         if not 1 <= n <= MAX_KEYS:
@@ -170,32 +160,14 @@ def _sizes_ok(v: Validator, sizes, field: str, table: str, key: str, index: int 
 
 def load(path: Path, text: str, doc: dict) -> SortScene:
     """Validate a parsed kind = "sort" scene (sim.scenes.registry.load_scene reads the file and dispatches)."""
-    from sim.cpus import presets
-
     v = Validator(path, text)
-    sc, name, description = v.scene_header(doc, "sort", ("scene", "keys", "clamp", "run", "claims"), _SCENE_KEYS)
+    sc = v.scene_header(doc, "sort", ("scene", "keys", "clamp", "run", "claims"), SCENE)
+    name, description = sc["name"], sc["description"]
 
-    kt = v.table(doc, "keys")
-    v.keys(kt, _KEYS_KEYS, "keys")
-    dists = v.typed(kt, "distributions", "strlist", "keys")
-    seed = v.typed(kt, "seed", "int", "keys")
-    zscene = v.typed(kt, "zbuffer_scene", "str", "keys")
-    table_size = v.typed(kt, "table_size", "int", "keys")
-    sizes = _int_list(v, kt, "sizes", "keys") or (table_size,)
-    sweep = v.typed(kt, "sweep_distributions", "strlist", "keys", default=dists[:1])
-    if not dists:
-        v.fail("keys.distributions", "must not be empty", "keys", "distributions")
-    for key, items in (("distributions", dists), ("sweep_distributions", sweep)):
-        for i, d in enumerate(items):
-            if d not in K.DISTRIBUTIONS:
-                v.fail(f"keys.{key}[{i}]", f"unknown distribution '{d}' (known: {', '.join(K.DISTRIBUTIONS)})",
-                       "keys", key)
-            if d in items[:i]:
-                v.fail(f"keys.{key}[{i}]", f"'{d}' is listed twice", "keys", key)
-    if not 0 <= seed < 1 << 63:
-        v.fail("keys.seed", f"must be between 0 and 2^63 - 1, got {seed}", "keys", "seed")
-    if not 1 <= table_size <= MAX_KEYS:  # one number: its name has no [index]
-        v.fail("keys.table_size", f"must be between 1 and {MAX_KEYS:,} keys, got {table_size}", "keys", "table_size")
+    kt = v.section(v.table(doc, "keys"), KEYS, "keys")
+    dists, seed, zscene, table_size = kt["distributions"], kt["seed"], kt["zbuffer_scene"], kt["table_size"]
+    sizes = kt["sizes"] or (table_size,)
+    sweep = dists[:1] if kt["sweep_distributions"] is None else kt["sweep_distributions"]
     _sizes_ok(v, sizes, "keys.sizes", "keys", "sizes")
     if K.ZBUFFER in dists + sweep:
         if zscene is None:
@@ -208,28 +180,14 @@ def load(path: Path, text: str, doc: dict) -> SortScene:
     elif zscene is not None:
         v.fail("keys.zbuffer_scene", "given, but no distribution is 'zbuffer'", "keys", "zbuffer_scene")
 
-    ct = v.table(doc, "clamp", required=False)
-    v.keys(ct, _CLAMP_KEYS, "clamp")
-    lo = v.typed(ct, "lo", "int", "clamp", default=16384)
-    hi = v.typed(ct, "hi", "int", "clamp", default=49152)
+    ct = v.section(v.table(doc, "clamp", required=False), CLAMP, "clamp")
+    lo, hi = ct["lo"], ct["hi"]
     if not 0 <= lo <= hi <= 0xFFFF:
         v.fail("clamp", f"need 0 <= lo <= hi <= 65535, got lo {lo}, hi {hi}", "clamp", None)
 
-    ru = v.table(doc, "run")
-    v.keys(ru, _RUN_KEYS, "run")
-    variants = v.typed(ru, "variants", "strlist", "run")
-    cpus = v.typed(ru, "cpus", "strlist", "run")
-    limits = v.typed(ru, "limits", "str", "run", default="")
-    for key, items in (("variants", variants), ("cpus", cpus)):
-        if not items:
-            v.fail(f"run.{key}", "must not be empty", "run", key)
-        for i, x in enumerate(items):
-            if x in items[:i]:
-                v.fail(f"run.{key}[{i}]", f"'{x}' is listed twice", "run", key)
-    for i, x in enumerate(variants):
-        if x not in VARIANTS:
-            v.fail(f"run.variants[{i}]", f"unknown variant '{x}' (known: {', '.join(VARIANTS)})", "run", "variants")
-    max_size = ru.get("max_size", {})
+    ru = v.section(v.table(doc, "run"), RUN, "run")
+    variants, cpus, limits = ru["variants"], ru["cpus"], ru["limits"]
+    max_size = {} if ru["max_size"] is None else ru["max_size"]
     if not isinstance(max_size, dict):
         v.fail("run.max_size", f"expected a table {{ variant = keys }}, got {show(max_size)}", "run", "max_size")
     for x, n in max_size.items():
@@ -247,26 +205,13 @@ def load(path: Path, text: str, doc: dict) -> SortScene:
     claims = []
     for i, c in enumerate(v.claim_tables(doc)):
         f = f"claims[{i}]"
-        v.keys(c, _CLAIM_KEYS, "claims", i, f)
-        text = v.typed(c, "text", "str", "claims", i, f)
-        expect = v.typed(c, "expect", "str", "claims", i, f)
-        names = v.typed(c, "variants", "strlist", "claims", i, f)
-        ccpus = v.typed(c, "cpus", "strlist", "claims", i, f, default=())
-        families = v.typed(c, "families", "strlist", "claims", i, f, default=())
-        tolerance = v.typed(c, "tolerance", "number", "claims", i, f, default=0.0)
-        if expect not in TIMED + SHAPES:
-            v.fail(f"{f}.expect", f"unknown expectation '{expect}' (known: {', '.join(TIMED + SHAPES)})",
-                   "claims", "expect", i)
+        cl = v.section(c, CLAIM, "claims", i, f, later=CLAIM_RUNS)
+        expect, names, ccpus, families = cl["expect"], cl["variants"], cl["cpus"], cl["families"]
         need = 2 if expect in TIMED else None
         if not names or (need and len(names) != need) or any(x not in variants for x in names):
             v.fail(f"{f}.variants", f"expected {'two' if need else 'one or more'} of run.variants "
                    f"({', '.join(variants)}), got {show(list(names))}", "claims", "variants", i)
-        if not 0 <= tolerance < 10:
-            v.fail(f"{f}.tolerance", f"must be between 0 and 10, got {tolerance}", "claims", "tolerance", i)
-        for p in ccpus:
-            if p not in presets.available():
-                v.fail(f"{f}.cpus", f"unknown CPU preset '{p}' (known: {', '.join(presets.available())})",
-                       "claims", "cpus", i)
+        v.claim_cpus(f, i, ccpus)
         v.families(f, families, i)
         if not ccpus and not families:
             v.fail(f, "names no CPU: give cpus = [...] and/or families = [...]", "claims", None, i)
@@ -277,10 +222,11 @@ def load(path: Path, text: str, doc: dict) -> SortScene:
                 v.fail(f"{f}.{key}", f"not used by expect = '{expect}' (it takes {' and '.join(allowed)})",
                        "claims", key, i)
         default_dist = sweep[0] if expect == "linear" else dists[0]
-        dist = v.typed(c, "distribution", "str", "claims", i, f, default=default_dist)
-        cdists = v.typed(c, "distributions", "strlist", "claims", i, f, default=dists)
-        size = v.typed(c, "size", "int", "claims", i, f, default=table_size)
-        csizes = _int_list(v, c, "sizes", "claims", i, f) or sizes
+        runs = v.values(c, CLAIM_RUNS, "claims", i, f)
+        dist = default_dist if runs["distribution"] is None else runs["distribution"]
+        cdists = dists if runs["distributions"] is None else runs["distributions"]
+        size = table_size if runs["size"] is None else runs["size"]
+        csizes = runs["sizes"] or sizes
         for key, given in (("distribution", [dist]), ("distributions", cdists)):  # a typo: say so, by name
             for d in given:
                 if d not in K.DISTRIBUTIONS:
@@ -301,11 +247,10 @@ def load(path: Path, text: str, doc: dict) -> SortScene:
                 v.fail(f, f"the scene does not run {case[0]} on {case[1]} keys at size {case[2]} (claims use the "
                        "table's or the sweep's runs: keys.table_size with keys.distributions, keys.sizes with "
                        "keys.sweep_distributions, within run.max_size)", "claims", None, i)
-        claim = SortClaim(text, expect, tuple(names), tuple(ccpus), tuple(families),
-                          tuple(cdists) if expect == "distribution-independent" else (dist,),
-                          tuple(csizes) if expect == "linear" else (size,), tolerance)
-        v.require_cover(f, i, machines, lambda preset, memory, family: claim.covers(preset, family),
-                        claim.cpus, claim.families)
+        claim = SortClaim(cl["text"], tuple(names), expect, cl["tolerance"], ccpus, families,
+                          distributions=tuple(cdists) if expect == "distribution-independent" else (dist,),
+                          sizes=tuple(csizes) if expect == "linear" else (size,))
+        v.require_cover(f, i, machines, claim)
         claims.append(claim)
     return SortScene(path, name, description, tuple(dists), seed, zscene, table_size, tuple(sizes), tuple(sweep),
                      (lo, hi), tuple(variants), tuple(machines), max_size, limits, tuple(claims))

@@ -38,17 +38,18 @@ Format::
     within = 2.0                    # ... or an absolute margin instead
     range = [0.0, 1.0]              # between
     cpus = ["pentium-133"]          # the machines its words cover (presets, any memory) ...
-    families = ["p5"]               # ... and/or whole families; at least one covered machine must run
+    families = ["FAMILY"]           # ... and/or whole CPU families by name (see `retrosim cpus`); at
+                                    #   least one covered machine must run
 
 Claims are checked on every covered machine of the run, each with the counters that explain it;
 they are not re-timed over the models' estimates (sim.scenes.claims does that for Z-buffer scenes
-only). The kind's interface (sim.scenes.kind) is in kind.py; this module loads, runs and reports.
+only). This module loads, runs and reports; sim.scenes.registry puts it behind sim.scenes.kind.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -59,8 +60,9 @@ from sim.cpus.families import FAMILIES, order as family_order
 from sim.errors import RetrosimError
 from sim.guest.kernels import kernels_root
 from sim.reports.render import FORMATS, add_label_column, console_label, md_table, wants_image, write_report_set
-from sim.scenes.claims import verdict_summary
-from sim.scenes.schema import CpuChoice, Validator, show
+from sim.scenes.claims import Claim, report_head
+from sim.scenes.schema import (CLAIM_CPUS, CLAIM_FAMILIES, CLAIM_TEXT, SCENE_DESCRIPTION, SCENE_KIND, SCENE_NAME,
+                               SEED_RANGE, CpuChoice, Field, Validator, show)
 from sim.scenes.texture import frame as F
 
 QUANTITIES = {
@@ -85,35 +87,38 @@ MAX_SIDE = 4096
 PROBE_N = 64        # probe loops: iterations at n and 2n, the difference per iteration
 SETUP_SPANS = 16    # zero-pixel spans at n and 2n for the set-up probe
 
-_SCENE_KEYS = {"kind": ("str", True), "name": ("str", True), "description": ("str", False), "width": ("int", True),
-               "height": ("int", True)}
-_GEOMETRY_KEYS = {"generator": ("str", True), "seed": ("int", True), "columns": ("int", True), "rows": ("int", True),
-                  "w_range": ("any", False), "st_range": ("any", False)}
-_RUN_KEYS = {"variants": ("strlist", True), "cpus": ("strlist", True), "timing_stride": ("int", False)}
-_CLAIM_KEYS = {"text": ("str", True), "quantity": ("str", True), "variants": ("strlist", False),
-               "expect": ("str", True), "value": ("number", False), "tolerance": ("number", False),
-               "within": ("number", False), "range": ("any", False), "cpus": ("strlist", False),
-               "families": ("strlist", False)}
+SCENE = (SCENE_KIND, SCENE_NAME, SCENE_DESCRIPTION,
+         Field("width", "int", True, min=16, max=MAX_SIDE, doc="pixels"),
+         Field("height", "int", True, min=16, max=MAX_SIDE, doc="pixels"))
+GEOMETRY = (Field("generator", "str", True, choices=("grid",), noun="generator"),
+            Field("seed", "int", True, span=SEED_RANGE),
+            Field("columns", "int", True, min=1, max=64), Field("rows", "int", True, min=1, max=64),
+            Field("w_range", "any", doc="vertex depths (0 < lo <= hi)"),
+            Field("st_range", "any", doc="vertex texture coordinates in texels (0 <= lo <= hi <= 256)"))
+TIMING_STRIDE = Field("timing_stride", "int", default=1, min=1, doc="time every n-th span of the frame")
+RUN = (Field("variants", "strlist", True, nonempty=True, unique="bare", choices=F.VARIANTS, noun="variant"),
+       Field("cpus", "strlist", True, nonempty=True, unique="bare", doc="CPU preset[:memory preset]"), TIMING_STRIDE)
+CLAIM = (CLAIM_TEXT, Field("quantity", "str", True, choices=tuple(QUANTITIES), noun="quantity"),
+         Field("variants", "strlist", default=()),
+         Field("expect", "str", True, choices=EXPECTATIONS, noun="expectation"),
+         Field("value", "number"), Field("tolerance", "number", span=(0, 1, "in [0, 1)")),
+         Field("within", "number", min=0), Field("range", "any"), CLAIM_CPUS, CLAIM_FAMILIES)
 
 
 # ---------------------------------------------------------------------------------------------
 # the scene
 
 @dataclass(frozen=True)
-class TextureClaim:
-    text: str
-    quantity: str
-    variants: tuple[str, ...]
-    expect: str
-    value: float | None = None
+class TextureClaim(Claim):
+    """A measured quantity (QUANTITIES) of `variants` on every covered machine: `expect` about
+    `value` (within `tolerance` of it, a fraction, default 0.1, or `within` clocks), at most or at
+    least `value`, or between `range`."""
+
     tolerance: float | None = None
+    quantity: str = ""
+    value: float | None = None
     within: float | None = None
     range: tuple[float, float] | None = None
-    cpus: tuple[str, ...] = ()
-    families: tuple[str, ...] = ()
-
-    def covers(self, preset: str, family: str) -> bool:
-        return family in self.families or MachineKey(preset).preset in self.cpus
 
     def holds(self, x: float) -> bool:
         if self.expect == "between":
@@ -133,9 +138,6 @@ class TextureClaim:
             return f"{what} {self.expect.replace('_', ' ')} {self.value:g}"
         margin = f"+-{self.within:g}" if self.within is not None else f"+-{(self.tolerance if self.tolerance is not None else 0.1):.0%}"
         return f"{what} about {self.value:g} ({margin})"
-
-    def coverage(self) -> str:
-        return ", ".join(list(self.cpus) + [f"every {f.upper()} preset" for f in self.families])
 
 
 @dataclass(frozen=True)
@@ -184,103 +186,52 @@ def _pair(v: Validator, table: dict, key: str, default, lo_min: float, hi_max: f
 
 def load(path: Path, text: str, doc: dict) -> TextureScene:
     """Validate a parsed texture scene (sim.scenes.registry.load_scene dispatches here on [scene].kind)."""
-    from sim.cpus import presets as cpu_presets
-
     v = Validator(path, text)
-    sc, name, description = v.scene_header(doc, "texture", ("scene", "geometry", "run", "claims"), _SCENE_KEYS)
-    width, height = v.typed(sc, "width", "int", "scene"), v.typed(sc, "height", "int", "scene")
-    for key, val in (("width", width), ("height", height)):
-        v.at_least(val, 16, f"scene.{key}", "scene", key)
-        v.at_most(val, MAX_SIDE, f"scene.{key}", "scene", key)
+    sc = v.scene_header(doc, "texture", ("scene", "geometry", "run", "claims"), SCENE)
+    width, height = sc["width"], sc["height"]
+    table = v.table(doc, "geometry")
+    ge = v.section(table, GEOMETRY, "geometry", note=" for kind 'texture'")
+    w_range = _pair(v, table, "w_range", (1.0, 3.0), 0.0, 1e6, True)
+    st_range = _pair(v, table, "st_range", (40.0, 216.0), 0.0, 256.0, False)
 
-    ge = v.table(doc, "geometry")
-    v.keys(ge, _GEOMETRY_KEYS, "geometry", note=" for kind 'texture'")
-    if v.typed(ge, "generator", "str", "geometry") != "grid":
-        v.fail("geometry.generator", f"unknown generator {show(ge['generator'])} (known: grid)", "geometry", "generator")
-    seed = v.typed(ge, "seed", "int", "geometry")
-    if not 0 <= seed < 1 << 63:
-        v.fail("geometry.seed", f"must be between 0 and 2^63 - 1, got {seed}", "geometry", "seed")
-    columns, rows = v.typed(ge, "columns", "int", "geometry"), v.typed(ge, "rows", "int", "geometry")
-    for key, val in (("columns", columns), ("rows", rows)):
-        v.at_least(val, 1, f"geometry.{key}", "geometry", key)
-        v.at_most(val, 64, f"geometry.{key}", "geometry", key)
-    w_range = _pair(v, ge, "w_range", (1.0, 3.0), 0.0, 1e6, True)
-    st_range = _pair(v, ge, "st_range", (40.0, 216.0), 0.0, 256.0, False)
-
-    ru = v.table(doc, "run")
-    v.keys(ru, _RUN_KEYS, "run", note=" for kind 'texture'")
-    variants = v.typed(ru, "variants", "strlist", "run")
-    cpus = v.typed(ru, "cpus", "strlist", "run")
-    stride = v.typed(ru, "timing_stride", "int", "run", default=1)
-    v.at_least(stride, 1, "run.timing_stride", "run", "timing_stride")
+    ru = v.section(v.table(doc, "run"), RUN, "run", note=" for kind 'texture'")
+    variants, stride = ru["variants"], ru["timing_stride"]
     # the grid covers the screen, so a frame has at least one span per row: a larger stride could
     # time a single span (run_scene also checks MIN_TIMED_SPANS once the spans are known)
-    v.at_most(stride, height, "run.timing_stride", "run", "timing_stride", " (the frame's height: at least one span per row)")
-    for key, items in (("variants", variants), ("cpus", cpus)):
-        if not items:
-            v.fail(f"run.{key}", "must not be empty", "run", key)
-        dup = [x for i, x in enumerate(items) if x in items[:i]]
-        if dup:
-            v.fail(f"run.{key}", f"'{dup[0]}' is listed twice", "run", key)
-    for i, var in enumerate(variants):
-        if var not in F.VARIANTS:
-            v.fail(f"run.variants[{i}]", f"unknown variant '{var}' (known: {', '.join(F.VARIANTS)})", "run", "variants")
-    known_cpus = cpu_presets.available()
-    machines = v.machines(cpus)
+    v.check(replace(TIMING_STRIDE, max=height, max_note=" (the frame's height: at least one span per row)"), stride, "run")
+    machines = v.machines(ru["cpus"])
 
     claims = []
     for i, c in enumerate(v.claim_tables(doc)):
         field_ = f"claims[{i}]"
-        v.keys(c, _CLAIM_KEYS, "claims", i, field_)
-        text = v.typed(c, "text", "str", "claims", i, field_)
-        quantity = v.typed(c, "quantity", "str", "claims", i, field_)
-        if quantity not in QUANTITIES:
-            v.fail(f"{field_}.quantity", f"unknown quantity '{quantity}' (known: {', '.join(QUANTITIES)})",
-                   "claims", "quantity", i)
-        pair = v.typed(c, "variants", "strlist", "claims", i, field_, default=())
+        cl = v.section(c, CLAIM, "claims", i, field_)
+        quantity, pair, expect, rng = cl["quantity"], cl["variants"], cl["expect"], cl["range"]
         need = VARIANT_QUANTITIES.get(quantity, 0)
         if len(pair) != need or any(x not in variants for x in pair):
             v.fail(f"{field_}.variants", f"{quantity} takes {need} of run.variants ({', '.join(variants)}), "
                    f"got {show(list(pair))}", "claims", "variants", i)
-        expect = v.typed(c, "expect", "str", "claims", i, field_)
-        if expect not in EXPECTATIONS:
-            v.fail(f"{field_}.expect", f"unknown expectation '{expect}' (known: {', '.join(EXPECTATIONS)})",
-                   "claims", "expect", i)
-        value = v.typed(c, "value", "number", "claims", i, field_)
-        tolerance = v.typed(c, "tolerance", "number", "claims", i, field_)
-        within = v.typed(c, "within", "number", "claims", i, field_)
-        rng = c.get("range")
         if expect == "between":
             if (not isinstance(rng, list) or len(rng) != 2 or any(isinstance(e, bool) or not isinstance(e, (int, float))
                                                                  for e in rng) or not rng[0] <= rng[1]):
                 v.fail(f"{field_}.range", f"'between' needs range = [lo, hi] with lo <= hi, got {show(rng)}",
                        "claims", "range" if "range" in c else None, i)
             rng = (float(rng[0]), float(rng[1]))
-        elif value is None:
+        elif cl["value"] is None:
             v.fail(f"{field_}.value", f"'{expect}' needs value = a number", "claims", None, i)
-        if tolerance is not None and within is not None:
+        if cl["tolerance"] is not None and cl["within"] is not None:
             v.fail(f"{field_}.within", "give tolerance (a fraction) or within (clocks), not both", "claims", "within", i)
-        if tolerance is not None and not 0 <= tolerance < 1:
-            v.fail(f"{field_}.tolerance", f"must be in [0, 1), got {tolerance}", "claims", "tolerance", i)
-        if within is not None and within < 0:
-            v.fail(f"{field_}.within", f"must be >= 0, got {within}", "claims", "within", i)
-        cover = v.typed(c, "cpus", "strlist", "claims", i, field_, default=())
-        families = v.typed(c, "families", "strlist", "claims", i, field_, default=())
-        if not cover and not families:
+        if not cl["cpus"] and not cl["families"]:
             v.fail(field_, "names no CPU: give cpus = [...] and/or families = [...]", "claims", None, i)
-        for entry in cover:
-            if entry not in known_cpus:
-                v.fail(f"{field_}.cpus", f"unknown CPU preset '{entry}' (known: {', '.join(known_cpus)})",
-                       "claims", "cpus", i)
-        v.families(field_, families, i)
-        claim = TextureClaim(text, quantity, tuple(pair), expect, value, tolerance, within,
-                             rng if expect == "between" else None, tuple(cover), tuple(families))
-        v.require_cover(field_, i, machines, lambda preset, memory, family: claim.covers(preset, family),
-                        claim.cpus, claim.families)
+        v.claim_cpus(field_, i, cl["cpus"])
+        v.families(field_, cl["families"], i)
+        claim = TextureClaim(cl["text"], tuple(pair), expect, cl["tolerance"], cl["cpus"], cl["families"],
+                             quantity=quantity, value=cl["value"], within=cl["within"],
+                             range=rng if expect == "between" else None)
+        v.require_cover(field_, i, machines, claim)
         claims.append(claim)
 
-    scene = TextureScene(path, name, description, width, height, seed,
-                         columns, rows, w_range, st_range, tuple(variants), tuple(machines), stride, tuple(claims))
+    scene = TextureScene(path, sc["name"], sc["description"], width, height, ge["seed"], ge["columns"], ge["rows"],
+                         w_range, st_range, tuple(variants), tuple(machines), stride, tuple(claims))
     try:  # the 24.8 variant needs v inside the texture: say so now, not after the emulation
         params = F.span_params(scene.build_geometry(), width, height)
         for var in variants:
@@ -558,7 +509,7 @@ def evaluate(result: TextureResult) -> list[dict]:
     for claim in result.scene.claims:
         per_cpu = []
         for key in result.keys:
-            if not claim.covers(MachineKey.parse(key).label, family_of(key)):
+            if not claim.covers(MachineKey.parse(key).label, None, family_of(key)):
                 continue
             x = quantity(result, claim, key)
             ok = claim.holds(x)
@@ -569,9 +520,9 @@ def evaluate(result: TextureResult) -> list[dict]:
         overall = verdicts.pop() if len(verdicts) == 1 else ("mixed (see each machine)" if per_cpu else "not checked")
         run_presets = {MachineKey.parse(k).label for k in result.keys}
         missing = [m.label for m in result.scene.machines if m.preset not in run_presets
-                   and claim.covers(m.preset, family_of(m.label))]
+                   and claim.covers(m.preset, None, family_of(m.label))]
         out.append({"text": claim.text, "quantity": claim.quantity, "claim": claim.describe(),
-                    "covers": claim.coverage(), "verdict": overall, "holds": bool(per_cpu) and all(e["holds"] for e in per_cpu),
+                    "covers": claim.describe_coverage(), "verdict": overall, "holds": bool(per_cpu) and all(e["holds"] for e in per_cpu),
                     "per_cpu": per_cpu, "not_checked": missing})
     return out
 
@@ -650,10 +601,8 @@ def findings(result: TextureResult) -> list[str]:
 def to_markdown(result: TextureResult, png_name: str | None) -> str:
     s = result.scene
     keys = _ordered_keys(result)
-    parts = [f"# {s.name}", ""] + verdict_summary(evaluate(result), _label, findings(result)[:2])
-    parts += [s.description.strip(), "",
-             f"Generated by `retrosim report {s.name}` from `scenes/{s.name}.toml`; do not edit.", "",
-             f"Workload: {s.width}x{s.height} pixels, {s.columns}x{s.rows} jittered grid cells of two perspective "
+    parts = report_head(s, evaluate(result), _label, findings(result)[:2])
+    parts += [f"Workload: {s.width}x{s.height} pixels, {s.columns}x{s.rows} jittered grid cells of two perspective "
              f"textured triangles each (vertex depths {s.w_range[0]:g}..{s.w_range[1]:g}, texture coordinates "
              f"{s.st_range[0]:g}..{s.st_range[1]:g} texels), a 256x256 8-bit texture, {result.spans:,} spans, "
              f"{result.pixels:,} pixels, no overdraw (the article's span sorter hands the renderer visible spans "
@@ -840,3 +789,10 @@ def summary_tables(result: TextureResult) -> list:
             per = ", ".join(f"{f.upper()} {a}/{b}" for f, (a, b) in sorted(counts.items()))
             out.append(Padding(Text(f"- {per}: {c['text']}"), (0, 0, 0, 3)))  # counts first: the text wraps
     return out
+
+
+def sweep_emulation(scene: TextureScene, variant: str):
+    """The variant drawing the timed spans (every timing_stride-th), as run_scene times it; the units
+    are the timed pixels."""
+    timed = timed_spans(scene, F.span_params(scene.build_geometry(), scene.width, scene.height))
+    return emulate_variant(variant, timed, scene.width, scene.height, F.texture()), timed.pixels

@@ -182,3 +182,11 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
                                       **{f"{f} step/depth": r[f"{f}_worst_relative"] for f in table.step}}
                                      for r in table.rows()]}
     return result
+
+
+def sweep_emulation(scene: Scene, variant: str):
+    """The variant's frames, as run_scene draws them; the units are the pixels of a frame."""
+    geometry = scene.build_geometry()
+    spans = raster.rasterize(geometry, scene.width, scene.height)
+    run = draw_frames(spans, variant, scene.width, scene.height, scene.frames, geometry.colour)
+    return run.emulation, run.pixels

@@ -1,6 +1,6 @@
 """Z-buffer scene files (scenes/*.toml, [scene] kind = "zbuffer" or none): the format, a loader
 that validates it, and what a scene needs. The kind's other parts: runner.py runs it, report.py
-reports it, kind.py joins them behind the scene-kind interface (sim.scenes.kind).
+reports it; sim.scenes.registry joins them behind the scene-kind interface (sim.scenes.kind).
 
 Format::
 
@@ -49,14 +49,16 @@ Format::
     expect = "slower"               # required: similar | faster | slower (variants[0] than variants[1])
     tolerance = 0.0                 # optional fraction
     cpus = ["k6-2-300", "pentium2-233:edo"]   # the machines its words cover: presets (any memory)
-    families = ["k6"]               # ... and/or whole families (p5 p6 k6)
+    families = ["FAMILY"]           # ... and/or whole CPU families by name (see `retrosim cpus`)
     memories = ["sdram-pc100"]      # optional: only with these memory presets
     # (cpu = "..." is accepted as a one-entry cpus). Every entry of cpus and families must match a
     # machine of run.cpus or run.machine (within memories): a claim naming one the scene does not
     # run is refused, so no part of it goes unchecked (sim.scenes.claims.unrun).
 
 Generators are those of sim.scenes.raster (random_scene, coplanar_far_scene, ...) with the keys above as
-their arguments. Metrics: "visibility" (wrong winners), "depth_error" (stored vs exact depth),
+their arguments. [scene] and [geometry], the frame, are declared and read in sim.scenes.geometry (the
+sort kind reads a Z-buffer scene's frame for its depth keys); [run] and [[claims]] here (the claims
+are sim.scenes.claims.Claim). Metrics: "visibility" (wrong winners), "depth_error" (stored vs exact depth),
 "fp16_precision" (the format table, needs no frame), "z_fighting" (coplanar_far only).
 
 Every problem raises one :class:`SceneError` (sim.scenes.schema) whose message names the file (with
@@ -66,25 +68,25 @@ variant 'z24' ...``.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from sim.cpus.machine import MachineKey
 from sim.errors import RetrosimError
+from sim.scenes import geometry as geometry_schema
 from sim.scenes import raster
-from sim.scenes.schema import CpuChoice, SceneError, Validator, show, toml_type
+from sim.scenes.claims import Claim
+from sim.scenes.geometry import GeometrySpec, read_geometry
+from sim.scenes.schema import CLAIM_CPUS, CLAIM_FAMILIES, CLAIM_TEXT, CpuChoice, Field, SceneError, Validator, show, toml_type
 
 VARIANTS = raster.VARIANTS
 METRICS = ("visibility", "depth_error", "fp16_precision", "z_fighting")
-GENERATORS = ("random", "coplanar_far", "steep", "near_far", "tiny", "triangles")
 SPAN_RECORD_BYTES = 32  # kernels/zbuffer/draw.inc: 8 dwords per span
 ARENA_ALIGN = 64        # sim.guest.emu.Arena.alloc's default alignment
 ZBUF_BYTES = {v: raster.ZBUF_DTYPE[v].itemsize for v in VARIANTS}
 KERNEL_DIR = "kernels/zbuffer"
-MAX_COORDINATE = 1 << 20  # screens are at most 32768 wide; the plane math stays exact far beyond
 # Host memory a scene may take. Every frame is traced (about 14 instructions per pixel visit and 50
 # per span for fp16t, the costliest variant, about 6.4 trace bytes each) and then timed, and the
 # runner holds a few int64/float64 arrays per visit. Measured peak RSS (issue 26): 640x480 at depth
@@ -98,68 +100,22 @@ DEFAULT_MAX_VISITS = 8_000_000
 VISIT_BYTES = 220
 SPAN_VISITS = 4  # a span's driver overhead (~50 instructions) in pixel visits (~14 each)
 
-# key -> (kind, required) per table; kinds: int, number, str, strlist, range, tables
-_SCENE_KEYS = {"kind": ("str", False), "name": ("str", True), "description": ("str", False), "width": ("int", True), "height": ("int", True)}
-_GENERATOR_KEYS = {
-    "random": {"seed": ("int", True), "triangles": ("int", True), "depth_complexity": ("number", True),
-               "z_range": ("range", False)},
-    "coplanar_far": {"seed": ("int", True), "pairs": ("int", False), "z_range": ("range", False),
-                     "separation": ("number", False)},
-    "steep": {"seed": ("int", True), "triangles": ("int", False), "z_range": ("range", False)},
-    "near_far": {"seed": ("int", True), "triangles": ("int", False)},
-    "tiny": {"seed": ("int", True), "triangles": ("int", False)},
-    "triangles": {"triangle": ("tables", True)},
-}
-_TRIANGLE_KEYS = {"xy": ("any", True), "z": ("any", True), "colour": ("int", False)}
-_RUN_KEYS = {"variants": ("strlist", True), "cpus": ("strlist", True), "metrics": ("strlist", False),
-             "frames": ("int", False), "machine": ("tables", False)}
-_MACHINE_KEYS = {"cpu": ("str", True), "memory": ("str", False), "set": ("any", True)}
-_CLAIM_KEYS = {"text": ("str", True), "cpu": ("str", False), "cpus": ("strlist", False),
-               "families": ("strlist", False), "memories": ("strlist", False), "variants": ("strlist", True),
-               "expect": ("str", True), "tolerance": ("number", False)}
 EXPECTATIONS = ("similar", "faster", "slower")
+RUN = (Field("variants", "strlist", True, nonempty=True, unique=True, choices=VARIANTS, noun="variant"),
+       Field("cpus", "strlist", True, nonempty=True, unique=True, doc="CPU preset[:memory preset]"),
+       Field("metrics", "strlist", default=(), unique=True, choices=METRICS, noun="metric"),
+       Field("frames", "int", default=1, min=1, max=1000, doc="frames drawn in one machine state"),
+       Field("machine", "tables", default=(), doc="[[run.machine]]: a CPU preset with overrides"))
+MACHINE = (Field("cpu", "str", True), Field("memory", "str"), Field("set", "any", True, doc="{ field = value }"))
+CLAIM = (CLAIM_TEXT, Field("cpu", "str", doc="a one-entry cpus"),
+         replace(CLAIM_CPUS, doc="presets (any memory) or preset:memory"), CLAIM_FAMILIES,
+         Field("memories", "strlist", default=(), doc="only with these memory presets"),
+         Field("variants", "strlist", True), Field("expect", "str", True, choices=EXPECTATIONS, noun="expectation"),
+         Field("tolerance", "number", default=0.0, span=(0, 1, "in [0, 1)")))
 
 
 # ---------------------------------------------------------------------------------------------
 # the parsed scene
-
-@dataclass(frozen=True)
-class TriangleSpec:
-    xy: tuple[tuple[float, float], tuple[float, float], tuple[float, float]]
-    z: tuple[float, float, float]
-    colour: int | None = None
-
-
-@dataclass(frozen=True)
-class GeometrySpec:
-    """[geometry]: the generator and its arguments (None: the generator's default)."""
-
-    generator: str
-    seed: int | None = None
-    triangles: int | None = None
-    depth_complexity: float | None = None
-    z_range: tuple[float, float] | None = None
-    pairs: int | None = None
-    separation: float | None = None
-    triangle_list: tuple[TriangleSpec, ...] = ()
-
-    def build(self, width: int, height: int) -> raster.Geometry:
-        g = self.generator
-        opt = {k: v for k, v in (("z_range", self.z_range), ("separation", self.separation),
-                                 ("pairs", self.pairs)) if v is not None}
-        if g == "random":
-            return raster.random_scene(width, height, self.triangles, self.depth_complexity, self.seed, **opt)
-        if g == "coplanar_far":
-            return raster.coplanar_far_scene(width, height, seed=self.seed, **opt)
-        if g == "triangles":
-            t = self.triangle_list
-            colours = np.array([c.colour if c.colour is not None else i + 1 for i, c in enumerate(t)], np.int64)
-            return raster.Geometry(np.array([c.xy for c in t], np.float64).reshape(-1, 3, 2),
-                                   np.array([c.z for c in t], np.float64).reshape(-1, 3), colours)
-        if self.triangles is not None:
-            opt["triangles"] = self.triangles
-        return raster.GENERATORS[g](width, height, seed=self.seed, **opt)
-
 
 @dataclass(frozen=True)
 class RunSpec:
@@ -224,36 +180,6 @@ def frame_arena_bytes(width: int, height: int, spans: int, zbuf_bytes_per_pixel:
 
 
 @dataclass(frozen=True)
-class Claim:
-    """A published claim the report checks: variants[0] is `expect` (similar / faster / slower)
-    than variants[1], within `tolerance` (a fraction), on every machine its words cover.
-
-    Coverage: ``cpus`` (``preset`` = that preset with any memory, or ``preset:memory``) and
-    ``families`` (every preset whose cpu_model is one of them), narrowed by ``memories`` when
-    given. The report checks the claim on each covered machine of the run and names the covered
-    machines of the scene that the run left out ("not checked (CPU not in this run)")."""
-
-    text: str
-    variants: tuple[str, str]
-    expect: str
-    tolerance: float = 0.0
-    cpus: tuple[str, ...] = ()
-    families: tuple[str, ...] = ()
-    memories: tuple[str, ...] = ()
-
-    def covers(self, preset: str, memory: str, family: str) -> bool:
-        if self.memories and memory not in self.memories:
-            return False
-        preset = MachineKey(preset).preset  # a preset with overrides (run.machine) is still that preset
-        return (family in self.families or preset in self.cpus or f"{preset}:{memory}" in self.cpus)
-
-    def describe_coverage(self) -> str:
-        parts = list(self.cpus) + [f"every {f.upper()} preset" for f in self.families]
-        text = ", ".join(parts)
-        return text + (f" (memory {', '.join(self.memories)})" if self.memories else "")
-
-
-@dataclass(frozen=True)
 class Scene:
     path: Path
     name: str
@@ -310,12 +236,6 @@ class Scene:
         )
 
 
-def _numbers(v, shape: tuple[int, ...]) -> bool:
-    if len(shape) == 0:
-        return not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v)
-    return isinstance(v, list) and len(v) == shape[0] and all(_numbers(x, shape[1:]) for x in v)
-
-
 def max_visits() -> int:
     import os
 
@@ -365,115 +285,26 @@ def load(path: Path, text: str, doc: dict) -> Scene:
     from sim.guest.emu import DEFAULT_ARENA
 
     v = Validator(path, text)
-    # [scene]
-    sc, name, description = v.scene_header(doc, "zbuffer", ("scene", "geometry", "run", "claims"), _SCENE_KEYS)
-    width = v.typed(sc, "width", "int", "scene")
-    height = v.typed(sc, "height", "int", "scene")
-    v.at_least(width, 1, "scene.width", "scene", "width")
-    v.at_least(height, 1, "scene.height", "scene", "height")
-    v.at_most(width, 1 << 15, "scene.width", "scene", "width")
-    v.at_most(height, 1 << 15, "scene.height", "scene", "height")
-
-    # [geometry]
-    ge = v.table(doc, "geometry")
-    if "generator" not in ge:
-        v.fail("geometry.generator", f"missing required field (one of: {', '.join(GENERATORS)})", "geometry")
-    gen = v.typed(ge, "generator", "str", "geometry")
-    if gen not in GENERATORS:
-        v.fail("geometry.generator", f"unknown generator '{gen}' (known: {', '.join(GENERATORS)})",
-               "geometry", "generator")
-    allowed = {"generator": ("str", True), **_GENERATOR_KEYS[gen]}
-    v.keys(ge, allowed, "geometry", note=f" for generator '{gen}'")
-    vals = {k: v.typed(ge, k, kind, "geometry") for k, (kind, _) in _GENERATOR_KEYS[gen].items()}
-    if vals.get("seed") is not None and not 0 <= vals["seed"] < 1 << 63:
-        v.fail("geometry.seed", f"must be between 0 and 2^63 - 1, got {vals['seed']}", "geometry", "seed")
-    max_tri = raster.MAX_TRIANGLES
-    if vals.get("triangles") is not None:
-        v.at_least(vals["triangles"], 1, "geometry.triangles", "geometry", "triangles")
-        v.at_most(vals["triangles"], max_tri, "geometry.triangles", "geometry", "triangles",
-                  " (colours are 16-bit: triangle index + 1)")
-    if vals.get("pairs") is not None:
-        v.at_least(vals["pairs"], 1, "geometry.pairs", "geometry", "pairs")
-        v.at_most(vals["pairs"], max_tri // 2, "geometry.pairs", "geometry", "pairs")
-    if vals.get("depth_complexity") is not None and not 0 < vals["depth_complexity"] <= max_tri:
-        # a pixel is drawn at most once per triangle: beyond that the target is unreachable (and
-        # near the float maximum the generator's area arithmetic overflows)
-        v.fail("geometry.depth_complexity", f"must be > 0 and at most {max_tri} (a pixel is drawn at most once "
-               f"per triangle), got {vals['depth_complexity']}", "geometry", "depth_complexity")
-    if gen == "coplanar_far" and vals.get("separation") is not None:
-        lo, hi = vals.get("z_range") or (0.85, 0.95)
-        if not 0 < vals["separation"] < hi - lo:
-            v.fail("geometry.separation", f"must be > 0 and smaller than the z range ({hi - lo:g}), "
-                   f"got {vals['separation']}", "geometry", "separation")
-    triangle_list: list[TriangleSpec] = []
-    if gen == "triangles":
-        tables = vals.pop("triangle")
-        if not tables:
-            v.fail("geometry.triangle", "needs at least one [[geometry.triangle]]", "geometry")
-        if len(tables) > max_tri:
-            v.fail("geometry.triangle", f"{len(tables)} triangles: at most {max_tri}", "geometry")
-        for i, t in enumerate(tables):
-            tname, field = "geometry.triangle", f"geometry.triangle[{i}]"
-            v.keys(t, _TRIANGLE_KEYS, tname, i, field)
-            if not _numbers(t["xy"], (3, 2)):
-                v.fail(f"{field}.xy", f"expected three [x, y] pairs of finite numbers, got {show(t['xy'])}",
-                       tname, "xy", i)
-            if any(abs(float(c)) > MAX_COORDINATE for p in t["xy"] for c in p):
-                # the plane setup multiplies coordinate differences: far beyond the screen they overflow
-                v.fail(f"{field}.xy", f"coordinates must be within +-{MAX_COORDINATE:,} pixels, got {show(t['xy'])}",
-                       tname, "xy", i)
-            if not _numbers(t["z"], (3,)):
-                v.fail(f"{field}.z", f"expected three finite numbers, got {show(t['z'])}", tname, "z", i)
-            if not all(0.0 <= float(z) < 1.0 for z in t["z"]):
-                v.fail(f"{field}.z", f"depths must be in [0, 1), got {show(t['z'])}", tname, "z", i)
-            colour = v.typed(t, "colour", "int", tname, i, field)
-            if colour is not None and not 1 <= colour <= 0xFFFF:
-                v.fail(f"{field}.colour", f"must be 1..65535 (0 means 'no triangle'), got {colour}", tname, "colour", i)
-            triangle_list.append(TriangleSpec(tuple(tuple(float(c) for c in p) for p in t["xy"]),
-                                              tuple(float(z) for z in t["z"]), colour))
-    geometry = GeometrySpec(gen, triangle_list=tuple(triangle_list), **vals)
+    sc = v.scene_header(doc, geometry_schema.KIND, geometry_schema.TABLES, geometry_schema.SCENE)
+    name, description, width, height = sc["name"], sc["description"], sc["width"], sc["height"]
+    geometry = read_geometry(v, doc)
+    gen, triangle_list = geometry.generator, geometry.triangle_list
 
     # [run]
-    ru = v.table(doc, "run")
-    v.keys(ru, _RUN_KEYS, "run")
-    variants = v.typed(ru, "variants", "strlist", "run")
-    cpus = v.typed(ru, "cpus", "strlist", "run")
-    metrics = v.typed(ru, "metrics", "strlist", "run", default=())
-    frames = v.typed(ru, "frames", "int", "run", default=1)
-    for key, items in (("variants", variants), ("cpus", cpus)):
-        if not items:
-            v.fail(f"run.{key}", "must not be empty", "run", key)
-    for key, items in (("variants", variants), ("cpus", cpus), ("metrics", metrics)):
-        dup = [x for i, x in enumerate(items) if x in items[:i]]
-        if dup:
-            v.fail(f"run.{key}[{items.index(dup[0], items.index(dup[0]) + 1)}]", f"'{dup[0]}' is listed twice",
-                   "run", key)
-    for i, var in enumerate(variants):
-        if var not in VARIANTS:
-            v.fail(f"run.variants[{i}]", f"unknown variant '{var}' (known: {', '.join(VARIANTS)})", "run", "variants")
+    ru = v.section(v.table(doc, "run"), RUN, "run")
+    variants, cpus, metrics, frames = ru["variants"], ru["cpus"], ru["metrics"], ru["frames"]
     for i, met in enumerate(metrics):
-        if met not in METRICS:
-            v.fail(f"run.metrics[{i}]", f"unknown metric '{met}' (known: {', '.join(METRICS)})", "run", "metrics")
         if met == "z_fighting" and gen != "coplanar_far":
             v.fail(f"run.metrics[{i}]", f"'z_fighting' needs coplanar pairs: generator 'coplanar_far', not '{gen}'",
                    "run", "metrics")
     from sim.cpus.overrides import machine_label
 
     known_cpus, known_mem = cpu_presets.available(), memory_presets()
-    machines = []
-
-    def machine(label: str, memory: str | None, field: str, table: str, key: str, index=None):
-        v.machine(machines, label, memory, field, table, key, index)
-
-    for i, entry in enumerate(cpus):
-        key = MachineKey.parse(entry)
-        machine(key.label, key.memory, f"run.cpus[{i}]", "run", "cpus")
-    for i, table in enumerate(v.typed(ru, "machine", "tables", "run", default=[])):
+    machines = v.machines(cpus)
+    for i, table in enumerate(ru["machine"]):
         field = f"run.machine[{i}]"
-        v.keys(table, _MACHINE_KEYS, "run.machine", i, field)
-        cpu = v.typed(table, "cpu", "str", "run.machine", i, field)
-        memory = v.typed(table, "memory", "str", "run.machine", i, field)
-        sets = table["set"]
+        m = v.section(table, MACHINE, "run.machine", i, field)
+        cpu, memory, sets = m["cpu"], m["memory"], m["set"]
         if not isinstance(sets, dict) or not sets:
             v.fail(f"{field}.set", f"expected a non-empty table of overrides, got {toml_type(sets)} {show(sets)}",
                    "run.machine", "set", i)
@@ -495,17 +326,15 @@ def load(path: Path, text: str, doc: dict) -> Scene:
             label = machine_label(cpu, sets)
         except RetrosimError as e:
             v.fail(f"{field}.set", str(e), "run.machine", "set", i)
-        machine(label, memory, field, "run.machine", "set", i)
-    v.at_least(frames, 1, "run.frames", "run", "frames")
-    v.at_most(frames, 1000, "run.frames", "run", "frames")
+        v.machine(machines, label, memory, field, "run.machine", "set", i)
 
     # does a frame fit in the guest arena? First with a bound needing no geometry (every triangle
     # spans every row); only when that is too much, count the rows the triangles actually cross.
     zbytes = max(ZBUF_BYTES[x] for x in variants)
     widest = next(x for x in variants if ZBUF_BYTES[x] == zbytes)
-    ntri = len(triangle_list) if gen == "triangles" else (vals.get("triangles") or 0)
+    ntri = len(triangle_list) if gen == "triangles" else (geometry.triangles or 0)
     if gen == "coplanar_far":
-        ntri = 2 * (vals.get("pairs") or 40)
+        ntri = 2 * (geometry.pairs or 40)
     elif not ntri:
         ntri = {"steep": 40, "near_far": 200, "tiny": 2000}[gen]
     span_bound = ntri * height
@@ -529,15 +358,9 @@ def load(path: Path, text: str, doc: dict) -> Scene:
     claims = []
     for i, c in enumerate(v.claim_tables(doc)):
         field = f"claims[{i}]"
-        v.keys(c, _CLAIM_KEYS, "claims", i, field)
-        text = v.typed(c, "text", "str", "claims", i, field)
-        cpu = v.typed(c, "cpu", "str", "claims", i, field)
-        cover = list(v.typed(c, "cpus", "strlist", "claims", i, field, default=()))
-        families = v.typed(c, "families", "strlist", "claims", i, field, default=())
-        memories = v.typed(c, "memories", "strlist", "claims", i, field, default=())
-        pair = v.typed(c, "variants", "strlist", "claims", i, field)
-        expect = v.typed(c, "expect", "str", "claims", i, field)
-        tolerance = v.typed(c, "tolerance", "number", "claims", i, field, default=0.0)
+        cl = v.section(c, CLAIM, "claims", i, field)
+        cpu, cover, families, memories = cl["cpu"], list(cl["cpus"]), cl["families"], cl["memories"]
+        pair, expect = cl["variants"], cl["expect"]
         if cpu is not None:
             cover.insert(0, cpu)
         if not cover and not families:
@@ -559,13 +382,8 @@ def load(path: Path, text: str, doc: dict) -> Scene:
         if len(pair) != 2 or any(x not in variants for x in pair):
             v.fail(f"{field}.variants", f"expected two of run.variants ({', '.join(variants)}), got {show(list(pair))}",
                    "claims", "variants", i)
-        if expect not in EXPECTATIONS:
-            v.fail(f"{field}.expect", f"unknown expectation '{expect}' (known: {', '.join(EXPECTATIONS)})",
-                   "claims", "expect", i)
-        if not 0 <= tolerance < 1:
-            v.fail(f"{field}.tolerance", f"must be in [0, 1), got {tolerance}", "claims", "tolerance", i)
-        claim = Claim(text, (pair[0], pair[1]), expect, tolerance, tuple(cover), tuple(families), tuple(memories))
-        v.require_cover(field, i, machines, claim.covers, claim.cpus, claim.families, claim.memories)
+        claim = Claim(cl["text"], (pair[0], pair[1]), expect, cl["tolerance"], tuple(cover), families, memories)
+        v.require_cover(field, i, machines, claim)
         claims.append(claim)
 
     return Scene(path, name, description, width, height, geometry,
