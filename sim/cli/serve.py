@@ -35,6 +35,7 @@ import os
 import re
 import resource
 import select
+import shutil
 import signal
 import socket
 import stat
@@ -235,16 +236,24 @@ class Worker:
                 os.close(w)
                 raise Busy("the server is stopping")
             limit = _vm_bytes() + (self.memory_mb << 20)
+            # a stop signal must not reach the child before it has its own handlers: inherited, the
+            # server's would raise inside fork's after-fork hooks (a traceback from logging's lock)
+            blocked = signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
             pid = os.fork()
             if pid:
+                signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
                 self.children.add(pid)
         if pid == 0:  # the child: bounded, answers through the pipe, never returns
-            code = 0
+            code, scratch = 0, None
             try:
                 os.close(r)
                 os.setpgid(0, 0)  # its own group: a stop reaches the assembler it may be running too
-                signal.signal(signal.SIGTERM, _stop)  # unwinds, so temporary files are removed
+                # every temporary file of the request lives in one folder, which a stop removes whole
+                scratch = tempfile.mkdtemp(prefix="retrosim-request-")
+                tempfile.tempdir = scratch
+                signal.signal(signal.SIGTERM, lambda signum, frame: _stop(scratch, signum))
                 signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the server's
+                signal.pthread_sigmask(signal.SIG_SETMASK, blocked)  # a stop sent meanwhile arrives now
                 _close_sockets()
                 try:
                     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
@@ -266,6 +275,8 @@ class Worker:
             except BaseException:  # noqa: BLE001
                 code = 1
             finally:
+                if scratch:
+                    shutil.rmtree(scratch, ignore_errors=True)
                 os._exit(code)
         os.close(w)
         try:
@@ -315,8 +326,15 @@ class Worker:
                     "status": 422}
 
 
-def _stop(signum, frame):
-    raise SystemExit(128 + signum)
+STOP_SIGNALS = {signal.SIGTERM, signal.SIGINT}
+
+
+def _stop(scratch: str, signum: int) -> None:
+    """A stopped request: its temporary files go and it exits at once. (Not an exception to unwind:
+    one raised inside an at-fork hook, such as logging's when the child starts the assembler, is
+    only printed and dropped.)"""
+    shutil.rmtree(scratch, ignore_errors=True)
+    os._exit(128 + signum)
 
 
 def _stop_group(pid: int, grace: float = 1.0) -> int:
