@@ -28,6 +28,7 @@ class P5View(FamilyView):
         "x87, no FXCH", "MMX unit", "MMX mem in U", "branch"))
     timeline_legend = ("D the previous group left the pipe, R issue (after AGI, prefix, x87 waits), E execute, "
                        "C done; in-order U/V pipes; [alone: ...] why it did not pair (in full under 'alone because')")
+    timeline_cause_words = ""  # the legend says what [alone: ...] means
     explain_columns = (("pc", "right"), ("instruction", "left"), ("runs", "right"), ("class", "left"),
                        ("U", "right"), ("V", "right"), ("clk", "right"), ("agi", "right"), ("pfx", "right"),
                        ("fpu", "right"), ("mem", "right"), ("mis", "right"), ("bank", "right"), ("wbuf", "right"),
@@ -61,6 +62,19 @@ class P5View(FamilyView):
 
     def stall_labels(self, counters: dict) -> list[tuple[str, str]]:
         return [(k, k[6:].replace("_", " ")) for k in self.stall_counters if k in counters]
+
+    def resource_pressure(self, counters: dict) -> dict[str, float]:
+        """Instructions per pipe: every instruction issues in U or V."""
+        return {"U": counters.get("u_pipe", 0), "V": counters.get("v_pipe", 0)}
+
+    pressure_heading = "instructions per pipe"
+
+    def counter_words(self, counters: dict) -> dict[str, str]:
+        """Every family's, with pipes and pairing for ports and ops (a P5 instruction is its op)."""
+        words = {k: w for k, w in super().counter_words(counters).items() if k != "uops" and not k.startswith("port")}
+        words.update({"pairs": "U/V pairs", "alone": "instructions alone", "u_pipe": "U pipe", "v_pipe": "V pipe",
+                      "bus_writes": "bus writes"})
+        return {k: w for k, w in words.items() if k in counters}
 
     def bottleneck(self, counters: dict) -> str:
         """Pairing when more instructions ran alone than any stall kind cost cycles ("U/V pairing:
