@@ -131,10 +131,10 @@ def test_bottleneck_names_the_limit_in_each_familys_words():
     assert p6.bottleneck(ports) == "ports p0/p1 saturated"
     assert p6.bottleneck({**ports, "port1": 50}) == "ports p0 saturated"  # p1 well below p0
     # a bigger stall kind wins, in words that say what it is (a chain of operand latencies)
-    assert p6.bottleneck({**ports, "stall_dependency": 31}) == "dependency chain (operand latency)"
+    assert p6.bottleneck({**ports, "stall_dependency": 31}) == "dependency chain"
     # a port busy on (nearly) every cycle is the throughput bound, whatever the stall counters say
     assert p6.bottleneck({**ports, "stall_dependency": 31, "cycles": 100}) == "ports p0/p1 saturated"
-    assert p6.bottleneck({**ports, "stall_dependency": 31, "cycles": 200}) == "dependency chain (operand latency)"
+    assert p6.bottleneck({**ports, "stall_dependency": 31, "cycles": 200}) == "dependency chain"
     assert p6.bottleneck({"stall_partial_register": 9, "stall_dependency": 3}).startswith("partial-register stalls")
     assert k6.bottleneck({**ports, "port0": 10}) == "units Y saturated"  # the K6's words for port1
     assert k6.bottleneck({"stall_decode": 9, "vector_cycles": 4}) == "decode: vector-decoded"

@@ -455,12 +455,17 @@ def _loop_ab(runs, iterations, timeline, align, offset, detail, brief, as_json) 
                           {"A": "A", "B": "B", "same": "neither"}[e["faster"]],
                           escape(", ".join(f"{d['words']} {d['a_minus_b']:+g}" for d in e["differences"]) or "none"))
         console.print(table)
+        _print_lines([AB_NOTE])
     depth = "all" if detail else "summary"
     for (sa, sb), c in zip(pairs, comparison):
         for side, section, name in (("A", sa, name_a), ("B", sb, name_b)):
             console.print(f"[bold]{side}[/]: {escape(c[side.lower()])}")
             _print_loop_section(section["doc"], section["timings"], name, iterations, timeline, align, offset,
                                 "summary" if brief else depth)
+
+
+AB_NOTE = ("differs most: the per-iteration counters of the two in the family's words, largest difference first; "
+           "stall cycles overlap, so the stall that differs most need not be the one that costs the cycles")
 
 
 def _print_loop_section(doc, timings, name, iterations, timeline, align, offset, depth) -> None:
@@ -472,7 +477,7 @@ def _print_loop_section(doc, timings, name, iterations, timeline, align, offset,
 
     not_timed = doc["not_timed"]
     console.print(views.loop_summary_table(
-        f"{name}: steady state per iteration (iterations {iterations // 2}..{iterations})", timings))
+        f"{name}: steady state per iteration (iterations {iterations // 2}..{iterations})", timings, console.width))
     limits = {t.cpu: views.caveats(t.result) for t in timings}
     place = _placement(timings, align, offset)
     lines = [f"body at {place['address']} ({place['alignment']}-byte aligned, {place['past_boundary']} past a "

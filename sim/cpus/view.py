@@ -108,7 +108,7 @@ class FamilyView:
                 for k, label, _ in SUMMARY_STALLS if k in counters]
 
     # bottleneck words of the stall kinds whose summary label alone says too little
-    stall_words = {"stall_dependency": "dependency chain (operand latency)",
+    stall_words = {"stall_dependency": "dependency chain",
                    "stall_partial_register": "partial-register stalls", "stall_memory": "memory: L1 misses",
                    "stall_store_forward": "store-to-load forwarding", "stall_store_buffer": "store buffer full",
                    "stall_fetch": "instruction fetch", "stall_mispredict": "branches: front-end restarts"}

@@ -310,23 +310,35 @@ def resource_pressure(result: TimingResult, counters: dict) -> dict[str, float]:
     return {name: round(float(n), 4) for name, n in family_view(result).resource_pressure(counters).items()}
 
 
-def loop_summary_table(title: str, timings) -> Table:
+def loop_summary_table(title: str, timings, width: int = 10_000) -> Table:
     """One line per CPU: cycles, instructions and uops per iteration, IPC, the share timed with
-    estimated rows, the bottleneck in the family's words and the biggest stall kinds."""
-    table = Table(title=escape(title))
-    for col in ("cpu", "cycles", "instr", "uops", "IPC", "est.", "bottleneck", "main stalls (cycles)"):
-        table.add_column(col, justify="left" if col in ("cpu", "bottleneck", "main stalls (cycles)") else "right",
-                         overflow="fold")  # a machine label in full: k6-233{write_allocate.mode=full}
+    estimated rows, the bottleneck in the family's words and the biggest stall kinds (left out when
+    the table would not fit `width` columns: the bottleneck names the biggest)."""
+    cols = ("cpu", "cycles", "instr", "uops", "IPC", "est.", "bottleneck", "main stalls (cycles)")
+    rows = []
     for t in timings:
         p = t.per_iteration
         stalls = sorted(((p[k], label) for k, label in stall_labels(t.result, p) if p[k]),
                         key=lambda x: -x[0])[:3]  # the family's words, as `retrosim time` names them
-        table.add_row(escape(t.cpu), f"{t.cycles_per_iteration:.2f}", f"{p['instructions']:g}",
-                      f"{t.uops_per_iteration:g}",
-                      f"{p['instructions'] / t.cycles_per_iteration:.2f}" if t.cycles_per_iteration else "-",
-                      f"{100 * caveats(t.result)['estimated_share']:.0f}%", escape(bottleneck(t.result, p)),
-                      ", ".join(f"{what} {v:g}" for v, what in stalls) or "none")
-    return table
+        rows.append((escape(t.cpu), f"{t.cycles_per_iteration:.2f}", f"{p['instructions']:g}",
+                     f"{t.uops_per_iteration:g}",
+                     f"{p['instructions'] / t.cycles_per_iteration:.2f}" if t.cycles_per_iteration else "-",
+                     f"{100 * caveats(t.result)['estimated_share']:.0f}%", escape(bottleneck(t.result, p)),
+                     ", ".join(f"{what} {v:g}" for v, what in stalls) or "none"))
+    # a preset's name whole; a longer machine label (k6-233{write_allocate.mode=full}) folds
+    name_width = min(20, max((len(t.cpu) for t in timings), default=3))
+
+    def build(n: int) -> Table:
+        table = Table(title=escape(title))
+        for col in cols[:n]:
+            table.add_column(col, justify="left" if col in ("cpu", "bottleneck", "main stalls (cycles)") else "right",
+                             overflow="fold", min_width=name_width if col == "cpu" else None)
+        for row in rows:
+            table.add_row(*row[:n])
+        return table
+
+    full = build(len(cols))
+    return full if natural_width(full) <= width else build(len(cols) - 1)
 
 
 def pressure_tables(timings) -> list[tuple[str, Table]]:

@@ -37,6 +37,5 @@ class P6View(FamilyView):
     vocabulary = VOCABULARY
     # the P6's own words where they say more than every family's
     stall_words = {**FamilyView.stall_words,
-                   "stall_partial_register": "partial-register stalls (a wide read waits for retirement)",
                    "stall_mispredict": "front end: taken-branch bubbles, restarts",
                    "stall_register_read": "register-file reads (more than two per clock)"}
