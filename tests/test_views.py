@@ -142,6 +142,10 @@ def test_bottleneck_names_the_limit_in_each_familys_words():
     assert p5.bottleneck({"instructions": 4, "alone": 2, "stall_write_buffer": 1}) == "U/V pairing: 2 of 4 alone"
     assert p5.bottleneck({"instructions": 4, "alone": 2, "stall_write_buffer": 3}) == "write buffer full"
     assert p5.bottleneck({"instructions": 4, "alone": 0, "stall_fpu": 0}) == "none"
+    # all paired and no stall: the instructions' own clocks (gcc's sum loop: ADD r32,m32 takes 2)
+    assert p5.bottleneck({"instructions": 4, "pairs": 2, "alone": 0, "cycles": 3}) == \
+        "all paired; multi-clock instructions +1"
+    assert p5.bottleneck({"instructions": 4, "pairs": 2, "alone": 0, "cycles": 2}) == "all paired, a pair per clock"
     assert families.view(None).bottleneck({"stall_rob": 0}) == "none"
 
 

@@ -85,7 +85,11 @@ class P5View(FamilyView):
         if alone and alone >= top[0]:
             return f"U/V pairing: {alone:g} of {n:g} alone"
         if not top[0]:
-            return "none"
+            # nothing alone, no stall: the instructions' own clocks (a load-op's 2, ...) set the pace
+            groups = counters.get("pairs", 0) + alone
+            extra = counters.get("cycles", 0) - groups
+            return f"all paired; multi-clock instructions +{extra:g}" if groups and extra > 0 \
+                else "all paired, a pair per clock" if groups else "none"
         return self.stall_words.get(top[1], top[1][6:].replace("_", " "))
 
     def explain_rows(self, result) -> list[dict]:
