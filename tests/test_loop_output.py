@@ -128,3 +128,17 @@ def test_differences_are_the_counters_that_differ_biggest_first():
     assert diffs == {"x": 2.0, "z": 5.0}  # y below the threshold, only_a not in both
     assert compare.largest(diffs, 1) == [("z", 5.0)]
     assert compare.faster(2, 3) == "A" and compare.faster(3, 2) == "B" and compare.faster(2, 2) == "same"
+
+
+def test_ops_on_no_unit_are_shown_so_the_total_is_the_ops_per_iteration():
+    # the P6's FXCH row (sim/cpus/p6/p6.toml) is one uop on no port, latency 0: renamed, not executed;
+    # the pressure table gives such uops a column, so its total is still the uops per iteration
+    body = "top:\n  fxch st(1)\n  fadd st(0), st(2)\n  dec ecx\n  jnz top\n"
+    r, = json.loads(run("-", "--cpu", "pentium2-233", "--json", input=body))["results"]
+    rest = r["uops_per_iteration"] - sum(r["resource_pressure"].values())
+    assert rest > 0
+    out = run("-", "--cpu", "pentium2-233", input=body)
+    head = next(line for line in out.splitlines() if line.strip().startswith("cpu") and "p0" in line)
+    row = next(line for line in out.splitlines() if line.strip().startswith("pentium2-233") and "│" not in line)
+    assert head.split()[-2:] == ["unit", "total"]
+    assert [float(x) for x in row.split()[-2:]] == [rest, r["uops_per_iteration"]]

@@ -116,7 +116,7 @@ class FamilyView:
     def resource_pressure(self, counters: dict) -> dict[str, float]:
         """Ops per port or unit (llvm-mca's resource pressure), from a run's counters: per
         iteration when `counters` are a loop's per-iteration figures. Every op that executes on a
-        unit is counted on one, so the figures add up to the ops."""
+        unit is counted on one, so the figures add up to the ops less those that need no unit."""
         v = self.vocabulary
         out = {v.port_label(k): counters.get(f"port{k}", 0) for k in range(5)}
         out.update({name: counters.get(c, 0) for c, name in v.extra_units})

@@ -45,7 +45,7 @@ def loop_pair(timings_a, timings_b, n: int = 4) -> list[dict]:
         words = families.view(ta.result.model.family).counter_words(ta.per_iteration)
         ca, cb = ta.cycles_per_iteration, tb.cycles_per_iteration
         diffs = largest(differences(ta.per_iteration, tb.per_iteration, words), n)
-        out.append({"cpu": ta.cpu, "cycles_per_iteration": [ca, cb], "ratio": round(ratio(ca, cb), 4),
+        out.append({"cpu": ta.cpu, "cycles_per_iteration": [ca, cb], "ratio": round(ratio(ca, cb), 4) if cb else None,
                     "faster": faster(ca, cb),
                     "differences": [{"counter": k, "words": words[k], "a_minus_b": d} for k, d in diffs]})
     return out

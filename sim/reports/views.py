@@ -343,21 +343,24 @@ def loop_summary_table(title: str, timings, width: int = 10_000) -> Table:
 
 def pressure_tables(timings) -> list[tuple[str, Table]]:
     """Resource pressure per iteration: one table per family (its ports, units or pipes as columns),
-    one row per CPU of that family, with the total (the uops: every op runs on one unit), each after
-    its heading line (a title would wrap at the narrow table's width)."""
+    one row per CPU of that family, then the ops that ran on no unit (an FXCH the P6 renames away,
+    ...) when there are any, and the total (the ops per iteration), each after its heading line (a
+    title would wrap at the narrow table's width)."""
     groups: dict[str, list] = {}
     for t in timings:
         groups.setdefault(t.result.model.family, []).append(t)
     out = []
     for ts in groups.values():
         view = family_view(ts[0].result)
-        rows = [(t.cpu, resource_pressure(t.result, t.per_iteration)) for t in ts]
+        rows = [(t.cpu, resource_pressure(t.result, t.per_iteration), t.uops_per_iteration) for t in ts]
         units = list(rows[0][1])
+        rest = [round(ops - sum(p.values()), 4) for _, p, ops in rows]
         table = Table(box=box.SIMPLE_HEAD)
         table.add_column("cpu", overflow="fold")
-        for u in units + ["total"]:
+        for u in units + (["no unit"] if any(rest) else []) + ["total"]:
             table.add_column(escape(u), justify="right", no_wrap=True)
-        for cpu, pressure in rows:
-            table.add_row(escape(cpu), *(f"{pressure[u]:g}" for u in units), f"{sum(pressure.values()):g}")
+        for (cpu, pressure, ops), r in zip(rows, rest):
+            table.add_row(escape(cpu), *(f"{pressure[u]:g}" for u in units), *([f"{r:g}"] if any(rest) else []),
+                          f"{ops:g}")
         out.append((f"resource pressure: {view.pressure_heading}, per iteration", table))
     return out
