@@ -59,11 +59,11 @@ def _timeline_text(result, ctx: TextContext) -> list:
     text = views.timeline_text(result, columns=ctx.width)
     if not text:
         return []
-    if ctx.command == "loop":
+    if ctx.command == "loop":  # its legend under it (explain's legend, above the chart, says it already)
         head = f"[bold]timeline[/] on {escape(ctx.cpu)}: {ctx.iterations} iterations from the middle of the measured pass"
-    else:
-        head = f"[bold]timeline[/]: {ctx.iterations} iterations of the hot loop, from the middle of the last call"
-    return [(head, RICH), (text, CHART), ("legend: " + views.timeline_key(result, causes=True), LINES)]
+        return [(head, RICH), (text, CHART), ("legend: " + views.timeline_key(result, causes=True), LINES)]
+    head = f"[bold]timeline[/]: {ctx.iterations} iterations of the hot loop, from the middle of the last call"
+    return [(head, RICH), (text, CHART)]
 
 
 VIEWS: tuple[View, ...] = (
