@@ -209,7 +209,8 @@ def test_stdin_json_and_several_cpus():
 def test_cli_table_and_timeline(tmp_path):
     src = tmp_path / "t.s"
     src.write_text(TEXTURE_LOOP)
-    result = CliRunner().invoke(main, ["loop", str(src), "--cpu", "all", "--iterations", "20"])
+    # every CPU's detail on request (--detail): the last preset's timeline too; every CPU in the summary
+    result = CliRunner().invoke(main, ["loop", str(src), "--cpu", "all", "--iterations", "20", "--detail"])
     assert result.exit_code == 0, result.output
     assert "timeline on k6-3-450" in result.output and "byte ptr [ebx]" in result.output
     for cpu in presets.available():

@@ -184,7 +184,7 @@ def test_output_fits_the_terminal_and_p5_tables_name_their_cpu():
 
     body = "l: add eax, ebx\nadd esi, 1\nimul edi, edi\ndec ecx\njnz l\n"
     r = subprocess.run([sys.executable, "-m", "sim.cli", "loop", "-", "-c", "pentium-133,pentium2-233", "-n", "20",
-                        "--timeline", "6"], input=body, capture_output=True, text=True, timeout=300,
+                        "--timeline", "6", "--detail"], input=body, capture_output=True, text=True, timeout=300,
                        env={**os.environ, "COLUMNS": "60"})
     assert r.returncode == 0, r.stderr
     out = r.stdout.splitlines()

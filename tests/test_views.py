@@ -130,13 +130,22 @@ def test_bottleneck_names_the_limit_in_each_familys_words():
     ports = {"stall_port": 30, "stall_dependency": 10, "port0": 100, "port1": 95, "port2": 40, "port3": 0, "port4": 0}
     assert p6.bottleneck(ports) == "ports p0/p1 saturated"
     assert p6.bottleneck({**ports, "port1": 50}) == "ports p0 saturated"  # p1 well below p0
-    assert p6.bottleneck({**ports, "stall_dependency": 31}) == "dependency"  # a bigger stall kind wins
+    # a bigger stall kind wins, in words that say what it is (a chain of operand latencies)
+    assert p6.bottleneck({**ports, "stall_dependency": 31}) == "dependency chain"
+    # a port busy on (nearly) every cycle is the throughput bound, whatever the stall counters say
+    assert p6.bottleneck({**ports, "stall_dependency": 31, "cycles": 100}) == "ports p0/p1 saturated"
+    assert p6.bottleneck({**ports, "stall_dependency": 31, "cycles": 200}) == "dependency chain"
+    assert p6.bottleneck({"stall_partial_register": 9, "stall_dependency": 3}).startswith("partial-register stalls")
     assert k6.bottleneck({**ports, "port0": 10}) == "units Y saturated"  # the K6's words for port1
     assert k6.bottleneck({"stall_decode": 9, "vector_cycles": 4}) == "decode: vector-decoded"
     assert k6.bottleneck({"stall_decode": 9, "vector_cycles": 0}) == "decode: short/long decoders"
     assert p5.bottleneck({"instructions": 4, "alone": 2, "stall_write_buffer": 1}) == "U/V pairing: 2 of 4 alone"
     assert p5.bottleneck({"instructions": 4, "alone": 2, "stall_write_buffer": 3}) == "write buffer full"
     assert p5.bottleneck({"instructions": 4, "alone": 0, "stall_fpu": 0}) == "none"
+    # all paired and no stall: the instructions' own clocks (gcc's sum loop: ADD r32,m32 takes 2)
+    assert p5.bottleneck({"instructions": 4, "pairs": 2, "alone": 0, "cycles": 3}) == \
+        "all paired; multi-clock instructions +1"
+    assert p5.bottleneck({"instructions": 4, "pairs": 2, "alone": 0, "cycles": 2}) == "all paired, a pair per clock"
     assert families.view(None).bottleneck({"stall_rob": 0}) == "none"
 
 

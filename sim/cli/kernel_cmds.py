@@ -288,7 +288,7 @@ def _loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, ali
     from sim.cpus.overrides import load_dram
     from sim.guest import loop_body, loop_program
     from sim.timing import loop
-    from sim.reports import registry
+    from sim.reports import registry, views
 
     loop_program.placement(align, offset)
     if memory:
@@ -322,12 +322,30 @@ def _loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, ali
                         "instructions_per_iteration": t.per_iteration["instructions"],
                         "measured_iterations": t.iterations, "per_iteration": t.per_iteration,
                         "write_policy": t.write_policy,
+                        "bottleneck": views.bottleneck(t.result, t.per_iteration),
+                        "resource_pressure": views.resource_pressure(t.result, t.per_iteration),
                         **registry.document(t.result, "loop")} for t in timings]}
     return doc, timings
 
 
-@main.command("loop")
-@click.argument("source")
+LOOP_HELP = """Time a bare loop body or basic block (FILE, or - for standard input): steady-state
+cycles per iteration. Two files (A.s B.s) are timed alike and compared per CPU.
+
+\b
+Output, most read first:
+  summary    one line per CPU: cycles, instructions and uops per
+             iteration, IPC, the bottleneck in the family's words
+  pressure   uops (K6: RISC86 ops; P5: instructions) per port, unit or
+             pipe per iteration, per family
+  detail     the per-instruction table and a timeline with its legend:
+             the first CPU's, or every CPU's with --detail
+A/B (two files): per CPU each one's cycles per iteration, the ratio A/B,
+the faster one and the counters that differ most, then each file's
+summary (--detail: each file's detail on every CPU too)."""
+
+
+@main.command("loop", help=LOOP_HELP)
+@click.argument("sources", nargs=-1, required=True, metavar="FILE [B_FILE]")
 @click.option("--cpu", "-c", "cpus", multiple=True,
               help="CPU preset or machine label (k6-233{write_allocate.mode=full}); repeat or separate with "
                    "commas for several, `all` for every preset [default: pentium2-233]")
@@ -350,20 +368,33 @@ def _loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, ali
                    "far as it fits (every access an L1 hit when the working set fits, as llvm-mca and uiCA assume)")
 @click.option("--timeline", "timeline", default=3, show_default=True, callback=bounded(0, 1000),
               help="iterations shown in the timeline")
-@click.option("--brief", is_flag=True, help="only the table of cycles per iteration")
+@click.option("--detail", is_flag=True, help="the per-instruction table and timeline of every CPU (default: the first's)")
+@click.option("--brief", is_flag=True, help="only the summary table")
 @click.option("--assembler", type=click.Choice(["gnu", "zig"]), help="assembler back end (default: GNU as)")
 @click.option("--json", "as_json", is_flag=True, help="print one JSON object")
 @html_option
-def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset, data, timeline, brief, assembler,
-             as_json, html_out):
-    """Time a bare loop body or basic block (FILE, or - for standard input): steady-state cycles per iteration."""
+def loop_cmd(sources, cpus, memory, sets, syntax, iterations, regs, align, offset, data, timeline, detail, brief,
+             assembler, as_json, html_out):
     from sim.guest import loop_body
-    from sim.reports import views
 
+    if len(sources) > 2:
+        raise ArgumentError(f"loop: {len(sources)} files given; give one body, or two (A.s B.s) to compare")
+    if "-" in sources and len(sources) == 2:
+        raise ArgumentError("loop A.s B.s: compare two files (standard input, '-', holds one body)")
     html_out = _check_html(html_out)
-    text, name = loop_body.read_body(source, sys.stdin.buffer)
-    doc, sections = loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset, timeline,
-                                  assembler, warn=lambda w: click.echo(f"retrosim: warning: {w}", err=True), data=data)
+    if html_out is not None and len(sources) == 2:
+        raise ArgumentError("--html draws one body: give one file, not two")
+    warn = lambda w: click.echo(f"retrosim: warning: {w}", err=True)  # noqa: E731
+    runs = []
+    for source in sources:
+        text, name = loop_body.read_body(source, sys.stdin.buffer)
+        doc, sections = loop_document(text, name, cpus, memory, sets, syntax, iterations, regs, align, offset,
+                                      timeline, assembler, warn=warn, data=data)
+        runs.append((text, name, doc, sections))
+    if len(runs) == 2:
+        _loop_ab(runs, iterations, timeline, align, offset, detail, brief, as_json)
+        return
+    text, name, doc, sections = runs[0]
     if html_out is not None:
         from sim.output import atomic_write
         from sim.reports import pipeline_html
@@ -377,37 +408,77 @@ def loop_cmd(source, cpus, memory, sets, syntax, iterations, regs, align, offset
         click.echo(json.dumps(doc, indent=2))
         return
     for section in sections:
-        region = section["region"]
-        if region is not None:  # a whole output: each region under its name and the lines it took
-            console.print(f"[bold]region {escape(region.name)}[/]: {escape(name)} {region.lines}")
-            _print_lines(region.notes)
-        _print_loop_section(section["doc"], section["timings"], name, iterations, timeline, align, offset, brief)
+        _print_region_head(section, name)
+        _print_loop_section(section["doc"], section["timings"], name, iterations, timeline, align, offset,
+                            "summary" if brief else "all" if detail else "first")
 
 
-def _print_loop_section(doc, timings, name, iterations, timeline, align, offset, brief) -> None:
-    """The text output of one body (or region): per-instruction tables and timelines, the summary table
-    and the lines under it."""
+def _print_region_head(section, name) -> None:
+    region = section["region"]
+    if region is not None:  # a whole output: each region under its name and the lines it took
+        console.print(f"[bold]region {escape(region.name)}[/]: {escape(name)} {region.lines}")
+        _print_lines(region.notes)
+
+
+def _ab_pairs(runs) -> list[tuple[dict, dict]]:
+    """The sections of A and B that are compared: the one body each, or a whole output's regions in
+    order when both have as many."""
+    (_, name_a, _, a), (_, name_b, _, b) = runs
+    if len(a) != len(b):
+        count = lambda s: f"{len(s)} region{'s' if len(s) > 1 else ''}" if s[0]["region"] else "one body"  # noqa: E731
+        raise ArgumentError(f"loop A.s B.s: {name_a} holds {count(a)} and {name_b} {count(b)}: they do not pair "
+                            "up; cut each to one region (# LLVM-MCA-BEGIN name / # LLVM-MCA-END) or one body")
+    return list(zip(a, b))
+
+
+def _loop_ab(runs, iterations, timeline, align, offset, detail, brief, as_json) -> None:
+    """`loop A.s B.s`: per CPU both figures, the ratio, the faster and what differs most; then each
+    side's summary (and with --detail its detail)."""
+    from sim.reports import compare
+
+    (_, name_a, doc_a, _), (_, name_b, doc_b, _) = runs
+    pairs = _ab_pairs(runs)
+    label = lambda s, name: f"{name} {s['region'].name}" if s["region"] is not None else name  # noqa: E731
+    comparison = [{"a": label(sa, name_a), "b": label(sb, name_b),
+                   "per_cpu": compare.loop_pair(sa["timings"], sb["timings"])} for sa, sb in pairs]
+    if as_json:
+        click.echo(json.dumps({"a": doc_a, "b": doc_b, "comparison": comparison}, indent=2))
+        return
+    for c in comparison:
+        table = Table(title=escape(f"A/B, cycles per iteration: A = {c['a']}, B = {c['b']}"))
+        for col in ("cpu", "A", "B", "A/B", "faster", "differs most per iteration (A minus B)"):
+            table.add_column(col, justify="left" if col in ("cpu", "faster", "differs most per iteration (A minus B)")
+                             else "right", overflow="fold")
+        for e in c["per_cpu"]:
+            ca, cb = e["cycles_per_iteration"]
+            table.add_row(escape(e["cpu"]), f"{ca:.2f}", f"{cb:.2f}", f"{e['ratio']:.3f}",
+                          {"A": "A", "B": "B", "same": "neither"}[e["faster"]],
+                          escape(", ".join(f"{d['words']} {d['a_minus_b']:+g}" for d in e["differences"]) or "none"))
+        console.print(table)
+        _print_lines([AB_NOTE])
+    depth = "all" if detail else "summary"
+    for (sa, sb), c in zip(pairs, comparison):
+        for side, section, name in (("A", sa, name_a), ("B", sb, name_b)):
+            console.print(f"[bold]{side}[/]: {escape(c[side.lower()])}")
+            _print_loop_section(section["doc"], section["timings"], name, iterations, timeline, align, offset,
+                                "summary" if brief else depth)
+
+
+AB_NOTE = ("differs most: the per-iteration counters of the two in the family's words, largest difference first; "
+           "stall cycles overlap, so the stall that differs most need not be the one that costs the cycles")
+
+
+def _print_loop_section(doc, timings, name, iterations, timeline, align, offset, depth) -> None:
+    """The text output of one body (or region), most read first: the summary table and the lines under
+    it, the resource pressure, then the per-instruction tables and timeline of the first CPU (`depth`
+    "first"), of every CPU ("all") or of none ("summary": the summary table alone)."""
     from sim.guest import loop_program
     from sim.reports import registry, views
 
     not_timed = doc["not_timed"]
-    if not brief:
-        for t in timings:
-            _print_views(registry.text(t.result, registry.TextContext("loop", console.width, t.cpu, timeline)))
-    table = Table(title=f"{escape(name)}: steady state per iteration (iterations {iterations // 2}..{iterations})")
-    for col in ("cpu", "cycles", "instr", "uops", "IPC", "est.", "main stalls (cycles)"):
-        table.add_column(col, justify="left" if col in ("cpu", "main stalls (cycles)") else "right",
-                         overflow="fold")  # a machine label in full: k6-233{write_allocate.mode=full}
+    console.print(views.loop_summary_table(
+        f"{name}: steady state per iteration (iterations {iterations // 2}..{iterations})", timings, console.width))
     limits = {t.cpu: views.caveats(t.result) for t in timings}
-    for t in timings:
-        p = t.per_iteration
-        stalls = sorted(((p[k], label) for k, label in views.stall_labels(t.result, p) if p[k]),
-                        key=lambda x: -x[0])[:3]  # the family's words, as `retrosim time` names them
-        table.add_row(escape(t.cpu), f"{t.cycles_per_iteration:.2f}", f"{p['instructions']:g}", f"{t.uops_per_iteration:g}",
-                      f"{p['instructions'] / t.cycles_per_iteration:.2f}" if t.cycles_per_iteration else "-",
-                      f"{100 * limits[t.cpu]['estimated_share']:.0f}%",
-                      ", ".join(f"{what} {v:g}" for v, what in stalls) or "none")
-    console.print(table)
     place = _placement(timings, align, offset)
     lines = [f"body at {place['address']} ({place['alignment']}-byte aligned, {place['past_boundary']} past a "
              f"{loop_program.ALIGN_SPAN}-byte boundary: --align {align} --offset {offset}); est.: executed instructions "
@@ -416,6 +487,16 @@ def _print_loop_section(doc, timings, name, iterations, timeline, align, offset,
     lines += [f"not timed (no {what}): {', '.join(cpus_)}" for what, cpus_ in not_timed.items()]
     lines += [f"{cpu}: {views.not_modelled_line(c)}" for cpu, c in limits.items() if c["not_modelled"]]
     _print_lines(lines)
+    if depth == "summary":
+        return
+    for heading, table in views.pressure_tables(timings):
+        console.print(f"[bold]{escape(heading)}[/]")
+        console.print(table)
+    shown = timings if depth == "all" else timings[:1]
+    for t in shown:
+        _print_views(registry.text(t.result, registry.TextContext("loop", console.width, t.cpu, timeline)))
+    if len(timings) > len(shown):
+        _print_lines([f"per-instruction detail of {shown[0].cpu} only; --detail shows every CPU's"])
 
 
 # the caches' state, said under every loop table (sim.timing.loop.DATA_STATES)

@@ -107,17 +107,53 @@ class FamilyView:
         return [(k, "window (ROB)" if k == "stall_rob" and counters.get("stall_rs") else label)
                 for k, label, _ in SUMMARY_STALLS if k in counters]
 
+    # bottleneck words of the stall kinds whose summary label alone says too little
+    stall_words = {"stall_dependency": "dependency chain",
+                   "stall_partial_register": "partial-register stalls", "stall_memory": "memory: L1 misses",
+                   "stall_store_forward": "store-to-load forwarding", "stall_store_buffer": "store buffer full",
+                   "stall_fetch": "instruction fetch", "stall_mispredict": "branches: front-end restarts"}
+
+    def resource_pressure(self, counters: dict) -> dict[str, float]:
+        """Ops per port or unit (llvm-mca's resource pressure), from a run's counters: per
+        iteration when `counters` are a loop's per-iteration figures. Every op that executes on a
+        unit is counted on one, so the figures add up to the ops less those that need no unit."""
+        v = self.vocabulary
+        out = {v.port_label(k): counters.get(f"port{k}", 0) for k in range(5)}
+        out.update({name: counters.get(c, 0) for c, name in v.extra_units})
+        return out
+
+    def counter_words(self, counters: dict) -> dict[str, str]:
+        """The counters two runs of one family are compared by (`loop A.s B.s`: those that differ
+        most are named), each in the family's words; only those in `counters`."""
+        v = self.vocabulary
+        words = {"instructions": "instructions", "uops": v.op + "s", "mispredicts": "mispredicts",
+                 "l1d_load_misses": "L1D load misses", "l1d_store_misses": "L1D store misses"}
+        words.update({f"port{k}": f"{v.unit} {v.port_label(k)}" for k in range(5)})
+        words.update({c: f"{v.unit} {name}" for c, name in v.extra_units})
+        words.update({k: f"{label} stall" for k, label in self.stall_labels(counters)})
+        return {k: w for k, w in words.items() if k in counters}
+
+    @property
+    def pressure_heading(self) -> str:
+        """What the resource-pressure figures count ("uops per port")."""
+        return f"{self.vocabulary.op}s per {self.vocabulary.unit}"
+
     def bottleneck(self, counters: dict) -> str:
-        """What held the run back most, in the family's words: the stall kind with the most cycles,
-        with the units it names ("ports p0/p1 saturated") or "none". `counters`: a run's counters
-        (a `time` summary or a loop's per-iteration figures)."""
+        """What held the run back most, in the family's words: a port or unit busy on (nearly) every
+        cycle ("ports p0 saturated": the throughput bound, which no stall counter needs to show),
+        else the stall kind with the most cycles, with the units it names, or "none". `counters`: a
+        run's counters (a `time` summary or a loop's per-iteration figures)."""
+        v = self.vocabulary
+        cycles = counters.get("cycles", 0)
+        use = [(n, name) for name, n in self.resource_pressure(counters).items()]
+        full = [name for n, name in use if cycles and n >= 0.95 * cycles]
+        if full:
+            return f"{v.unit}s {'/'.join(full)} saturated"
         stalls = [(counters[k], k, label) for k, label in self.stall_labels(counters) if counters.get(k)]
         if not stalls:
             return "none"
         _, key, label = max(stalls, key=lambda s: (s[0], s[1]))
-        v = self.vocabulary
         if key == "stall_port":
-            use = [(counters.get(f"port{k}", 0), v.port_label(k)) for k in range(5)]
             top = max(n for n, _ in use)
             busy = [name for n, name in use if top and n >= 0.9 * top]
             return f"{v.unit}s {'/'.join(busy)} saturated"
@@ -125,7 +161,7 @@ class FamilyView:
             return f"decode: {v.decoders[0] if v.decoders else 'decoders'} busy"
         if key in ("stall_rob", "stall_rs"):
             return f"window full: {v.window}"
-        return label
+        return self.stall_words.get(key, label)
 
     # ---- `retrosim explain` -------------------------------------------------------------------
     def explain_rows(self, result) -> list[dict]:
@@ -224,6 +260,8 @@ class FamilyView:
         return self.vocabulary.timeline
 
     timeline_causes: tuple[str, ...] = core.CAUSES  # a timeline row's cause, by the core's index
+    # after the legend of the stage letters: what a row's [cause] says ("" when the legend says it)
+    timeline_cause_words = "; [cause]: what held the instruction back (the stall columns' words)"
 
     # ---- the pipeline page --------------------------------------------------------------------
     def page_words(self, timeline: list[dict], instructions: list[dict]) -> dict:

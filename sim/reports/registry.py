@@ -48,7 +48,8 @@ def _summary_text(result, ctx: TextContext) -> list:
 
 def _instructions_text(result, ctx: TextContext) -> list:
     if ctx.command == "loop":  # each CPU's table names it; a loop body has measured iterations, not calls
-        return [(t, RICH) for t in views.loop_tables(result, ctx.cpu, ctx.width)]
+        return ([(t, RICH) for t in views.loop_tables(result, ctx.cpu, ctx.width)]
+                + [("note: " + views.STALL_OVERLAP_NOTE, LINES)])
     return ([(t, RICH) for t in views.explain_tables(result, ctx.width)]
             + [(line, LINES) for line in views.explain_legend(result)]
             + [(line, LINES) for line in views.caveat_details(result)])
@@ -58,10 +59,10 @@ def _timeline_text(result, ctx: TextContext) -> list:
     text = views.timeline_text(result, columns=ctx.width)
     if not text:
         return []
-    if ctx.command == "loop":
+    if ctx.command == "loop":  # its legend under it (explain's legend, above the chart, says it already)
         head = f"[bold]timeline[/] on {escape(ctx.cpu)}: {ctx.iterations} iterations from the middle of the measured pass"
-    else:
-        head = f"[bold]timeline[/]: {ctx.iterations} iterations of the hot loop, from the middle of the last call"
+        return [(head, RICH), (text, CHART), ("legend: " + views.timeline_key(result, causes=True), LINES)]
+    head = f"[bold]timeline[/]: {ctx.iterations} iterations of the hot loop, from the middle of the last call"
     return [(head, RICH), (text, CHART)]
 
 

@@ -249,8 +249,10 @@ def explain_legend(result: TimingResult) -> list[str]:
     return lines
 
 
-def timeline_key(result: TimingResult) -> str:
-    return family_view(result).timeline_legend
+def timeline_key(result: TimingResult, causes: bool = False) -> str:
+    """What the timeline's letters mean in the family's words; `causes`: also what a [cause] says."""
+    view = family_view(result)
+    return view.timeline_legend + (view.timeline_cause_words if causes else "")
 
 
 def timeline_rows(result: TimingResult) -> list[dict]:
@@ -294,3 +296,71 @@ def timeline_text(result: TimingResult, width: int = 72, columns: int | None = N
         put(r["retire"], "C")
         lines.append(f"{''.join(cells).rstrip():<{width}} {label}")
     return "\n".join(lines)
+
+
+# -- retrosim loop: the summary first, then resource pressure, then the detail -----------------------
+# under every loop's per-instruction table: the stall columns are charged per instruction
+STALL_OVERLAP_NOTE = ("stall cycles are charged to each instruction that waited, and they overlap (two "
+                      "instructions wait in the same cycle): they may add up to more than the cycles per iteration")
+
+
+def resource_pressure(result: TimingResult, counters: dict) -> dict[str, float]:
+    """Ops per port or unit in the family's words (llvm-mca's resource pressure), from `counters`
+    (a loop's per-iteration figures: then per iteration): {unit name: figure}."""
+    return {name: round(float(n), 4) for name, n in family_view(result).resource_pressure(counters).items()}
+
+
+def loop_summary_table(title: str, timings, width: int = 10_000) -> Table:
+    """One line per CPU: cycles, instructions and uops per iteration, IPC, the share timed with
+    estimated rows, the bottleneck in the family's words and the biggest stall kinds (left out when
+    the table would not fit `width` columns: the bottleneck names the biggest)."""
+    cols = ("cpu", "cycles", "instr", "uops", "IPC", "est.", "bottleneck", "main stalls (cycles)")
+    rows = []
+    for t in timings:
+        p = t.per_iteration
+        stalls = sorted(((p[k], label) for k, label in stall_labels(t.result, p) if p[k]),
+                        key=lambda x: -x[0])[:3]  # the family's words, as `retrosim time` names them
+        rows.append((escape(t.cpu), f"{t.cycles_per_iteration:.2f}", f"{p['instructions']:g}",
+                     f"{t.uops_per_iteration:g}",
+                     f"{p['instructions'] / t.cycles_per_iteration:.2f}" if t.cycles_per_iteration else "-",
+                     f"{100 * caveats(t.result)['estimated_share']:.0f}%", escape(bottleneck(t.result, p)),
+                     ", ".join(f"{what} {v:g}" for v, what in stalls) or "none"))
+    # a preset's name whole; a longer machine label (k6-233{write_allocate.mode=full}) folds
+    name_width = min(20, max((len(t.cpu) for t in timings), default=3))
+
+    def build(n: int) -> Table:
+        table = Table(title=escape(title))
+        for col in cols[:n]:
+            table.add_column(col, justify="left" if col in ("cpu", "bottleneck", "main stalls (cycles)") else "right",
+                             overflow="fold", min_width=name_width if col == "cpu" else None)
+        for row in rows:
+            table.add_row(*row[:n])
+        return table
+
+    full = build(len(cols))
+    return full if natural_width(full) <= width else build(len(cols) - 1)
+
+
+def pressure_tables(timings) -> list[tuple[str, Table]]:
+    """Resource pressure per iteration: one table per family (its ports, units or pipes as columns),
+    one row per CPU of that family, then the ops that ran on no unit (an FXCH the P6 renames away,
+    ...) when there are any, and the total (the ops per iteration), each after its heading line (a
+    title would wrap at the narrow table's width)."""
+    groups: dict[str, list] = {}
+    for t in timings:
+        groups.setdefault(t.result.model.family, []).append(t)
+    out = []
+    for ts in groups.values():
+        view = family_view(ts[0].result)
+        rows = [(t.cpu, resource_pressure(t.result, t.per_iteration), t.uops_per_iteration) for t in ts]
+        units = list(rows[0][1])
+        rest = [round(ops - sum(p.values()), 4) for _, p, ops in rows]
+        table = Table(box=box.SIMPLE_HEAD)
+        table.add_column("cpu", overflow="fold")
+        for u in units + (["no unit"] if any(rest) else []) + ["total"]:
+            table.add_column(escape(u), justify="right", no_wrap=True)
+        for (cpu, pressure, ops), r in zip(rows, rest):
+            table.add_row(escape(cpu), *(f"{pressure[u]:g}" for u in units), *([f"{r:g}"] if any(rest) else []),
+                          f"{ops:g}")
+        out.append((f"resource pressure: {view.pressure_heading}, per iteration", table))
+    return out

@@ -29,6 +29,7 @@ import math
 from dataclasses import dataclass
 
 from sim.cpus.machine import MachineKey
+from sim.reports.compare import differences
 from sim.memory import dram
 
 # Estimated cache latencies (preset ``latency_estimated = true``): +-30 % of the estimate, the
@@ -220,8 +221,8 @@ def evaluate(result, explain_counters: list[str]) -> list[dict]:
             ca, cb = a.per_pixel("cycles"), b.per_pixel("cycles")
             ratio = ca / cb if cb else float("inf")
             verdict = holds(claim, ratio)
-            diffs = {n: round(a.per_pixel(n) - b.per_pixel(n), 3) for n in explain_counters
-                     if n in a.counters and abs(a.per_pixel(n) - b.per_pixel(n)) >= 0.005}
+            diffs = differences({n: a.per_pixel(n) for n in explain_counters if n in a.counters},
+                                {n: b.per_pixel(n) for n in explain_counters if n in b.counters}, explain_counters)
             entry = {"cpu": key, "cycles_per_pixel": [round(ca, 4), round(cb, 4)], "ratio": round(ratio, 4),
                      "holds": verdict, "explanation": diffs}
             entry["robustness"] = _robustness(claim, result, key, a, b, verdict)

@@ -28,6 +28,7 @@ class P5View(FamilyView):
         "x87, no FXCH", "MMX unit", "MMX mem in U", "branch"))
     timeline_legend = ("D the previous group left the pipe, R issue (after AGI, prefix, x87 waits), E execute, "
                        "C done; in-order U/V pipes; [alone: ...] why it did not pair (in full under 'alone because')")
+    timeline_cause_words = ""  # the legend says what [alone: ...] means
     explain_columns = (("pc", "right"), ("instruction", "left"), ("runs", "right"), ("class", "left"),
                        ("U", "right"), ("V", "right"), ("clk", "right"), ("agi", "right"), ("pfx", "right"),
                        ("fpu", "right"), ("mem", "right"), ("mis", "right"), ("bank", "right"), ("wbuf", "right"),
@@ -62,6 +63,19 @@ class P5View(FamilyView):
     def stall_labels(self, counters: dict) -> list[tuple[str, str]]:
         return [(k, k[6:].replace("_", " ")) for k in self.stall_counters if k in counters]
 
+    def resource_pressure(self, counters: dict) -> dict[str, float]:
+        """Instructions per pipe: every instruction issues in U or V."""
+        return {"U": counters.get("u_pipe", 0), "V": counters.get("v_pipe", 0)}
+
+    pressure_heading = "instructions per pipe"
+
+    def counter_words(self, counters: dict) -> dict[str, str]:
+        """Every family's, with pipes and pairing for ports and ops (a P5 instruction is its op)."""
+        words = {k: w for k, w in super().counter_words(counters).items() if k != "uops" and not k.startswith("port")}
+        words.update({"pairs": "U/V pairs", "alone": "instructions alone", "u_pipe": "U pipe", "v_pipe": "V pipe",
+                      "bus_writes": "bus writes"})
+        return {k: w for k, w in words.items() if k in counters}
+
     def bottleneck(self, counters: dict) -> str:
         """Pairing when more instructions ran alone than any stall kind cost cycles ("U/V pairing:
         2 of 4 alone"), else the stall kind with the most cycles ("write buffer full")."""
@@ -71,7 +85,11 @@ class P5View(FamilyView):
         if alone and alone >= top[0]:
             return f"U/V pairing: {alone:g} of {n:g} alone"
         if not top[0]:
-            return "none"
+            # nothing alone, no stall: the instructions' own clocks (a load-op's 2, ...) set the pace
+            groups = counters.get("pairs", 0) + alone
+            extra = counters.get("cycles", 0) - groups
+            return f"all paired; multi-clock instructions +{extra:g}" if groups and extra > 0 \
+                else "all paired, a pair per clock" if groups else "none"
         return self.stall_words.get(top[1], top[1][6:].replace("_", " "))
 
     def explain_rows(self, result) -> list[dict]:

@@ -35,3 +35,7 @@ VOCABULARY = Vocabulary(
 
 class P6View(FamilyView):
     vocabulary = VOCABULARY
+    # the P6's own words where they say more than every family's
+    stall_words = {**FamilyView.stall_words,
+                   "stall_mispredict": "front end: taken-branch bubbles, restarts",
+                   "stall_register_read": "register-file reads (more than two per clock)"}

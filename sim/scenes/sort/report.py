@@ -22,6 +22,7 @@ import json
 from pathlib import Path
 
 from sim.cpus.machine import MachineKey
+from sim.reports.compare import differences
 from sim.reports.render import FORMATS, md_table, png_bytes, wants_image, write_report_set
 from sim.scenes.claims import holds, report_head, robustness_rows, robustness_text, verdict_text
 from sim.scenes.kind import BASELINE_COUNTERS
@@ -73,8 +74,8 @@ def _timed_claim(result: SortResult, claim, key: str) -> dict:
     ca, cb = ta.per_key("cycles"), tb.per_key("cycles")
     ratio = ca / cb if cb else float("inf")
     held = holds(claim, ratio)
-    diffs = {n: round(ta.per_key(n) - tb.per_key(n), 3) for n in EXPLAIN_COUNTERS
-             if n in ta.counters and n in tb.counters and abs(ta.per_key(n) - tb.per_key(n)) >= 0.005}
+    diffs = differences({n: ta.per_key(n) for n in EXPLAIN_COUNTERS if n in ta.counters},
+                        {n: tb.per_key(n) for n in EXPLAIN_COUNTERS if n in tb.counters}, EXPLAIN_COUNTERS)
     rob = _robustness(result, claim, a, b, key, held)
     return {"cpu": key, "cycles_per_key": [round(ca, 4), round(cb, 4)], "ratio": round(ratio, 4), "holds": held,
             "explanation": diffs, "robustness": rob, "verdict": verdict_text(held, rob)}
