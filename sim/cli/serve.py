@@ -63,6 +63,7 @@ top:
 WARM_BODY = "top:\n  add eax, [esi]\n  imul ebx, ecx\n  add esi, 4\n  dec edx\n  jnz top\n"
 MAX_REQUEST_BYTES = (1 << 20) + (64 << 10)  # a body (loop_body.MAX_BODY_BYTES) and its options
 MAX_CPUS = 32
+MAX_OPTION_CHARS = 256  # one --set, --reg or CPU name
 MAX_ANSWER_BYTES = 64 << 20
 MAX_JSON_DEPTH = 8  # a request is an object of lists: 2 levels; json.loads recurses once per level
 _JSON_TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|[\[\]{}]')
@@ -79,6 +80,8 @@ def error_line(message: str) -> str:
 
 def parse_request(req) -> dict:
     """The loop options of a request, checked as the CLI checks them; one ArgumentError otherwise."""
+    from sim.guest import loop_program
+
     if not isinstance(req, dict):
         raise ArgumentError("the request is not a JSON object")
     unknown = set(req) - {"body", "cpus", "sets", "memory", "syntax", "iterations", "regs", "align", "offset",
@@ -90,13 +93,15 @@ def parse_request(req) -> dict:
         v = req.get(key, default)
         if v is not None and not isinstance(v, str):
             raise ArgumentError(f"{key}: expected text")
-        return v
+        return v and _unicode(key, v)
 
     def texts(key, most):
         v = req.get(key) or []
-        if not isinstance(v, list) or not all(isinstance(x, str) for x in v) or len(v) > most:
-            raise ArgumentError(f"{key}: expected a list of at most {most} strings")
-        return v
+        if not isinstance(v, list) or not all(isinstance(x, str) and len(x) <= MAX_OPTION_CHARS for x in v) \
+                or len(v) > most:
+            raise ArgumentError(f"{key}: expected a list of at most {most} strings of at most {MAX_OPTION_CHARS} "
+                                "characters")
+        return [_unicode(key, x) for x in v]
 
     def integer(key, default):
         v = req.get(key, default)
@@ -118,10 +123,24 @@ def parse_request(req) -> dict:
     timeline = integer("timeline", 3)
     if not 0 <= timeline <= 1000:
         raise ArgumentError(f"--timeline {timeline}: must be between 0 and 1,000")
+    # checked here, as the command line checks them, before any work: one line naming the option
+    regs, align, offset = texts("regs", 16), integer("align", loop_program.DEFAULT_ALIGN), integer("offset", 0)
+    loop_program.placement(align, offset)
+    loop_program.parse_regs(regs)
     return {"text": body, "cpus": texts("cpus", MAX_CPUS) or list(DEFAULT_CPUS), "sets": texts("sets", 64),
             "memory": text("memory") or None, "syntax": syntax, "iterations": integer("iterations", 100),
-            "regs": texts("regs", 16), "align": integer("align", 64), "offset": integer("offset", 0),
-            "timeline": timeline, "data": data}
+            "regs": regs, "align": align, "offset": offset, "timeline": timeline, "data": data}
+
+
+def _unicode(key: str, value: str) -> str:
+    """`value` if it can be written as UTF-8 (JSON's \\ud800 escapes a lone surrogate, which no file can
+    hold): a client's text, refused as bad input rather than failing where the body is written."""
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError as e:
+        raise ArgumentError(f"{'<body>' if key == 'body' else key}: character {e.start + 1} is not a character "
+                            "(a lone UTF-16 surrogate)") from None
+    return value
 
 
 def compute(req) -> dict:
@@ -150,7 +169,9 @@ def compute(req) -> dict:
         doc, timings = page_section(sections)  # a whole output: its first region
         return {"data": pipeline_html.loop_data(doc, timings, o["text"])}
     except RetrosimError as e:
-        return {"error": error_line(str(e)), "status": 400}
+        # the command line's one line, and every assembler message in full (the line says "(+1 more)")
+        messages = [one_line(m) for m in getattr(e, "messages", ())]
+        return {"error": error_line(str(e)), "status": 400, **({"messages": messages} if len(messages) > 1 else {})}
     except MemoryError:
         return {"error": error_line("the request ran out of the server's memory bound (--memory-mb)"), "status": 422}
 
