@@ -380,10 +380,15 @@ def warm_up(say=lambda line: None) -> None:
 def app_config() -> dict:
     from sim.cpus import families, presets
     from sim.cpus.overrides import memory_presets
+    from sim.guest import loop_program
+    from sim.timing import loop
 
     # the CPUs by family (P5, P6, K6: the order the page shows them in), then by name
     cpus = sorted(presets.available(), key=lambda c: (families.order(presets.load(c).family), c))
-    return {"cpus": cpus, "memories": memory_presets(), "defaults": list(DEFAULT_CPUS), "example": EXAMPLE}
+    return {"cpus": cpus, "memories": memory_presets(), "defaults": list(DEFAULT_CPUS), "example": EXAMPLE,
+            "data": list(loop.DATA_STATES), "default_data": loop.DEFAULT_DATA,
+            "aligns": [1 << k for k in range(loop_program.ALIGN_SPAN.bit_length())],
+            "default_align": loop_program.DEFAULT_ALIGN}
 
 
 def json_depth_problem(text: str) -> str | None:
