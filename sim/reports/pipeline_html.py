@@ -333,6 +333,12 @@ _SCRIPT = r"""
     const doc = data.doc;
     document.getElementById("subtitle").textContent = doc.source + (data.kind === "loop" ?
       ": steady state, a few iterations from the middle of the measured pass" : ": the last call");
+    if (doc.placement) {  // the settings the run used (a link's, or the command line's), as the document says
+      const pl = doc.placement;
+      sum.appendChild(el("p", {"id": "settings"}, "caches at the measured pass: " + doc.data + " (--data " + doc.data +
+        "); body at " + pl.address + " (--align " + pl.align + " --offset " + pl.offset + "); registers at the start: " +
+        Object.entries(doc.registers || {}).map(([r, v]) => r + "=" + v).join(" ")));
+    }
     for (const w of doc.warnings || []) sum.appendChild(el("p", {"class": "more"}, "warning: " + w));
     for (const [what, list] of Object.entries(doc.not_timed || {})) sum.appendChild(el("p", {"class": "more"},
       "not timed (no " + what + "): " + list.join(", ")));
