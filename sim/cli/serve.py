@@ -138,8 +138,8 @@ def _unicode(key: str, value: str) -> str:
     try:
         value.encode("utf-8")
     except UnicodeEncodeError as e:
-        raise ArgumentError(f"{'<body>' if key == 'body' else key}: character {e.start + 1} is not a character "
-                            "(a lone UTF-16 surrogate)") from None
+        where = f"<body>:{value.count(chr(10), 0, e.start) + 1}" if key == "body" else f"{key}: character {e.start + 1}"
+        raise ArgumentError(f"{where}: a lone UTF-16 surrogate ({value[e.start]!r}) is no character") from None
     return value
 
 
