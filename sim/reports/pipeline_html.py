@@ -9,7 +9,9 @@ script builds every element from it with ``textContent``, so nothing from a loop
 name is ever parsed as HTML. `serve` sends the same objects over HTTP, so the saved page and the
 app draw with the same code.
 
-No network: the styles and the script are inline, the page loads nothing.
+No network: the styles and the script are inline, the page loads nothing. Served, the page keeps
+its form in the URL's fragment (never sent to a server) and times a link's form when opened; an
+error clears the results and shows every assembler message the answer carries.
 """
 
 from __future__ import annotations
