@@ -500,8 +500,12 @@ _SCRIPT = r"""
     const err = document.getElementById("error"), status = document.getElementById("status");
     const req = request();
     const link = "#" + toFragment(req);
-    history.replaceState(null, "", link);
-    document.getElementById("share").setAttribute("href", link);
+    try {
+      history.replaceState(null, "", link);
+      document.getElementById("share").setAttribute("href", link);
+    } catch (e) {  // a URL past what the browser keeps (Chromium: 2 MB): the view still runs, unlinked
+      note = (note ? note + "; " : "") + "no link: the form is too long for a URL";
+    }
     status.textContent = "timing...";
     document.body.setAttribute("data-state", "busy");
     const t0 = performance.now();
