@@ -255,8 +255,9 @@ class FamilyView:
         """[[field of an explain row, its stall in the family's words], ...]: the page marks each
         instruction with the biggest it pays (the first listed wins a tie)."""
         v = self.vocabulary
-        words = {"dependency": "dependency: a source not ready", "port": f"{v.unit} busy", "decode": "decode",
-                 "partial": "partial-register merge", "memory": "memory: a miss beyond L1",
+        words = {"dependency": "dependency: a source not ready", "port": f"{v.unit} busy",
+                 "decode": "decode: the decoders were behind", "partial": "partial-register merge",
+                 "memory": "memory: a miss beyond L1",
                  "store_forward": "store forwarding", "window": f"window full: {v.window}",
                  "mispredict": "branch restart"}
         return [[f"stall_{k}", words[k]] for k, _ in STALL_KINDS]
