@@ -6,7 +6,12 @@ class RetrosimError(Exception):
 
 
 class AssemblerError(RetrosimError):
-    """The assembler rejected a kernel source; the message is `file:line: message`."""
+    """The assembler rejected a kernel source; the message is `file:line: message` (the first, with
+    how many more). `messages`: every one of them, first first (what the web app shows in full)."""
+
+    def __init__(self, message: str, messages: tuple[str, ...] = ()):
+        super().__init__(message)
+        self.messages = tuple(messages) or (message,)
 
 
 class AssemblerMissing(RetrosimError):

@@ -72,11 +72,12 @@ def screenshot(out: Path) -> None:
                                       "--html", str(page_file), "--brief"])
         if r.exit_code != 0:
             raise SystemExit(r.output)
-        with browser_context(1500, 900) as context:
+        with browser_context(1280, 1000) as context:
             page = context.new_page()
             page.goto(page_file.as_uri())
             page.wait_for_selector("body[data-state=ready]")
-            page.hover(".cpu[data-cpu='pentium2-233'] .row >> nth=3")
+            # the Pentium MMX's store, marked with the write-buffer wait it pays
+            page.hover(".cpu[data-cpu='pentium-mmx-233'] .row[data-stall] >> nth=0")
             page.screenshot(path=str(out))
 
 

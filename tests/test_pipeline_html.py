@@ -78,6 +78,20 @@ def test_every_stall_cause_a_row_shows_is_explained(timings):
     assert shown  # the loops stall for some reason on some CPU
 
 
+def test_every_stall_field_the_page_names_is_an_explain_field_in_words(timings):
+    """The page marks each instruction with the biggest of view["stalls"]: every one is a stall
+    field of that family's explain rows (a name the rows lack would never be marked) and has words,
+    not the field's name; together they cover every stall field the rows carry."""
+    for t in timings:
+        v = pipeline_html.view(t.result)
+        rows = views.explain_rows(t.result)
+        fields = dict(v["stalls"])
+        carried = {k for k in rows[0] if k.startswith("stall_")}
+        assert set(fields) == carried, (t.cpu, set(fields) ^ carried)
+        for field, words in fields.items():
+            assert words and words not in (field, field[6:], field[6:].replace("_", " ")), (t.cpu, field, words)
+
+
 def test_p5_lanes_agree_with_the_models_pipe_counters(timings):
     # the page's U/V per timeline row against the P5 core's own per-instruction U and V counts: an
     # instruction that always ran in V must be drawn in V, one that always ran in U in U

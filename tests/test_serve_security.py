@@ -472,3 +472,40 @@ def test_a_message_about_the_body_as_a_whole_is_kept_when_serving(tmp_path):
     with asm.served_sources():
         assert asm.format_diagnostics(f"Assembler messages:\n{src}: Error: bad size\n", src) == f"{src}: Error: bad size"
         assert "/etc/shadow" not in asm.format_diagnostics("as: can't open /etc/shadow for reading\n", src)
+
+
+@pytest.mark.parametrize("options", [["--align", "3"], ["--align", "16", "--offset", "16"], ["--reg", "eax=zz"],
+                                     ["--reg", "xmm0=1"], ["--reg", "eax=0x100000000"]])
+def test_the_forms_options_are_refused_as_the_command_line_refuses_them(options):
+    # every field is a client's: the same one line the CLI gives, a 400, before anything is assembled
+    r = CliRunner().invoke(main, ["loop", "-", "--cpu", "pentium2-233", *options], input="top:\n" + LOOP_TAIL)
+    assert r.exit_code == 2
+    cli = r.output.strip().splitlines()[-1]
+    key = {"--align": "align", "--offset": "offset", "--reg": "regs"}
+    req = {"body": "top:\n" + LOOP_TAIL, "cpus": ["pentium2-233"]}
+    for flag, value in zip(options[::2], options[1::2]):
+        req[key[flag]] = [value] if flag == "--reg" else int(value)
+    answer = serve.compute(req)
+    assert answer["status"] == 400 and answer["error"] == cli, (answer, cli)
+
+
+@pytest.mark.parametrize("field, value, words", [
+    ("body", "top:\n  add eax, 1 \ud800\n" + LOOP_TAIL, "<body>:2: a lone UTF-16 surrogate ('\\ud800') is no character"),
+    ("regs", ["eax=" + "1" * 300], "regs: expected a list of at most 16 strings of at most 256 characters"),
+    ("sets", ["\udfff"], "sets: character 1: a lone UTF-16 surrogate"),
+    ("align", "16", "align: expected an integer"), ("data", "hot", "--data hot: choose cold or warm")])
+def test_bad_fields_are_a_400_not_a_server_fault(field, value, words):
+    # a lone surrogate (JSON's "\ud800") used to reach the file the body is written to: a 500
+    answer = serve.compute({"body": "top:\n" + LOOP_TAIL, "cpus": ["pentium2-233"], field: value})
+    assert answer["status"] == 400 and words in answer["error"], answer
+
+
+def test_every_assembler_message_reaches_the_page():
+    # the command line's one line says "(+3 more)"; the answer carries them all (GNU as's `junk ...`)
+    answer = serve.compute({"body": "top:\n  mov eax, [esi+]\n  add eax, esi esi\n" + LOOP_TAIL,
+                            "cpus": ["pentium2-233"]})
+    assert answer["status"] == 400 and answer["error"].endswith("<body>:2: bad expression (+3 more)")
+    assert answer["messages"][0] == "<body>:2: bad expression" and len(answer["messages"]) == 4
+    assert "<body>:3: junk `esi' after expression" in answer["messages"]
+    one = serve.compute({"body": "top:\n  movv eax, 1\n" + LOOP_TAIL, "cpus": ["pentium2-233"]})
+    assert one["status"] == 400 and "messages" not in one  # one message: the line says it all

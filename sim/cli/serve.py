@@ -1,7 +1,8 @@
 """`retrosim serve`: the pipeline view as a local web app (standard library only).
 
 One page (sim/reports/pipeline_html.py, the same page `loop --html` writes, with a form): paste a
-loop body, pick CPUs, --set overrides and memory, and it draws what `retrosim loop --json` gives.
+loop body, pick CPUs, memory, --data, --align/--offset, --reg and --set, and it draws what `retrosim
+loop --json` gives; the form travels in the URL's fragment, so a link reproduces the view.
 
 Why it answers in milliseconds: the cost of `retrosim loop` is starting Python (imports) and loading
 each family's compiled core; the timing itself takes tens of milliseconds. The server starts once,
@@ -64,6 +65,7 @@ top:
 WARM_BODY = "top:\n  add eax, [esi]\n  imul ebx, ecx\n  add esi, 4\n  dec edx\n  jnz top\n"
 MAX_REQUEST_BYTES = (1 << 20) + (64 << 10)  # a body (loop_body.MAX_BODY_BYTES) and its options
 MAX_CPUS = 32
+MAX_OPTION_CHARS = 256  # one --set, --reg or CPU name
 MAX_ANSWER_BYTES = 64 << 20
 MAX_JSON_DEPTH = 8  # a request is an object of lists: 2 levels; json.loads recurses once per level
 _JSON_TOKEN = re.compile(r'"(?:[^"\\]|\\.)*"|[\[\]{}]')
@@ -80,6 +82,8 @@ def error_line(message: str) -> str:
 
 def parse_request(req) -> dict:
     """The loop options of a request, checked as the CLI checks them; one ArgumentError otherwise."""
+    from sim.guest import loop_program
+
     if not isinstance(req, dict):
         raise ArgumentError("the request is not a JSON object")
     unknown = set(req) - {"body", "cpus", "sets", "memory", "syntax", "iterations", "regs", "align", "offset",
@@ -91,13 +95,15 @@ def parse_request(req) -> dict:
         v = req.get(key, default)
         if v is not None and not isinstance(v, str):
             raise ArgumentError(f"{key}: expected text")
-        return v
+        return v and _unicode(key, v)
 
     def texts(key, most):
         v = req.get(key) or []
-        if not isinstance(v, list) or not all(isinstance(x, str) for x in v) or len(v) > most:
-            raise ArgumentError(f"{key}: expected a list of at most {most} strings")
-        return v
+        if not isinstance(v, list) or not all(isinstance(x, str) and len(x) <= MAX_OPTION_CHARS for x in v) \
+                or len(v) > most:
+            raise ArgumentError(f"{key}: expected a list of at most {most} strings of at most {MAX_OPTION_CHARS} "
+                                "characters")
+        return [_unicode(key, x) for x in v]
 
     def integer(key, default):
         v = req.get(key, default)
@@ -119,10 +125,24 @@ def parse_request(req) -> dict:
     timeline = integer("timeline", 3)
     if not 0 <= timeline <= 1000:
         raise ArgumentError(f"--timeline {timeline}: must be between 0 and 1,000")
+    # checked here, as the command line checks them, before any work: one line naming the option
+    regs, align, offset = texts("regs", 16), integer("align", loop_program.DEFAULT_ALIGN), integer("offset", 0)
+    loop_program.placement(align, offset)
+    loop_program.parse_regs(regs)
     return {"text": body, "cpus": texts("cpus", MAX_CPUS) or list(DEFAULT_CPUS), "sets": texts("sets", 64),
             "memory": text("memory") or None, "syntax": syntax, "iterations": integer("iterations", 100),
-            "regs": texts("regs", 16), "align": integer("align", 64), "offset": integer("offset", 0),
-            "timeline": timeline, "data": data}
+            "regs": regs, "align": align, "offset": offset, "timeline": timeline, "data": data}
+
+
+def _unicode(key: str, value: str) -> str:
+    """`value` if it can be written as UTF-8 (JSON's \\ud800 escapes a lone surrogate, which no file can
+    hold): a client's text, refused as bad input rather than failing where the body is written."""
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError as e:
+        where = f"<body>:{value.count(chr(10), 0, e.start) + 1}" if key == "body" else f"{key}: character {e.start + 1}"
+        raise ArgumentError(f"{where}: a lone UTF-16 surrogate ({value[e.start]!r}) is no character") from None
+    return value
 
 
 def compute(req) -> dict:
@@ -151,7 +171,9 @@ def compute(req) -> dict:
         doc, timings = page_section(sections)  # a whole output: its first region
         return {"data": pipeline_html.loop_data(doc, timings, o["text"])}
     except RetrosimError as e:
-        return {"error": error_line(str(e)), "status": 400}
+        # the command line's one line, and every assembler message in full (the line says "(+1 more)")
+        messages = [one_line(m) for m in getattr(e, "messages", ())]
+        return {"error": error_line(str(e)), "status": 400, **({"messages": messages} if len(messages) > 1 else {})}
     except MemoryError:
         return {"error": error_line("the request ran out of the server's memory bound (--memory-mb)"), "status": 422}
 
@@ -377,10 +399,15 @@ def warm_up(say=lambda line: None) -> None:
 def app_config() -> dict:
     from sim.cpus import families, presets
     from sim.cpus.overrides import memory_presets
+    from sim.guest import loop_program
+    from sim.timing import loop
 
     # the CPUs by family (P5, P6, K6: the order the page shows them in), then by name
     cpus = sorted(presets.available(), key=lambda c: (families.order(presets.load(c).family), c))
-    return {"cpus": cpus, "memories": memory_presets(), "defaults": list(DEFAULT_CPUS), "example": EXAMPLE}
+    return {"cpus": cpus, "memories": memory_presets(), "defaults": list(DEFAULT_CPUS), "example": EXAMPLE,
+            "data": list(loop.DATA_STATES), "default_data": loop.DEFAULT_DATA,
+            "aligns": [1 << k for k in range(loop_program.ALIGN_SPAN.bit_length())],
+            "default_align": loop_program.DEFAULT_ALIGN}
 
 
 def json_depth_problem(text: str) -> str | None:

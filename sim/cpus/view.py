@@ -285,4 +285,17 @@ class FamilyView:
             "tip": [["decoder {decoder} ({decoder_class}), {uops} " + v.op + "(s); {ports|no unit}", ""],
                     ["issue to retire {issue_to_retire} cycles per execution", ""]],
             "notes": [n for n in (v.decode_help, "; ".join(v.port_help), f"window: {v.window}") if n],
+            "stalls": self.page_stalls(),
+            "stalls_heading": "main stall (cycles per execution)",
         }
+
+    def page_stalls(self) -> list[list[str]]:
+        """[[field of an explain row, its stall in the family's words], ...]: the page marks each
+        instruction with the biggest it pays (the first listed wins a tie)."""
+        v = self.vocabulary
+        words = {"dependency": "dependency: a source not ready", "port": f"{v.unit} busy",
+                 "decode": "decode: the decoders were behind", "partial": "partial-register merge",
+                 "memory": "memory: a miss beyond L1",
+                 "store_forward": "store forwarding", "window": f"window full: {v.window}",
+                 "mispredict": "branch restart"}
+        return [[f"stall_{k}", words[k]] for k, _ in STALL_KINDS]

@@ -282,6 +282,15 @@ _CLANG_MSG = re.compile(r"^(?P<file>[^:\n]+):(?P<line>\d+):\d+: (?:error|fatal e
 
 
 def format_diagnostics(stderr: str, source: Path, output: Path | None = None) -> str:
+    """The first of :func:`diagnostics`, with how many more ("(+1 more)"): the command line's one line."""
+    return format_diagnostics_of(diagnostics(stderr, source, output))
+
+
+def format_diagnostics_of(lines: list[str]) -> str:
+    return lines[0] + (f" (+{len(lines) - 1} more)" if len(lines) > 1 else "")
+
+
+def diagnostics(stderr: str, source: Path, output: Path | None = None) -> list[str]:
     """Reduce assembler output to `file:line: message` lines (the first error first). A message from
     an included file keeps that file's name and line; the temporary object is never named (a user
     knows the source, not the cache). A served source (:func:`serving`) gets messages about its own
@@ -302,17 +311,16 @@ def format_diagnostics(stderr: str, source: Path, output: Path | None = None) ->
         last = ([t for t in stderr.splitlines() if t.strip()] or [""])[-1]
         mine = next((last[len(o) + 2:] for o in own if last.startswith(f"{o}: ")), None)
         if mine and not foreign:  # a message about the body as a whole (`body: Error: ...`)
-            return f"{source}: {mine}"
-        return (f"{source}: the assembler failed on " + ("another file than the body (its messages are not shown: "
-                "a body sent to the server may read no file)" if foreign else "the body without naming a line of it"))
+            return [f"{source}: {mine}"]
+        return [f"{source}: the assembler failed on " + ("another file than the body (its messages are not shown: "
+                "a body sent to the server may read no file)" if foreign else "the body without naming a line of it")]
     if not lines:
         text = [t for t in stderr.strip().splitlines() if t.strip()]
         last = text[-1] if text else "assembler failed without a message"
         # `as: file: message` or `/usr/bin/as: message`: the program's own name adds nothing
         last = re.sub(r"^\S*\bas: ", "", last)
-        return f"{source}: {last}" if not last.startswith(str(source)) else last
-    extra = f" (+{len(lines) - 1} more)" if len(lines) > 1 else ""
-    return lines[0] + extra
+        return [f"{source}: {last}" if not last.startswith(str(source)) else last]
+    return lines
 
 
 def _unterminated_string_line(text: bytes | str) -> int:
@@ -571,8 +579,8 @@ def assemble(source: str | os.PathLike, assembler: str | None = None, cpu: Guest
                 raise AssemblerError(f"{source}: the assembler passed its {ASM_MEMORY >> 20} MB memory limit and was "
                                      "stopped (a huge or nested .rept or .irp?)")
             # a binary or non-UTF-8 source is echoed back in the messages: never fail on decoding them
-            raise AssemblerError(_for_cpu(format_diagnostics(stderr.decode("utf-8", errors="replace"), source, tmp),
-                                          cpu))
+            found = diagnostics(stderr.decode("utf-8", errors="replace"), source, tmp)
+            raise AssemblerError(_for_cpu(format_diagnostics_of(found), cpu), tuple(_for_cpu(m, cpu) for m in found))
         if b"end of file in string" in stderr:
             # GNU as only warns, closes the string at the end of the file and swallows every line after
             # it into one symbol name: refuse it where the quote opened

@@ -238,7 +238,8 @@ def _assemble(body: Body, copies: int, pad: int, assembler: str | None, cpu: Gue
         try:
             return Machine.from_source(path, assembler=assembler, cpu=cpu)
         except AssemblerError as e:
-            raise AssemblerError(_user_line(body, lines, str(e), path, wrapper)) from None
+            raise AssemblerError(_user_line(body, lines, str(e), path, wrapper),
+                                 tuple(_user_line(body, lines, m, path, wrapper) for m in e.messages)) from None
         except UntranslatableCode as e:
             raise UntranslatableCode(f"{body.name}: {wrapper} holds {e.count} {X87_RUN_WORDS}; {X87_RUN_LIMIT_WORDS}"
                                      + (" (or time it as a loop ending in a jump back to its start)" if copies > 1 else ""),

@@ -9,7 +9,9 @@ script builds every element from it with ``textContent``, so nothing from a loop
 name is ever parsed as HTML. `serve` sends the same objects over HTTP, so the saved page and the
 app draw with the same code.
 
-No network: the styles and the script are inline, the page loads nothing.
+No network: the styles and the script are inline, the page loads nothing. Served, the page keeps
+its form in the URL's fragment (never sent to a server) and times a link's form when opened; an
+error clears the results and shows every assembler message the answer carries.
 """
 
 from __future__ import annotations
@@ -125,21 +127,27 @@ table{border-collapse:collapse;margin:6px 0} td,th{border:1px solid #ccc;padding
 th{background:#eee} td.num{text-align:right;font-variant-numeric:tabular-nums}
 #error{background:#fdd;border:1px solid #c00;color:#800;padding:6px;margin:6px 0;font-family:monospace;white-space:pre-wrap}
 #status{color:#555;margin:4px 0}
-#form textarea{font-family:monospace;width:46em;height:12em}
+#form textarea{font-family:monospace;width:46em;max-width:calc(100vw - 60px);height:12em}
 #form fieldset{display:inline-block;vertical-align:top;border:1px solid #ccc;margin:4px}
 #form label{display:inline-block;margin-right:8px}
-#cpus{display:flex;flex-wrap:wrap;gap:12px;align-items:flex-start}
-.cpu{background:#fff;border:1px solid #bbb;padding:6px;flex:1 1 30%;min-width:420px;overflow-x:auto}
+#share{margin-left:8px}
+#cpus{display:grid;grid-template-columns:repeat(auto-fill,minmax(min(100%,1100px),1fr));gap:12px;align-items:start}
+.cpu{background:#fff;border:1px solid #bbb;padding:6px;min-width:0;overflow:hidden}
 .cpu .head{font-weight:bold} .cpu .cpi{font-size:16px}
 .notes{color:#444;font-size:12px;max-width:60em}
-.chart{position:relative;font-family:monospace;font-size:11px;margin-top:6px}
-.row{position:relative;height:16px;white-space:nowrap}
+.chart{position:relative;font-family:monospace;font-size:11px;margin-top:6px;overflow:auto;max-height:70vh;
+border:1px solid #ddd}
+.tablebox{overflow-x:auto}
+.row{position:relative;display:flex;height:16px;white-space:nowrap}
 .row:hover{background:#eef}
-.lbl{position:absolute;left:0;width:280px;overflow:hidden;text-overflow:ellipsis}
+.lbl{position:sticky;left:0;z-index:1;flex:0 0 300px;width:300px;overflow:hidden;text-overflow:ellipsis;background:#fff}
 .lane{display:inline-block;width:26px;color:#555}
 .units{display:inline-block;width:62px;color:#357;overflow:hidden;vertical-align:bottom}
-.cells{position:absolute;left:282px;top:0;height:16px}
+.cells{position:relative;flex:0 0 auto;height:16px}
 .seg{position:absolute;top:2px;height:12px;font-size:10px;line-height:12px;text-align:center;color:#000}
+.stall{position:absolute;top:1px;height:14px;line-height:14px;padding:0 4px;font-size:10px;color:#700;
+background:#fee;border:1px solid #c66;border-radius:3px;white-space:nowrap}
+td.stall-cell{color:#700}
 .s-D{background:#9cf} .s-R{background:#ccc} .s-E{background:#6c6} .s-done{background:#dfd} .s-C{background:#fc6}
 .s-wait{background:#eee}
 .ruler{position:relative;height:14px;color:#777;font-size:10px}
@@ -158,6 +166,7 @@ _SCRIPT = r"""
 (function () {
   const CONFIG = JSON.parse(document.getElementById("retrosim-config").textContent);
   const W = 10;  // pixels per cycle
+  const LBL = 302;  // the label column (sticky: it stays when the timeline scrolls sideways)
   const tip = document.getElementById("tip");
   function el(tag, attrs, text) {
     const e = document.createElement(tag);
@@ -182,6 +191,8 @@ _SCRIPT = r"""
   function rowText(view, ins) {
     if (!ins) return "";
     const lines = [ins.instruction + "  (pc 0x" + ins.pc.toString(16) + ", " + ins.executions + " executions)"];
+    const main = mainStall(view, ins);
+    if (main) lines.push("main stall: " + main[0] + ", " + main[1] + " cycles per execution");
     // the family's lines: {field} of the explain row, {field|text} text when the field is empty;
     // a line with a `when` field only when that field is set
     for (const [tpl, when] of view.tip || []) {
@@ -195,6 +206,16 @@ _SCRIPT = r"""
     lines.push("source: " + ins.source);
     return lines.join("\n");
   }
+  // the biggest stall an instruction pays (its explain row's stall fields, in the family's words):
+  // [words, cycles per execution], or null when it pays none
+  function mainStall(view, ins) {
+    let best = null;
+    for (const [field, words] of view.stalls || []) {
+      const c = ins ? Number(ins[field] || 0) : 0;
+      if (c > 0 && (!best || c > best[1])) best = [words, c];
+    }
+    return best;
+  }
   function chart(result, view) {
     const box = el("div", {"class": "chart"});
     const all = result.timeline || [];
@@ -207,10 +228,12 @@ _SCRIPT = r"""
     for (const ins of result.instructions || []) byPc[ins.pc] = ins;
     const ruler = el("div", {"class": "ruler"});
     ruler.appendChild(el("span", {"style": "left:0"}, "cycle 0 = " + base));
-    for (let c = 0; c < span; c += 10) ruler.appendChild(el("span", {"style": "left:" + (282 + c * W) + "px"}, c));
+    for (let c = 0; c < span; c += 10) ruler.appendChild(el("span", {"style": "left:" + (LBL + c * W) + "px"}, c));
+    ruler.style.width = (LBL + span * W + 160) + "px";
     box.appendChild(ruler);
     rows.forEach((r, i) => {
-      const row = el("div", {"class": "row", "data-insn": r.insn, "data-cause": r.cause});
+      const row = el("div", {"class": "row", "data-insn": r.insn, "data-cause": r.cause,
+                             "style": "width:" + (LBL + span * W + 160) + "px"});
       const ins = byPc[r.pc];
       const lane = (view.lanes || [])[i] || "";
       const lbl = el("div", {"class": "lbl " + causeClass(r.cause)});
@@ -237,6 +260,13 @@ _SCRIPT = r"""
       if (r.decode < r.dispatch) seg(r.decode, r.decode + 1, "s-D", "D");
       if (r.alloc !== r.decode && r.alloc < r.dispatch) seg(r.alloc, r.alloc + 1, "s-R", "R");
       seg(r.retire, r.retire + 1, "s-C", "C");
+      // the biggest stall this instruction pays, named beside its last cycle
+      const main = mainStall(view, ins);
+      if (main) {
+        row.setAttribute("data-stall", main[0]);
+        cells.appendChild(el("span", {"class": "stall", "style": "left:" + (Math.min(r.retire + 1 - base, span) * W + 4) + "px"},
+                             main[0] + " " + main[1]));
+      }
       row.appendChild(cells);
       const why = (view.causes.find(([c, _]) => c === r.cause) || [])[1];
       hover(row, () => [
@@ -276,15 +306,22 @@ _SCRIPT = r"""
     const head = el("tr");
     const cols = view.columns || [];  // [heading, field of the explain row], the family's
     cols.forEach(([c, _]) => head.appendChild(el("th", {}, c)));
+    if (view.stalls) head.appendChild(el("th", {}, view.stalls_heading));
     t.appendChild(head);
     for (const ins of result.instructions || []) {
       const tr = el("tr");
       const cells = cols.map(([_, f]) => ins[f]);
       cells.forEach(c => tr.appendChild(el("td", {}, c)));
+      if (view.stalls) {
+        const main = mainStall(view, ins);
+        tr.appendChild(el("td", {"class": "stall-cell"}, main ? main[0] + " " + main[1] : ""));
+      }
       hover(tr, () => rowText(view, ins));
       t.appendChild(tr);
     }
-    return t;
+    const box = el("div", {"class": "tablebox"});
+    box.appendChild(t);
+    return box;
   }
   function headline(result) {
     return result.cycles_per_iteration !== undefined ? ["cycles per iteration", result.cycles_per_iteration]
@@ -293,10 +330,17 @@ _SCRIPT = r"""
   function draw(data) {
     const sum = document.getElementById("summary"), cpus = document.getElementById("cpus");
     sum.replaceChildren(); cpus.replaceChildren();
+    document.getElementById("subtitle").textContent = "";
     if (!data) return;
     const doc = data.doc;
     document.getElementById("subtitle").textContent = doc.source + (data.kind === "loop" ?
       ": steady state, a few iterations from the middle of the measured pass" : ": the last call");
+    if (doc.placement) {  // the settings the run used (a link's, or the command line's), as the document says
+      const pl = doc.placement;
+      sum.appendChild(el("p", {"id": "settings"}, "caches at the measured pass: " + doc.data + " (--data " + doc.data +
+        "); body at " + pl.address + " (--align " + pl.align + " --offset " + pl.offset + "); registers at the start: " +
+        Object.entries(doc.registers || {}).map(([r, v]) => r + "=" + v).join(" ")));
+    }
     for (const w of doc.warnings || []) sum.appendChild(el("p", {"class": "more"}, "warning: " + w));
     for (const [what, list] of Object.entries(doc.not_timed || {})) sum.appendChild(el("p", {"class": "more"},
       "not timed (no " + what + "): " + list.join(", ")));
@@ -342,10 +386,19 @@ _SCRIPT = r"""
       cpus.appendChild(box);
     });
   }
+  function choice(id, pairs) {
+    const sel = el("select", {"id": id});
+    for (const [v, t] of pairs) sel.appendChild(el("option", {"value": v}, t));
+    return sel;
+  }
+  function field(box, id, words, input) {
+    box.appendChild(el("label", {"for": id}, words));
+    box.appendChild(input); box.appendChild(el("br"));
+  }
   function form(app) {
     const f = el("form", {"id": "loop-form"});
     const left = el("fieldset");
-    left.appendChild(el("legend", {}, "loop body (Intel or AT&T)"));
+    left.appendChild(el("legend", {}, "loop body, or a whole gcc -S / clang -S output (Intel or AT&T)"));
     const ta = el("textarea", {"id": "body", "name": "body", "spellcheck": "false"});
     ta.value = app.example || "";
     left.appendChild(ta);
@@ -361,38 +414,98 @@ _SCRIPT = r"""
     }
     f.appendChild(cpus);
     const opts = el("fieldset");
-    opts.appendChild(el("legend", {}, "options"));
-    opts.appendChild(el("label", {"for": "memory"}, "memory"));
-    const mem = el("select", {"id": "memory"});
-    mem.appendChild(el("option", {"value": ""}, "(each CPU's default)"));
-    for (const m of app.memories) mem.appendChild(el("option", {"value": m}, m));
-    opts.appendChild(mem); opts.appendChild(el("br"));
-    opts.appendChild(el("label", {"for": "syntax"}, "syntax"));
-    const syn = el("select", {"id": "syntax"});
-    for (const [v, t] of [["", "detect"], ["intel", "Intel"], ["att", "AT&T"]]) syn.appendChild(el("option", {"value": v}, t));
-    opts.appendChild(syn); opts.appendChild(el("br"));
-    opts.appendChild(el("label", {"for": "iterations"}, "iterations"));
-    opts.appendChild(el("input", {"id": "iterations", "type": "number", "value": "100", "min": "4", "style": "width:6em"}));
+    opts.appendChild(el("legend", {}, "options (as retrosim loop's)"));
+    field(opts, "memory", "memory", choice("memory", [["", "(each CPU's default)"]].concat(app.memories.map(m => [m, m]))));
+    field(opts, "syntax", "syntax", choice("syntax", [["", "detect"], ["intel", "Intel"], ["att", "AT&T"]]));
+    field(opts, "data", "--data (caches at the measured pass)", choice("data", app.data.map(d => [d, d])));
+    field(opts, "iterations", "iterations", el("input", {"id": "iterations", "type": "number", "value": "100", "min": "4",
+                                                         "style": "width:6em"}));
+    field(opts, "align", "--align (bytes)", choice("align", app.aligns.map(a => [String(a), String(a)])));
+    field(opts, "offset", "--offset (bytes past it)", el("input", {"id": "offset", "type": "number", "value": "0", "min": "0",
+                                                                "style": "width:6em"}));
+    opts.appendChild(el("label", {"for": "regs"}, "--reg R=V, one a line"));
+    opts.appendChild(el("br"));
+    opts.appendChild(el("textarea", {"id": "regs", "style": "width:22em;height:3em"}));
     opts.appendChild(el("br"));
     opts.appendChild(el("label", {"for": "sets"}, "--set KEY=VALUE, one a line"));
     opts.appendChild(el("br"));
     opts.appendChild(el("textarea", {"id": "sets", "style": "width:22em;height:4em"}));
     opts.appendChild(el("br"));
     opts.appendChild(el("button", {"type": "submit", "id": "run"}, "time it"));
+    opts.appendChild(el("a", {"id": "share", "href": "#"}, "link to this view"));
     f.appendChild(opts);
     f.addEventListener("submit", (ev) => { ev.preventDefault(); submit(); });
     document.getElementById("form").appendChild(f);
+    document.getElementById("data").value = app.default_data;
+    document.getElementById("align").value = String(app.default_align);
   }
-  async function submit() {
-    const err = document.getElementById("error"), status = document.getElementById("status");
-    const req = {
+  function lines(id) {
+    return document.getElementById(id).value.split("\n").map(s => s.trim()).filter(s => s);
+  }
+  function request() {
+    return {
       body: document.getElementById("body").value,
       cpus: Array.from(document.querySelectorAll("input[name=cpu]:checked")).map(b => b.value),
       memory: document.getElementById("memory").value || null,
       syntax: document.getElementById("syntax").value || null,
       iterations: Number(document.getElementById("iterations").value || 100),
-      sets: document.getElementById("sets").value.split("\n").map(s => s.trim()).filter(s => s),
+      sets: lines("sets"),
+      regs: lines("regs"),
+      align: Number(document.getElementById("align").value),
+      offset: Number(document.getElementById("offset").value || 0),
+      data: document.getElementById("data").value,
     };
+  }
+  // The form in the URL's fragment (after '#': a browser never sends it, so a body stays out of
+  // every server log): one key per field, a list as repeated keys.
+  const SCALARS = ["body", "memory", "syntax", "iterations", "align", "offset", "data"];
+  function toFragment(req) {
+    const q = new URLSearchParams();
+    for (const k of SCALARS) if (req[k] !== null && req[k] !== undefined) q.append(k, String(req[k]));
+    for (const c of req.cpus) q.append("cpu", c);
+    for (const v of req.sets) q.append("set", v);
+    for (const v of req.regs) q.append("reg", v);
+    return q.toString();
+  }
+  // A link's fields into the form (values only: a link is anyone's text); what this server cannot
+  // show (a CPU or memory it does not have) is said, not dropped silently.
+  function fromFragment(fragment) {
+    const q = new URLSearchParams(fragment);
+    const missing = [];
+    if (q.has("body")) document.getElementById("body").value = q.get("body");
+    for (const id of ["memory", "syntax", "data", "align"]) {
+      if (!q.has(id)) continue;
+      const sel = document.getElementById(id), v = q.get(id);
+      if (Array.from(sel.options).some(o => o.value === v)) sel.value = v; else missing.push(id + " " + v);
+    }
+    for (const id of ["iterations", "offset"]) if (q.has(id)) document.getElementById(id).value = q.get(id);
+    document.getElementById("sets").value = q.getAll("set").join("\n");
+    document.getElementById("regs").value = q.getAll("reg").join("\n");
+    if (q.has("cpu")) {
+      const want = q.getAll("cpu");
+      const boxes = Array.from(document.querySelectorAll("input[name=cpu]"));
+      for (const b of boxes) b.checked = want.includes(b.value);
+      for (const c of want) if (!boxes.some(b => b.value === c)) missing.push("cpu " + c);
+    }
+    return missing;
+  }
+  function showError(err, answer) {
+    // the results drawn before are another body's: cleared, so nothing stale stays on screen
+    draw(null);
+    const msgs = answer.messages || [];
+    err.textContent = answer.error + (msgs.length ? "\nevery assembler message:\n" + msgs.join("\n") : "");
+    err.hidden = false;
+  }
+  async function submit(note) {
+    const err = document.getElementById("error"), status = document.getElementById("status");
+    const req = request();
+    const link = "#" + toFragment(req);
+    try {
+      history.replaceState(null, "", link);
+      document.getElementById("share").setAttribute("href", link);
+    } catch (e) {  // a URL past what the browser keeps (Chromium: 2 MB): the view still runs, unlinked
+      note = (note ? note + "; " : "") + "no link: the form is too long for a URL";
+    }
     status.textContent = "timing...";
     document.body.setAttribute("data-state", "busy");
     const t0 = performance.now();
@@ -401,21 +514,32 @@ _SCRIPT = r"""
                                             body: JSON.stringify(req)});
       const answer = await resp.json();
       if (answer.error) {
-        err.textContent = answer.error; err.hidden = false;
-        status.textContent = "";
+        showError(err, answer);
+        status.textContent = "HTTP " + resp.status;
       } else {
         err.hidden = true; err.textContent = "";
         draw(answer.data);
         status.textContent = "answered in " + Math.round(performance.now() - t0) + " ms (server: " + answer.ms + " ms)";
       }
     } catch (e) {
-      err.textContent = "retrosim: error: the server did not answer (" + e + ")"; err.hidden = false;
+      showError(err, {"error": "retrosim: error: the server did not answer (" + e + ")"});
       status.textContent = "";
     }
+    if (note) status.textContent += " (" + note + ")";
     document.body.setAttribute("data-state", "done");
   }
-  if (CONFIG.app) form(CONFIG.app);
+  function follow() {  // a link to a view: its form, timed at once
+    const fragment = location.hash.slice(1);
+    if (!fragment) return;
+    const missing = fromFragment(fragment);
+    submit(missing.length ? "the link names what this server does not have: " + missing.join(", ") : "");
+  }
   draw(JSON.parse(document.getElementById("retrosim-data").textContent));
+  if (CONFIG.app) form(CONFIG.app);
   document.body.setAttribute("data-state", "ready");
+  if (CONFIG.app) {
+    follow();
+    window.addEventListener("hashchange", follow);  // a link pasted into this tab's address bar
+  }
 })();
 """

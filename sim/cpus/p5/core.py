@@ -464,7 +464,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
                         per_static[ps, S_L1D_MISSES] += 1
                         # a write buffer: wait for the oldest when all are busy, then drain to the bus
                         w = wb_free[wb_pos]
-                        if w > now + wbw:
+                        if w > now + wbw:  # the store that waits pays it (in a pair, not the U instruction)
+                            per_static[ps, S_WB] += w - now - wbw
                             wbw = w - now
                         d0 = max(now + wbw, bus_free)
                         bus_free = d0 + P[P_WRITE_BUS]
@@ -495,7 +496,6 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
         counters[seg, C_BANK] += bank
         counters[seg, C_WB] += wbw
         per_static[pa, S_BANK] += bank
-        per_static[pa, S_WB] += wbw
         end = start + dur + mem + mis + bank + wbw
         if P[P_PFX_SHADOW] == 1:
             # any delay but a decode delay or a mispredict (AGI, execute clocks, misses) casts the shadow

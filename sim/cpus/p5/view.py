@@ -178,7 +178,17 @@ class P5View(FamilyView):
                     ["ran alone because: {alone_because}", "alone_because"]],
             "notes": ["In-order U and V pipes: two instructions issued in one clock paired (the first in U, "
                       "the second in V); one issued alone ran in U, and its colour says why it did not pair."],
+            "stalls": self.page_stalls(),
+            "stalls_heading": "main stall (clocks per execution)",
         }
+
+    def page_stalls(self) -> list[list[str]]:
+        """The P5's stall columns of an explain row in its words (a pair's bank conflict and AGI are
+        the pair's first instruction's; a store's wait for the write buffer is the store's)."""
+        own = {"stall_prefix": "prefix decode", "stall_fpu": "x87 wait", "stall_memory": "memory: a miss beyond L1",
+               "stall_misaligned": "misaligned access", **self.stall_words}
+        return [[k, own.get(k, k[6:].replace("_", " "))] for k in self.stall_counters
+                if k not in ("stall_fetch", "stall_mispredict")]  # counted per run, not per instruction
 
 
 def lanes(rows: list[dict]) -> list[str]:
