@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import io
 import re
+from typing import TYPE_CHECKING
 
 import numpy as np
 from rich import box
@@ -17,7 +18,9 @@ from sim.cpus import contract as core  # the counter, per-instruction and timeli
 from sim.cpus import families
 from sim.cpus.view import SUMMARY_STALLS, FamilyView, TableSpec
 from sim.cpus.vocabulary import STALL_KINDS, Vocabulary
-from sim.timing.kernel import TimingResult
+
+if TYPE_CHECKING:  # a view reads a timed run; it never times one
+    from sim.timing.kernel import TimingResult
 
 STALLS = ("stall_decode", "stall_fetch", "stall_mispredict", "stall_rob", "stall_rs", "stall_store_buffer",
           "stall_partial_register", "stall_partial_flags", "stall_dependency", "stall_port", "stall_memory",
