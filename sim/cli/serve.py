@@ -2,7 +2,8 @@
 
 One page (sim/reports/pipeline_html.py, the same page `loop --html` writes, with a form): paste a
 loop body, pick CPUs, memory, --data, --align/--offset, --reg and --set, and it draws what `retrosim
-loop --json` gives; the form travels in the URL's fragment, so a link reproduces the view.
+loop --json` gives (with a second body, B, what `loop A.s B.s --json` gives: both runs and their
+comparison); the form travels in the URL's fragment, so a link reproduces the view.
 
 Why it answers in milliseconds: the cost of `retrosim loop` is starting Python (imports) and loading
 each family's compiled core; the timing itself takes tens of milliseconds. The server starts once,

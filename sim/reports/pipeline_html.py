@@ -11,7 +11,9 @@ app draw with the same code.
 
 No network: the styles and the script are inline, the page loads nothing. Served, the page keeps
 its form in the URL's fragment (never sent to a server) and times a link's form when opened; an
-error clears the results and shows every assembler message the answer carries.
+error clears the results and shows every assembler message the answer carries. With a second
+body (B) the answer also carries B's run and `loop A.s B.s`'s comparison: the A/B table goes above
+A's panels, then B's.
 """
 
 from __future__ import annotations
