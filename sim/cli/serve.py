@@ -134,7 +134,8 @@ def parse_request(req) -> dict:
     regs, align, offset = texts("regs", 16), integer("align", loop_program.DEFAULT_ALIGN), integer("offset", 0)
     loop_program.placement(align, offset)
     loop_program.parse_regs(regs)
-    return {"text": body, "text_b": body_b, "cpus": texts("cpus", MAX_CPUS) or list(DEFAULT_CPUS), "sets": texts("sets", 64),
+    return {"text": body, "text_b": body_b, "cpus": texts("cpus", MAX_CPUS) or list(DEFAULT_CPUS),
+            "sets": texts("sets", 64),
             "memory": text("memory") or None, "syntax": syntax, "iterations": integer("iterations", 100),
             "regs": regs, "align": align, "offset": offset, "timeline": timeline, "data": data}
 
