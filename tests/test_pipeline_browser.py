@@ -383,3 +383,48 @@ def test_p5_texture_loop_store_shows_its_write_buffer_stall(context, tmp_path):
     cell = page.locator("table.explain tr", has_text="mov byte ptr [edi]").locator("td.stall-cell")
     assert cell.inner_text().startswith("write buffer full")
     page.close()
+
+
+def test_a_second_body_shows_the_clis_comparison_above_both_runs_and_the_link_keeps_it(context, server):
+    a, b = ROOT / "examples" / "texture-loop9.s", ROOT / "examples" / "texture-loop.s"
+    loop9, loop5 = a.read_text(), b.read_text()
+    cpus = ["pentium-mmx-233", "k6-2-300"]
+    r = CliRunner().invoke(main, ["loop", str(a), str(b), "--cpu", ",".join(cpus), "--json"])
+    assert r.exit_code == 0, r.output
+    cli = json.loads(r.output)
+    page = context.new_page()
+    page.goto(server)
+    page.wait_for_selector("body[data-state=ready]")
+    page.fill("#body-b", loop5)
+    run_in_page(page, loop9, cpus)
+    assert page.locator("#error").is_hidden(), page.locator("#error").inner_text()
+
+    def shown_ab(p) -> dict[str, list[str]]:  # cpu -> A, B, A/B, faster as on screen
+        rows = p.locator("#compare table.ab tr[data-cpu]")
+        return {rows.nth(i).get_attribute("data-cpu"): [rows.nth(i).locator("td").nth(k).inner_text()
+                                                        for k in (1, 2, 3, 4)] for i in range(rows.count())}
+    expected = {e["cpu"]: [f"{e['cycles_per_iteration'][0]:.2f}", f"{e['cycles_per_iteration'][1]:.2f}",
+                           f"{e['ratio']:.3f}", {"same": "neither"}.get(e["faster"], e["faster"])]
+                for e in cli["comparison"][0]["per_cpu"]}
+    assert shown_ab(page) == expected
+    # the table sits above both runs' panels, and each run's panels show its own cycles
+    tops = page.evaluate("['compare', 'summary', 'cpus', 'summary-b', 'cpus-b'].map("
+                         "id => document.getElementById(id).getBoundingClientRect().top)")
+    assert tops == sorted(tops) and tops[0] < tops[1]
+    assert shown_cycles(page) == {x["cpu"]: f"{x['cycles_per_iteration']:.2f}" for x in cli["a"]["results"]}
+    rows_b = page.locator("#summary-table-b tr[data-cpu]")
+    assert [rows_b.nth(i).locator("td.cycles").inner_text() for i in range(rows_b.count())] == \
+        [f"{x['cycles_per_iteration']:.2f}" for x in cli["b"]["results"]]
+    assert page.locator("#cpus-b .cpu").count() == len(cpus)
+    link = page.url
+    assert "body_b=" in link.split("#", 1)[1]
+    page.close()
+    again = context.new_page()
+    again.goto(link)  # the link fills both boxes and times them at once
+    again.wait_for_selector("body[data-state=done]")
+    assert again.input_value("#body-b") == loop5 and shown_ab(again) == expected
+    # B emptied: A alone, and no comparison or B panels stay on screen
+    again.fill("#body-b", "")
+    run_in_page(again, loop9, cpus)
+    assert again.locator("#compare table").count() == 0 and again.locator("#cpus-b .cpu").count() == 0
+    again.close()

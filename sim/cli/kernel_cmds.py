@@ -420,27 +420,14 @@ def _print_region_head(section, name) -> None:
         _print_lines(region.notes)
 
 
-def _ab_pairs(runs) -> list[tuple[dict, dict]]:
-    """The sections of A and B that are compared: the one body each, or a whole output's regions in
-    order when both have as many."""
-    (_, name_a, _, a), (_, name_b, _, b) = runs
-    if len(a) != len(b):
-        count = lambda s: f"{len(s)} region{'s' if len(s) > 1 else ''}" if s[0]["region"] else "one body"  # noqa: E731
-        raise ArgumentError(f"loop A.s B.s: {name_a} holds {count(a)} and {name_b} {count(b)}: they do not pair "
-                            "up; cut each to one region (# LLVM-MCA-BEGIN name / # LLVM-MCA-END) or one body")
-    return list(zip(a, b))
-
-
 def _loop_ab(runs, iterations, timeline, align, offset, detail, brief, as_json) -> None:
     """`loop A.s B.s`: per CPU both figures, the ratio, the faster and what differs most; then each
     side's summary (and with --detail its detail)."""
     from sim.reports import compare
 
-    (_, name_a, doc_a, _), (_, name_b, doc_b, _) = runs
-    pairs = _ab_pairs(runs)
-    label = lambda s, name: f"{name} {s['region'].name}" if s["region"] is not None else name  # noqa: E731
-    comparison = [{"a": label(sa, name_a), "b": label(sb, name_b),
-                   "per_cpu": compare.loop_pair(sa["timings"], sb["timings"])} for sa, sb in pairs]
+    (_, name_a, doc_a, sections_a), (_, name_b, doc_b, sections_b) = runs
+    comparison = compare.loop_comparison(name_a, sections_a, name_b, sections_b)
+    pairs = list(zip(sections_a, sections_b))
     if as_json:
         click.echo(json.dumps({"a": doc_a, "b": doc_b, "comparison": comparison}, indent=2))
         return
@@ -455,17 +442,13 @@ def _loop_ab(runs, iterations, timeline, align, offset, detail, brief, as_json) 
                           {"A": "A", "B": "B", "same": "neither"}[e["faster"]],
                           escape(", ".join(f"{d['words']} {d['a_minus_b']:+g}" for d in e["differences"]) or "none"))
         console.print(table)
-        _print_lines([AB_NOTE])
+        _print_lines([compare.AB_NOTE])
     depth = "all" if detail else "summary"
     for (sa, sb), c in zip(pairs, comparison):
         for side, section, name in (("A", sa, name_a), ("B", sb, name_b)):
             console.print(f"[bold]{side}[/]: {escape(c[side.lower()])}")
             _print_loop_section(section["doc"], section["timings"], name, iterations, timeline, align, offset,
                                 "summary" if brief else depth)
-
-
-AB_NOTE = ("differs most: the per-iteration counters of the two in the family's words, largest difference first; "
-           "stall cycles overlap, so the stall that differs most need not be the one that costs the cycles")
 
 
 def _print_loop_section(doc, timings, name, iterations, timeline, align, offset, depth) -> None:

@@ -2,7 +2,8 @@
 
 One page (sim/reports/pipeline_html.py, the same page `loop --html` writes, with a form): paste a
 loop body, pick CPUs, memory, --data, --align/--offset, --reg and --set, and it draws what `retrosim
-loop --json` gives; the form travels in the URL's fragment, so a link reproduces the view.
+loop --json` gives (with a second body, B, what `loop A.s B.s --json` gives: both runs and their
+comparison); the form travels in the URL's fragment, so a link reproduces the view.
 
 Why it answers in milliseconds: the cost of `retrosim loop` is starting Python (imports) and loading
 each family's compiled core; the timing itself takes tens of milliseconds. The server starts once,
@@ -50,6 +51,7 @@ import click
 from sim.cli.app import bounded, main, one_line
 from sim.errors import ArgumentError, RetrosimError
 
+BODY_B = "<body B>"  # how a line names the second body (the first is "<body>", as `loop -` names its own)
 DEFAULT_CPUS = ("pentium-mmx-233", "pentium2-233", "k6-2-300")  # one per family
 EXAMPLE = """\
 // a loop body: Intel or AT&T syntax; it ends with a jump back to its first line
@@ -63,7 +65,7 @@ top:
     jnz   top
 """
 WARM_BODY = "top:\n  add eax, [esi]\n  imul ebx, ecx\n  add esi, 4\n  dec edx\n  jnz top\n"
-MAX_REQUEST_BYTES = (1 << 20) + (64 << 10)  # a body (loop_body.MAX_BODY_BYTES) and its options
+MAX_REQUEST_BYTES = (2 << 20) + (64 << 10)  # two bodies (A and B: loop_body.MAX_BODY_BYTES each) and options
 MAX_CPUS = 32
 MAX_OPTION_CHARS = 256  # one --set, --reg or CPU name
 MAX_ANSWER_BYTES = 64 << 20
@@ -86,7 +88,7 @@ def parse_request(req) -> dict:
 
     if not isinstance(req, dict):
         raise ArgumentError("the request is not a JSON object")
-    unknown = set(req) - {"body", "cpus", "sets", "memory", "syntax", "iterations", "regs", "align", "offset",
+    unknown = set(req) - {"body", "body_b", "cpus", "sets", "memory", "syntax", "iterations", "regs", "align", "offset",
                           "timeline", "data"}
     if unknown:
         raise ArgumentError(f"unknown request field(s): {', '.join(sorted(unknown))}")
@@ -116,6 +118,9 @@ def parse_request(req) -> dict:
     body = text("body", "")
     if not body.strip():
         raise ArgumentError("<body>: no instructions in the body")
+    body_b = text("body_b")  # B, to compare (`loop A.s B.s`): the same bounds and checks as A's
+    if body_b is not None and not body_b.strip():
+        raise ArgumentError(f"{BODY_B}: no instructions in the body (leave body_b out to time A alone)")
     syntax = text("syntax") or None
     if syntax is not None and syntax not in ("intel", "att"):
         raise ArgumentError(f"--syntax {syntax}: choose intel or att")
@@ -129,7 +134,8 @@ def parse_request(req) -> dict:
     regs, align, offset = texts("regs", 16), integer("align", loop_program.DEFAULT_ALIGN), integer("offset", 0)
     loop_program.placement(align, offset)
     loop_program.parse_regs(regs)
-    return {"text": body, "cpus": texts("cpus", MAX_CPUS) or list(DEFAULT_CPUS), "sets": texts("sets", 64),
+    return {"text": body, "text_b": body_b, "cpus": texts("cpus", MAX_CPUS) or list(DEFAULT_CPUS),
+            "sets": texts("sets", 64),
             "memory": text("memory") or None, "syntax": syntax, "iterations": integer("iterations", 100),
             "regs": regs, "align": align, "offset": offset, "timeline": timeline, "data": data}
 
@@ -140,36 +146,49 @@ def _unicode(key: str, value: str) -> str:
     try:
         value.encode("utf-8")
     except UnicodeEncodeError as e:
-        where = f"<body>:{value.count(chr(10), 0, e.start) + 1}" if key == "body" else f"{key}: character {e.start + 1}"
+        names = {"body": "<body>", "body_b": BODY_B}
+        where = (f"{names[key]}:{value.count(chr(10), 0, e.start) + 1}" if key in names
+                 else f"{key}: character {e.start + 1}")
         raise ArgumentError(f"{where}: a lone UTF-16 surrogate ({value[e.start]!r}) is no character") from None
     return value
 
 
 def compute(req) -> dict:
-    """Time one request's body (in the child): the page's data, or the one-line error and its HTTP
-    status. The body is a client's, not the user's: it may read no file (asm.served_sources)."""
+    """Time one request's body, or its two (A and B, compared as `retrosim loop A.s B.s` compares
+    them), in the child: the page's data, or the one-line error and its HTTP status. A body is a
+    client's, not the user's: it may read no file (asm.served_sources)."""
     from sim.cli.kernel_cmds import loop_document, page_section
     from sim.guest import asm
-    from sim.reports import pipeline_html
+    from sim.reports import compare, pipeline_html
 
     try:
         o = parse_request(req)
+        bodies = [("<body>", o["text"])] + ([(BODY_B, o["text_b"])] if o["text_b"] is not None else [])
+        runs = []
         # its objects go to a folder of its own, removed with it: a client fills no disk of the user's
         # cache (an object may have 64 MB) and never meets an object the user assembled
         with asm.served_sources(), tempfile.TemporaryDirectory(prefix="retrosim-serve-") as cache:
             before = os.environ.get(asm.CACHE_ENV)
             os.environ[asm.CACHE_ENV] = cache
             try:
-                _, sections = loop_document(o["text"], "<body>", o["cpus"], o["memory"], o["sets"], o["syntax"],
-                                             o["iterations"], o["regs"], o["align"], o["offset"], o["timeline"],
-                                             None, data=o["data"])
+                for name, text in bodies:
+                    _, sections = loop_document(text, name, o["cpus"], o["memory"], o["sets"], o["syntax"],
+                                                o["iterations"], o["regs"], o["align"], o["offset"], o["timeline"],
+                                                None, data=o["data"])
+                    runs.append((name, text, sections))
             finally:
                 if before is None:
                     del os.environ[asm.CACHE_ENV]
                 else:
                     os.environ[asm.CACHE_ENV] = before
-        doc, timings = page_section(sections)  # a whole output: its first region
-        return {"data": pipeline_html.loop_data(doc, timings, o["text"])}
+        answer = {}
+        for key, (_, text, sections) in zip(("data", "data_b"), runs):
+            doc, timings = page_section(sections)  # a whole output: its first region
+            answer[key] = pipeline_html.loop_data(doc, timings, text)
+        if len(runs) == 2:
+            (name_a, _, sections_a), (name_b, _, sections_b) = runs
+            answer["comparison"] = compare.loop_comparison(name_a, sections_a, name_b, sections_b)
+        return answer
     except RetrosimError as e:
         # the command line's one line, and every assembler message in full (the line says "(+1 more)")
         messages = [one_line(m) for m in getattr(e, "messages", ())]

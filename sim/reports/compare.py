@@ -7,6 +7,8 @@ from __future__ import annotations
 import math
 from typing import Iterable, Mapping
 
+from sim.errors import ArgumentError
+
 
 def differences(a: Mapping[str, float], b: Mapping[str, float], counters: Iterable[str],
                 at_least: float = 0.005, digits: int = 3) -> dict[str, float]:
@@ -49,3 +51,22 @@ def loop_pair(timings_a, timings_b, n: int = 4) -> list[dict]:
                     "faster": faster(ca, cb),
                     "differences": [{"counter": k, "words": words[k], "a_minus_b": d} for k, d in diffs]})
     return out
+
+
+def loop_comparison(name_a: str, sections_a: list[dict], name_b: str, sections_b: list[dict]) -> list[dict]:
+    """`retrosim loop A.s B.s` and the web app's second body: the sections of A and B paired (the
+    one body each, or a whole output's regions in order when both have as many), each pair as
+    {"a": its label, "b": its label, "per_cpu": :func:`loop_pair`}. Sections are the ones
+    sim.cli.kernel_cmds.loop_document gives; regions that do not pair up are one ArgumentError."""
+    if len(sections_a) != len(sections_b):
+        count = lambda s: f"{len(s)} region{'s' if len(s) > 1 else ''}" if s[0]["region"] else "one body"  # noqa: E731
+        raise ArgumentError(f"loop A.s B.s: {name_a} holds {count(sections_a)} and {name_b} {count(sections_b)}: they "
+                            "do not pair up; cut each to one region (# LLVM-MCA-BEGIN name / # LLVM-MCA-END) or one "
+                            "body")
+    label = lambda s, name: f"{name} {s['region'].name}" if s["region"] is not None else name  # noqa: E731
+    return [{"a": label(sa, name_a), "b": label(sb, name_b), "per_cpu": loop_pair(sa["timings"], sb["timings"])}
+            for sa, sb in zip(sections_a, sections_b)]
+
+
+AB_NOTE = ("differs most: the per-iteration counters of the two in the family's words, largest difference first; "
+           "stall cycles overlap, so the stall that differs most need not be the one that costs the cycles")

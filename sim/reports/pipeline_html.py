@@ -11,7 +11,9 @@ app draw with the same code.
 
 No network: the styles and the script are inline, the page loads nothing. Served, the page keeps
 its form in the URL's fragment (never sent to a server) and times a link's form when opened; an
-error clears the results and shows every assembler message the answer carries.
+error clears the results and shows every assembler message the answer carries. With a second
+body (B) the answer also carries B's run and `loop A.s B.s`'s comparison: the A/B table goes above
+A's panels, then B's.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import json
 import re
 
 from sim.cpus import families
+from sim.reports import compare
 
 # Most timeline rows and cycles one CPU's chart draws: beyond them the page says how many it left
 # out (a browser stays responsive with a few thousand positioned elements per chart).
@@ -89,7 +92,7 @@ def page(data: dict | None, app: dict | None = None) -> str:
     title = "retrosim pipeline view"
     if data:
         title = f"{data['doc'].get('source', '')}: {title}"
-    config = {"max_rows": MAX_ROWS, "max_cycles": MAX_CYCLES, "app": app}
+    config = {"max_rows": MAX_ROWS, "max_cycles": MAX_CYCLES, "app": app, "ab_note": compare.AB_NOTE}
     return (_TEMPLATE.replace("%TITLE%", html.escape(title))
             .replace("%STYLE%", _STYLE)
             .replace("%DATA%", _json_for_script(data))
@@ -110,8 +113,11 @@ _TEMPLATE = """<!DOCTYPE html>
 <section id="form"></section>
 <div id="error" role="alert" hidden></div>
 <div id="status"></div>
+<section id="compare"></section>
 <section id="summary"></section>
-<section id="cpus"></section>
+<section id="cpus" class="cpugrid"></section>
+<section id="summary-b"></section>
+<section id="cpus-b" class="cpugrid"></section>
 <div id="tip" hidden></div>
 <script type="application/json" id="retrosim-data">%DATA%</script>
 <script type="application/json" id="retrosim-config">%CONFIG%</script>
@@ -131,7 +137,7 @@ th{background:#eee} td.num{text-align:right;font-variant-numeric:tabular-nums}
 #form fieldset{display:inline-block;vertical-align:top;border:1px solid #ccc;margin:4px}
 #form label{display:inline-block;margin-right:8px}
 #share{margin-left:8px}
-#cpus{display:grid;grid-template-columns:repeat(auto-fill,minmax(min(100%,1100px),1fr));gap:12px;align-items:start}
+.cpugrid{display:grid;grid-template-columns:repeat(auto-fill,minmax(min(100%,1100px),1fr));gap:12px;align-items:start}
 .cpu{background:#fff;border:1px solid #bbb;padding:6px;min-width:0;overflow:hidden}
 .cpu .head{font-weight:bold} .cpu .cpi{font-size:16px}
 .notes{color:#444;font-size:12px;max-width:60em}
@@ -327,24 +333,58 @@ _SCRIPT = r"""
     return result.cycles_per_iteration !== undefined ? ["cycles per iteration", result.cycles_per_iteration]
                                                       : ["cycles (last call)", result.cycles];
   }
-  function draw(data) {
-    const sum = document.getElementById("summary"), cpus = document.getElementById("cpus");
-    sum.replaceChildren(); cpus.replaceChildren();
+  // `loop A.s B.s`'s table (sim/reports/compare.py: loop_comparison), one per pair of regions
+  function comparisonTables(box, comparison) {
+    for (const c of comparison) {
+      const t = el("table", {"class": "ab"});
+      t.appendChild(el("caption", {}, "A/B, cycles per iteration: A = " + c.a + ", B = " + c.b));
+      const hr = el("tr");
+      ["cpu", "A", "B", "A/B", "faster", "differs most per iteration (A minus B)"].forEach(h => hr.appendChild(el("th", {}, h)));
+      t.appendChild(hr);
+      for (const e of c.per_cpu) {
+        const tr = el("tr", {"data-cpu": e.cpu});
+        const [ca, cb] = e.cycles_per_iteration;
+        tr.appendChild(el("td", {}, e.cpu));
+        tr.appendChild(el("td", {"class": "num"}, fmt2(ca)));
+        tr.appendChild(el("td", {"class": "num"}, fmt2(cb)));
+        tr.appendChild(el("td", {"class": "num ratio"}, e.ratio === null ? "inf" : Number(e.ratio).toFixed(3)));
+        tr.appendChild(el("td", {"class": "faster"}, {"A": "A", "B": "B", "same": "neither"}[e.faster]));
+        tr.appendChild(el("td", {}, e.differences.map(d => d.words + " " + (d.a_minus_b >= 0 ? "+" : "") + d.a_minus_b)
+                                                 .join(", ") || "none"));
+        t.appendChild(tr);
+      }
+      box.appendChild(t);
+    }
+    box.appendChild(el("p", {"class": "notes"}, CONFIG.ab_note));
+  }
+  // one run's summary and panels; B's (the second body, compared) under A's, its ids ending "-b"
+  function draw(data, dataB, comparison) {
+    const ab = document.getElementById("compare");
+    ab.replaceChildren();
+    drawRun(data, "", dataB ? "A: " : "");
+    drawRun(dataB, "-b", "B: ");
     document.getElementById("subtitle").textContent = "";
     if (!data) return;
-    const doc = data.doc;
-    document.getElementById("subtitle").textContent = doc.source + (data.kind === "loop" ?
+    document.getElementById("subtitle").textContent = data.doc.source + (data.kind === "loop" ?
       ": steady state, a few iterations from the middle of the measured pass" : ": the last call");
+    if (comparison) comparisonTables(ab, comparison);
+  }
+  function drawRun(data, side, heading) {
+    const sum = document.getElementById("summary" + side), cpus = document.getElementById("cpus" + side);
+    sum.replaceChildren(); cpus.replaceChildren();
+    if (!data) return;
+    const doc = data.doc;
+    if (heading) sum.appendChild(el("h2", {}, heading + doc.source));
     if (doc.placement) {  // the settings the run used (a link's, or the command line's), as the document says
       const pl = doc.placement;
-      sum.appendChild(el("p", {"id": "settings"}, "caches at the measured pass: " + doc.data + " (--data " + doc.data +
+      sum.appendChild(el("p", {"id": "settings" + side}, "caches at the measured pass: " + doc.data + " (--data " + doc.data +
         "); body at " + pl.address + " (--align " + pl.align + " --offset " + pl.offset + "); registers at the start: " +
         Object.entries(doc.registers || {}).map(([r, v]) => r + "=" + v).join(" ")));
     }
     for (const w of doc.warnings || []) sum.appendChild(el("p", {"class": "more"}, "warning: " + w));
     for (const [what, list] of Object.entries(doc.not_timed || {})) sum.appendChild(el("p", {"class": "more"},
       "not timed (no " + what + "): " + list.join(", ")));
-    const t = el("table", {"id": "summary-table"});
+    const t = el("table", {"id": "summary-table" + side});
     const hr = el("tr");
     ["cpu", "family", headline(doc.results[0] || {})[0], "IPC", "est. rows"].forEach(c => hr.appendChild(el("th", {}, c)));
     t.appendChild(hr);
@@ -366,7 +406,7 @@ _SCRIPT = r"""
     if (data.body) {
       const d = el("details");
       d.appendChild(el("summary", {}, "the body as given"));
-      d.appendChild(el("pre", {"id": "body-text"}, data.body));
+      d.appendChild(el("pre", {"id": "body-text" + side}, data.body));
       sum.appendChild(d);
     }
     doc.results.forEach((r, k) => {
@@ -402,6 +442,11 @@ _SCRIPT = r"""
     const ta = el("textarea", {"id": "body", "name": "body", "spellcheck": "false"});
     ta.value = app.example || "";
     left.appendChild(ta);
+    // a second body: timed alike and compared with the first, as `retrosim loop A.s B.s` does
+    left.appendChild(el("br"));
+    left.appendChild(el("label", {"for": "body-b"}, "B, to compare (optional; as retrosim loop A.s B.s)"));
+    left.appendChild(el("br"));
+    left.appendChild(el("textarea", {"id": "body-b", "name": "body_b", "spellcheck": "false", "style": "height:6em"}));
     f.appendChild(left);
     const cpus = el("fieldset", {"id": "cpu-choice"});
     cpus.appendChild(el("legend", {}, "CPUs"));
@@ -445,6 +490,7 @@ _SCRIPT = r"""
   function request() {
     return {
       body: document.getElementById("body").value,
+      body_b: document.getElementById("body-b").value.trim() ? document.getElementById("body-b").value : null,
       cpus: Array.from(document.querySelectorAll("input[name=cpu]:checked")).map(b => b.value),
       memory: document.getElementById("memory").value || null,
       syntax: document.getElementById("syntax").value || null,
@@ -458,7 +504,7 @@ _SCRIPT = r"""
   }
   // The form in the URL's fragment (after '#': a browser never sends it, so a body stays out of
   // every server log): one key per field, a list as repeated keys.
-  const SCALARS = ["body", "memory", "syntax", "iterations", "align", "offset", "data"];
+  const SCALARS = ["body", "body_b", "memory", "syntax", "iterations", "align", "offset", "data"];
   function toFragment(req) {
     const q = new URLSearchParams();
     for (const k of SCALARS) if (req[k] !== null && req[k] !== undefined) q.append(k, String(req[k]));
@@ -473,6 +519,7 @@ _SCRIPT = r"""
     const q = new URLSearchParams(fragment);
     const missing = [];
     if (q.has("body")) document.getElementById("body").value = q.get("body");
+    document.getElementById("body-b").value = q.get("body_b") || "";  // a link without B times A alone
     for (const id of ["memory", "syntax", "data", "align"]) {
       if (!q.has(id)) continue;
       const sel = document.getElementById(id), v = q.get(id);
@@ -518,7 +565,7 @@ _SCRIPT = r"""
         status.textContent = "HTTP " + resp.status;
       } else {
         err.hidden = true; err.textContent = "";
-        draw(answer.data);
+        draw(answer.data, answer.data_b, answer.comparison);
         status.textContent = "answered in " + Math.round(performance.now() - t0) + " ms (server: " + answer.ms + " ms)";
       }
     } catch (e) {
