@@ -1,4 +1,4 @@
-# K6 micro-benchmarks with known answers (sim/cpus/tables/k6.toml, k6_machine.toml): vector-decoded
+# K6 micro-benchmarks with known answers (sim/cpus/k6/k6.toml, k6_machine.toml): vector-decoded
 # BSR and SHRD (dependent and independent), a run of long-decoded instructions, long and short
 # decodes interleaved, operand-size prefixes, and repeated stores to a line that is never read
 # (write allocation). Each entry runs `n` iterations of an unrolled body; the body is what the

@@ -4,7 +4,7 @@
 # 16-bit compare where ties fail, stores), only the conversion differs.
 #
 # Why: on the K6 BSR is a vector-decoded ROM sequence of ~10 clocks and SHLD/SHRD are vector
-# decoded too (sim/cpus/tables/k6.toml), so BSR/SHRD/SHRD costs the K6 about 14 decode clocks a
+# decoded too (sim/cpus/k6/k6.toml), so BSR/SHRD/SHRD costs the K6 about 14 decode clocks a
 # pixel. The conversion below uses only short-decodable instructions (<= 7 bytes, one RISC86 op
 # each, no 0x66 prefix, no byte-register writes, so no partial-register merges): two MOV, two SHR,
 # one table load, AND, ADD and a JZ that is not taken for depths >= 2^24.

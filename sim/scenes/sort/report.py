@@ -394,7 +394,7 @@ def to_markdown(result: SortResult, png_name: str | None) -> str:
               "mispredict often in the first passes whatever the select is made of; the SBB and CMOV merges remove "
               "only the select's branch.",
               "- Every kernel loads its keys with MOVZX, which the P5 does not pair and spends 3 clocks on "
-              "(sim/cpus/tables/p5.toml); the P5's figures include it at every key load, in every variant.", ""]
+              "(sim/cpus/p5/p5.toml); the P5's figures include it at every key load, in every variant.", ""]
     return "\n".join(parts).rstrip() + "\n"
 
 
