@@ -57,6 +57,16 @@ def blank_zero(x) -> str:
     return f"{x:g}" if x else ""
 
 
+def executed_statics(run, executions: int):
+    """(id, per-static sums, executions, record, table match) of every static instruction the run
+    executed, in address order; `executions` is the family's per-static column that counts them."""
+    for sid in np.argsort([r.pc for r in run.program.records]):
+        st = run.per_static[sid]
+        n = int(st[executions])
+        if n:
+            yield sid, st, n, run.program.records[sid], run.program.matches[sid]
+
+
 class FamilyView:
     """The family-neutral view (what every method gives unless a family's view overrides it)."""
 
@@ -169,13 +179,7 @@ class FamilyView:
         family's words (decoder marks, port or unit names)."""
         run, v = result.run, self.vocabulary
         rows = []
-        for sid in np.argsort([r.pc for r in run.program.records]):
-            st = run.per_static[sid]
-            n = int(st[core.S_EXECUTIONS])
-            if n == 0:
-                continue
-            rec = run.program.records[sid]
-            match = run.program.matches[sid]
+        for sid, st, n, rec, match in executed_statics(run, core.S_EXECUTIONS):
             dec = int(run.program.s_dec[sid])
             cls = {DEC_SIMPLE: 0, DEC_COMPLEX: 1, DEC_MSROM: 2}[dec]
             slots = [int(st[core.S_DECODER0 + k]) for k in range(3)]

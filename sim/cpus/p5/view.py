@@ -4,11 +4,9 @@ reports show a P5 run in these words (sim/cpus/view.py says what a view gives)."
 
 from __future__ import annotations
 
-import numpy as np
-
 from sim.cpus.lowering import GPRS
 from sim.cpus.p5 import core
-from sim.cpus.view import Column, FamilyView, TableSpec, blank_zero as _z
+from sim.cpus.view import Column, FamilyView, TableSpec, blank_zero as _z, executed_statics
 
 
 class P5View(FamilyView):
@@ -97,13 +95,7 @@ class P5View(FamilyView):
         clocks per execution of the groups it started, stalls, and why it ran alone."""
         run = result.run
         rows = []
-        for sid in np.argsort([r.pc for r in run.program.records]):
-            v = run.per_static[sid]
-            n = int(v[core.S_EXEC])
-            if n == 0:
-                continue
-            rec = run.program.records[sid]
-            match = run.program.matches[sid]
+        for sid, v, n, rec, match in executed_statics(run, core.S_EXEC):
             per = lambda key: round(float(v[key]) / n, 2)  # noqa: E731
             why = []
             for j in range(1, core.NR):
