@@ -253,7 +253,8 @@ class Worker:
 
     def stop_all(self, grace: float = 1.0) -> None:
         """Stop every running child and its process group (the server is stopping): SIGTERM, so each
-        unwinds and stops the assembler it runs, then SIGKILL to what is left after `grace` seconds.
+        removes its scratch folder and exits, then SIGKILL to what is left of each group (the
+        assembler it may run) after `grace` seconds.
         The request threads reap them."""
         with self.fork_lock:
             self.stopping = True
@@ -379,7 +380,7 @@ def _stop(scratch: str, signum: int) -> None:
 
 
 def _stop_group(pid: int, grace: float = 1.0) -> int:
-    """Stop a child and its process group: SIGTERM (it unwinds and removes its temporary files),
+    """Stop a child and its process group: SIGTERM (it removes its scratch folder and exits),
     then SIGKILL after `grace` seconds. Returns its wait status."""
     for sig in (signal.SIGTERM, signal.SIGKILL):
         try:
