@@ -73,9 +73,12 @@ def test_bench_json_has_the_three_figures():
     r = run("bench", "--pixels", "20000", "--json")
     assert r.exit_code == 0
     out = json.loads(r.output)
-    for key in ("unicorn_bare_ips", "python_hook_ips", "native_trace_ips", "end_to_end_ips", "model_only_ips"):
+    for key in ("unicorn_bare_ips", "python_hook_ips", "native_trace_ips", "end_to_end_ips", "model_only_ips",
+                "k6_model_only_ips", "p5_model_only_ips"):
         assert out[key] > 0
     assert out["end_to_end_vs_native"] == out["end_to_end_ips"] / out["native_trace_ips"]
+    for prefix in ("", "k6_", "p5_"):  # every family's model alone, measured the same way
+        assert out[f"{prefix}model_only_vs_native"] == out[f"{prefix}model_only_ips"] / out["native_trace_ips"]
     assert out["instructions"] > 9 * 20000  # the span loop runs 9 or 11 instructions per pixel
 
 
