@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-from rich.table import Table
+from rich.table import Column, Table
 
 from sim.errors import ArgumentError, RetrosimError
 from sim.cli.app import (
@@ -66,8 +66,10 @@ def _run_scenes(scenes, cpus, on_result=None, jobs: int | None = None) -> tuple[
     results, failures = [], []
     # on a terminal only: piped or redirected, the bars' final frames would be the only output
     shown = err_console.is_terminal
-    with Progress(TextColumn("{task.description}", markup=False), BarColumn(), MofNCompleteColumn(),
-                  TimeElapsedColumn(), console=err_console, transient=False, disable=not shown) as bar:
+    # at least as wide as most descriptions, so that the bar does not shift as they change
+    describe = TextColumn("{task.description}", markup=False, table_column=Column(min_width=66, no_wrap=True))
+    with Progress(describe, BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=err_console,
+                  transient=False, disable=not shown) as bar:
         for item in scenes:
             try:
                 scene = load_scene(item) if isinstance(item, Path) else item
@@ -75,7 +77,7 @@ def _run_scenes(scenes, cpus, on_result=None, jobs: int | None = None) -> tuple[
 
                 def show(count, task=task, name=scene.name):
                     bar.update(task, completed=count.done, total=count.total,
-                               description=_short(f"{name}: {count.what}" if count.what else name))
+                               description=f"{name}: {count.what}" if count.what else name)
 
                 result = run_scene(scene, list(cpus) or None, RunCount(show) if shown else None, jobs=jobs)
                 bar.update(task, description=f"{scene.name}: done")
@@ -95,10 +97,6 @@ def _run_scenes(scenes, cpus, on_result=None, jobs: int | None = None) -> tuple[
                 continue
             results.append(result)
     return results, failures
-
-
-def _short(description: str, width: int = 72) -> str:
-    return description if len(description) <= width else description[:width - 1] + "…"
 
 
 def _doing(message: str) -> None:
