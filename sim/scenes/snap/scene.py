@@ -206,6 +206,7 @@ def run_scene(scene: SnapScene, cpus: list[str] | None = None, progress=None, ro
     from sim.parallel import SharedPool
 
     say = progress or (lambda *a, **kw: None)
+    say(more=len(scene.variants) * len(cpus or scene.cpus))  # a timing of each variant on each machine
     result = SnapResult(scene, scene.vertices)
     machine = Machine.from_source(snap.KERNEL)
     coords = {w: snap.workload(w, scene.vertices, scene.width, scene.height, scene.seed) for w in scene.workloads}
@@ -216,7 +217,6 @@ def run_scene(scene: SnapScene, cpus: list[str] | None = None, progress=None, ro
             result.errors[(name, w)] = snap.errors(xy, out)
             result.failures[(name, w)] = snap.failures(xy, out)
     models = [(key.label, make_model(key.label, key.memory or None)) for key in map(MachineKey.parse, cpus or scene.cpus)]
-    say(more=len(scene.variants) * len(models))
     for name in scene.variants:
         say(f"{name}: emulating {scene.vertices:,} vertices")
         emu = emulate_variant(scene, name)

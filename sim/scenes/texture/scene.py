@@ -420,6 +420,7 @@ def run_scene(scene: TextureScene, cpus: list[str] | None = None, progress=None,
     from sim.parallel import SharedPool
 
     say = progress or (lambda *a, **kw: None)
+    say(more=len(cpus or scene.cpus) * (len(scene.variants) + 1))  # each variant's timing, and the probes, per machine
     w, h = scene.width, scene.height
     geometry = scene.build_geometry()
     params = F.span_params(geometry, w, h)
@@ -441,7 +442,6 @@ def run_scene(scene: TextureScene, cpus: list[str] | None = None, progress=None,
     models = [make_model(m.label, m.memory or None) for m in machines]
     keys = [str(MachineKey(m.label, model.dram.name)) for m, model in zip(machines, models)]
     result.keys = keys
-    say(more=len(keys) * (len(scene.variants) + 1))  # each variant's timing and the probes, on each machine
     shared = (emulations, models, params.select(np.arange(len(params)) == 0))
     pool = SharedPool(shared, jobs, models, progress)
     futures = []
