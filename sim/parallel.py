@@ -11,18 +11,28 @@ its workers start, so they find the on-disk cache filled.
 
 Results do not depend on the number of workers: each task is a pure function of the shared
 emulation and its machine, and results are collected in submission order.
+
+Progress. A task may call :func:`report` as it goes (a scene's timings report each machine run:
+sim.scenes.progress); each report reaches the `progress` callable the pool was made with, in the
+process that made it. A forked worker cannot call it: a pool made with `progress` opens a pipe before
+it forks, its workers send their reports down it, and a thread of the parent reads them and calls
+`progress` as they arrive, so the display moves while the parent waits for results or emulates the
+next variant. With jobs == 1 the task runs here and `report` calls `progress` directly.
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import os
+import threading
 from concurrent.futures import Future, ProcessPoolExecutor
 from typing import Callable
 
 # What forked workers read: set in the parent just before the pool forks, never sent by pickle.
 _SHARED: dict = {}
 _WARM: set = set()  # families whose compiled core this process has run
+_CHANNELS: dict = {}  # pool token -> (pipe's write end, lock): where that pool's workers send reports
+_reporting: Callable | None = None  # where report() sends while a pool's task runs in this process
 
 
 def default_jobs() -> int:
@@ -56,8 +66,55 @@ def warm(models) -> None:
             _WARM.add(model.family)
 
 
+def report(*args, **kw) -> None:
+    """From a pool's task: ``progress(*args, **kw)`` in the process that made the pool (see the
+    module's docstring); nothing when the pool has no `progress` or when no task of a pool runs."""
+    if _reporting is not None:
+        _reporting(args, kw)
+
+
+def _run_reporting(to: Callable | None, task: Callable, shared, args: tuple):
+    global _reporting
+    _reporting = to
+    try:
+        return task(shared, *args)
+    finally:
+        _reporting = None
+
+
 def _call(token: int, task: Callable, args: tuple):
-    return task(_SHARED[token], *args)
+    channel = _CHANNELS.get(token)
+    return _run_reporting(channel and (lambda args, kw: _send(channel, (args, kw))), task, _SHARED[token], args)
+
+
+def _send(channel, report: tuple) -> None:
+    writer, lock = channel
+    with lock:  # the pool's workers share the pipe: one whole report at a time
+        writer.send(report)
+
+
+class _Reader(threading.Thread):
+    """The parent's reader of a pool's reports: calls `progress` with each until stopped (after the
+    pool's workers have exited), then with those still in the pipe."""
+
+    def __init__(self, pipe, progress: Callable):
+        super().__init__(daemon=True, name="retrosim-progress")
+        self.pipe, self.progress = pipe, progress
+        self.stopping = threading.Event()
+        self.error: BaseException | None = None
+
+    def run(self) -> None:
+        while True:
+            last = self.stopping.is_set()  # set once no worker writes any more: drain, then stop
+            while self.pipe.poll(0 if last else 0.1):
+                args, kw = self.pipe.recv()
+                if self.error is None:  # a failing display must not stop the draining (workers would block)
+                    try:
+                        self.progress(*args, **kw)
+                    except BaseException as e:  # raised again by SharedPool.close
+                        self.error = e
+            if last:
+                return
 
 
 class SharedPool:
@@ -65,27 +122,39 @@ class SharedPool:
     (or in this process when jobs == 1). Use as a context manager; `submit` returns a Future.
 
     `models`: the timing models the tasks run; with jobs > 1 their compiled cores are loaded here
-    (:func:`warm`) before the workers fork, so they inherit them."""
+    (:func:`warm`) before the workers fork, so they inherit them. `progress`: what the tasks'
+    :func:`report` calls reach, in this process."""
 
-    def __init__(self, shared, jobs: int, models=()):
+    def __init__(self, shared, jobs: int, models=(), progress: Callable | None = None):
         self.shared = shared
         self.pool = None
         self.token = id(self)
+        self.progress = progress
+        self.reader: _Reader | None = None
         if jobs > 1:
             warm(models)
             # forked at the first submit (a fork-context pool starts all its workers then)
             _SHARED[self.token] = shared
-            self.pool = ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("fork"))
+            context = multiprocessing.get_context("fork")
+            if progress is not None:  # made before the fork, so that the workers inherit its write end
+                receive, send = context.Pipe(duplex=False)
+                _CHANNELS[self.token] = (send, context.Lock())
+                self.reader = _Reader(receive, progress)
+            self.pool = ProcessPoolExecutor(max_workers=jobs, mp_context=context)
 
     def submit(self, task: Callable, *args) -> Future:
         if self.pool is None:
             f: Future = Future()
+            to = self.progress and (lambda args, kw: self.progress(*args, **kw))
             try:
-                f.set_result(task(self.shared, *args))
+                f.set_result(_run_reporting(to, task, self.shared, args))
             except BaseException as e:  # re-raised by result(), as a pool's would be
                 f.set_exception(e)
             return f
-        return self.pool.submit(_call, self.token, task, args)
+        future = self.pool.submit(_call, self.token, task, args)
+        if self.reader is not None and self.reader.ident is None:
+            self.reader.start()  # after the fork: no thread of this pool's is copied into a worker
+        return future
 
     def release(self) -> None:
         """Drop this process's references to the shared object once every task is submitted: the
@@ -100,6 +169,16 @@ class SharedPool:
             self.pool.shutdown(wait=True)
             self.pool = None
         _SHARED.pop(self.token, None)
+        channel = _CHANNELS.pop(self.token, None)
+        reader, self.reader = self.reader, None
+        if reader is not None:
+            if reader.is_alive():  # the workers have exited: what they sent is all in the pipe
+                reader.stopping.set()
+                reader.join()
+            reader.pipe.close()
+            channel[0].close()
+            if reader.error is not None:
+                raise reader.error
 
     def __enter__(self):
         return self

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import click
-from rich.table import Table
+from rich.table import Column, Table
 
 from sim.errors import ArgumentError, RetrosimError
 from sim.cli.app import (
@@ -51,29 +51,36 @@ def _run_scenes(scenes, cpus, on_result=None, jobs: int | None = None) -> tuple[
     """Run scenes (Scene objects, or paths loaded one by one) with a progress bar per scene (on
     stderr, so --json output stays clean), timing on `jobs` worker processes. With `on_result`, each
     result is handed over as soon as its scene finishes and a failing scene does not stop the others:
-    returns (results, failures). Without it the first failure is raised."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+    returns (results, failures). Without it the first failure is raised.
+
+    The bar counts machine runs (sim.scenes.progress): each timing of a variant on a machine and
+    each robustness re-timing, as the workers report them; its total grows while the scene runs,
+    as the nominal timings show which re-timings will run."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from sim.parallel import check_jobs
+    from sim.scenes.progress import RunCount
     from sim.scenes.registry import load_scene, run_scene
 
     jobs = check_jobs(jobs)
     results, failures = [], []
     # on a terminal only: piped or redirected, the bars' final frames would be the only output
-    with Progress(TextColumn("{task.description}", markup=False), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                  TimeElapsedColumn(), console=err_console, transient=False,
-                  disable=not err_console.is_terminal) as bar:
+    shown = err_console.is_terminal
+    # at least as wide as most descriptions, so that the bar does not shift as they change
+    describe = TextColumn("{task.description}", markup=False, table_column=Column(min_width=66, no_wrap=True))
+    with Progress(describe, BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=err_console,
+                  transient=False, disable=not shown) as bar:
         for item in scenes:
             try:
                 scene = load_scene(item) if isinstance(item, Path) else item
-                steps = len(scene.variants) * (1 + len(list(cpus) or scene.cpus))
-                task = bar.add_task(scene.name, total=steps)
+                task = bar.add_task(scene.name, total=None)
 
-                def progress(msg, task=task):
-                    bar.update(task, advance=1, description=msg[:70])
+                def show(count, task=task, name=scene.name):
+                    bar.update(task, completed=count.done, total=count.total,
+                               description=f"{name}: {count.what}" if count.what else name)
 
-                result = run_scene(scene, list(cpus) or None, progress, jobs=jobs)
-                bar.update(task, completed=steps, description=f"{scene.name}: done")
+                result = run_scene(scene, list(cpus) or None, RunCount(show) if shown else None, jobs=jobs)
+                bar.update(task, description=f"{scene.name}: done")
                 if result.pixels == 0:
                     bar.console.print(f"{scene.name}: the scene draws no pixels (degenerate, collinear, off-screen or "
                                       "sub-pixel triangles): every metric counts 0 covered pixels",
@@ -90,6 +97,12 @@ def _run_scenes(scenes, cpus, on_result=None, jobs: int | None = None) -> tuple[
                 continue
             results.append(result)
     return results, failures
+
+
+def _doing(message: str) -> None:
+    """What runs now, as one dim line on a terminal (like the progress bars: nothing on a pipe)."""
+    if err_console.is_terminal:
+        err_console.print(message, style="dim", markup=False, highlight=False, soft_wrap=True)
 
 
 PARTIAL_DIR = REPORTS_DIR.parent / "build" / "reports"
@@ -154,8 +167,9 @@ def report_cmd(scenes, cpus, sets, out, jobs):
 
     results, failures = _run_scenes(paths, cpus, on_result=write, jobs=jobs)
     if not scenes and not cpus and not sets and not failures:  # the default set also regenerates the conversion report
-        err_console.print("[dim]conversion report: timing kernels/convert/loops.S ...[/]")
+        _doing("conversion report: timing kernels/convert/loops.S ...")
         say(f"wrote {_write_conversion_report(out)}")
+        _doing("texture-loops report: timing the texture article's span loops on every preset ...")
         say(f"wrote {_write_texture_report(out)}")
     for part in summary_tables(results):
         console.print(part, highlight=False)

@@ -110,29 +110,52 @@ def exercised(param: Param, counters: dict) -> bool:
     return name is None or counters.get(name, 1) != 0
 
 
-def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, say=lambda m: None, logs=None) -> dict:
+def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, logs=None, what: str = "") -> dict:
     """{(param key, value): counters of the last call} with each parameter at each end of its range;
     parameters whose mechanism does not fire reuse the nominal counters (their timing cannot move).
-    `logs`: the sim.memory.replay.AccessLogs the nominal timing recorded into, if it did."""
+    `logs`: the sim.memory.replay.AccessLogs the nominal timing recorded into, if it did. Each
+    re-timing is reported as a machine run (sim.scenes.progress), named `what` and its number."""
     from sim.cpus.build import make_model
     from sim.memory.replay import AccessLogs
-    from sim.timing.kernel import time_emulation
+    from sim.parallel import report
+    from sim.scenes.progress import timed_run
 
     out = {}
     # no parameter here but the page geometry changes what the data caches decide: one walk of them
     # serves every other run; a geometry re-timing walks them without a log (its own recording
     # would only evict the nominal one, which the log store keys by the geometry anyway)
     logs = AccessLogs() if logs is None else logs
-    for p in parameters(cpu, memory):
-        for value in (p.low, p.high):
-            if value == p.nominal or not exercised(p, nominal):
-                out[(p.key, value)] = nominal
-                continue
-            say(f"{cpu}:{memory} with {p.key} = {_n(value)}")
-            model = make_model(cpu, memory, {p.key: value})
-            geometry = p.key in PAGE_GEOMETRY_KEYS
-            out[(p.key, value)] = time_emulation(emulation, model, access_logs=None if geometry else logs).last
+    ends = [(p, value) for p in parameters(cpu, memory) for value in (p.low, p.high)]
+    runs = sum(value != p.nominal and exercised(p, nominal) for p, value in ends)
+    # which re-timings run is known only now, from the nominal counters: the runs a progress display
+    # counts grow by them
+    report(more=runs)
+    n = 0
+    for p, value in ends:
+        if value == p.nominal or not exercised(p, nominal):
+            out[(p.key, value)] = nominal
+            continue
+        n += 1
+        model = make_model(cpu, memory, {p.key: value})
+        geometry = p.key in PAGE_GEOMETRY_KEYS
+        out[(p.key, value)] = timed_run(f"{what}: re-timing {n} of {runs}", emulation, model,
+                                        access_logs=None if geometry else logs).last
     return out
+
+
+def timed_with_robustness(emulation, model, key: str, robust: bool, what: str) -> tuple[dict, dict | None]:
+    """Counters of the last call of `emulation` on `model` (machine `key`), and the claims' robustness
+    re-timings (:func:`perturbed_timings`) when `robust`: a pool's task of the kinds whose claims are
+    re-timed (a pure function of its arguments: the same in any process); reported as `what`."""
+    from sim.memory.replay import AccessLogs
+    from sim.scenes.progress import timed_run
+
+    logs = AccessLogs() if robust else None  # the re-timings replay this timing's cache results
+    timed = timed_run(what, emulation, model, access_logs=logs)
+    if not robust:
+        return timed.last, None
+    machine = MachineKey.parse(key)
+    return timed.last, perturbed_timings(emulation, machine.label, machine.memory, timed.last, logs=logs, what=what)
 
 
 # -- what a claim names --------------------------------------------------------------------------

@@ -15,8 +15,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
-Progress = Callable[[str], None]
-
 # the counters reports/baselines.json records per case (sim.scenes.baseline)
 BASELINE_COUNTERS = ("cycles", "instructions", "uops", "decode_groups", "l1d_load_misses", "l1d_store_misses",
                      "l2_misses", "dram_fills", "mispredicts")
@@ -50,7 +48,8 @@ class SceneKind:
                                file, line and field for any problem (sim.scenes.schema);
     run(scene, cpus, progress, robustness, jobs):  run the scene on its machines (or `cpus`, machine
                                keys), timing on `jobs` forked workers (sim.parallel); the result is the
-                               same for any `jobs`;
+                               same for any `jobs`; `progress` (None, or a sim.scenes.progress.Progress)
+                               hears of every machine run, planned and done;
     write_reports(result, out_dir, formats):  write the reports `formats` names (md, png, json, csv,
                                html) into `out_dir`; the paths;
     summary_tables(result):    what `retrosim report` prints for one result (rich renderables);

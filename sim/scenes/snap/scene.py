@@ -188,11 +188,11 @@ def emulate_variant(scene: SnapScene, name: str):
     return emulate(snap.KERNEL, variant.entry, snap.setup(variant, xy), repeat=REPEAT)
 
 
-def _time_task(shared, i: int) -> dict:
-    from sim.timing.kernel import time_emulation
+def _time_task(shared, i: int, what: str) -> dict:
+    from sim.scenes.progress import timed_run
 
     emulation, models = shared
-    return time_emulation(emulation, models[i]).last
+    return timed_run(what, emulation, models[i]).last
 
 
 def run_scene(scene: SnapScene, cpus: list[str] | None = None, progress=None, robustness: bool = True,
@@ -205,7 +205,8 @@ def run_scene(scene: SnapScene, cpus: list[str] | None = None, progress=None, ro
     from sim.guest.emu import Machine
     from sim.parallel import SharedPool
 
-    say = progress or (lambda msg: None)
+    say = progress or (lambda *a, **kw: None)
+    say(more=len(scene.variants) * len(cpus or scene.cpus))  # a timing of each variant on each machine
     result = SnapResult(scene, scene.vertices)
     machine = Machine.from_source(snap.KERNEL)
     coords = {w: snap.workload(w, scene.vertices, scene.width, scene.height, scene.seed) for w in scene.workloads}
@@ -217,15 +218,14 @@ def run_scene(scene: SnapScene, cpus: list[str] | None = None, progress=None, ro
             result.failures[(name, w)] = snap.failures(xy, out)
     models = [(key.label, make_model(key.label, key.memory or None)) for key in map(MachineKey.parse, cpus or scene.cpus)]
     for name in scene.variants:
-        say(f"{scene.name}: {name}: emulating {scene.vertices:,} vertices")
+        say(f"{name}: emulating {scene.vertices:,} vertices")
         emu = emulate_variant(scene, name)
         shared = (emu, [m for _, m in models])
-        with SharedPool(shared, jobs, shared[1]) as pool:
-            futures = [pool.submit(_time_task, i) for i in range(len(models))]
+        with SharedPool(shared, jobs, shared[1], progress) as pool:
+            futures = [pool.submit(_time_task, i, f"{name} on {cpu}") for i, (cpu, _) in enumerate(models)]
             pool.release()
             for (cpu, model), fut in zip(models, futures):
                 result.timings.append(Timing(name, cpu, model.dram.name, scene.vertices, fut.result()))
-                say(f"{scene.name}: {name} on {cpu} with {model.dram.name}: timed")
     return result
 
 

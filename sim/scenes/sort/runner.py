@@ -103,21 +103,13 @@ def _robust_cases(scene: SortScene, models: list) -> set:
     return out
 
 
-def _time_task(shared, c: int, i: int, robust: bool):
+def _time_task(shared, c: int, i: int, robust: bool, what: str):
     """Counters of emulation `c`'s last call on machine `i`, and the claims' re-timings when `robust`."""
-    from sim.memory.replay import AccessLogs
     from sim.scenes import claims as claim_checks
-    from sim.timing.kernel import time_emulation
 
     emulations, models = shared
     key, model = models[i]
-    logs = AccessLogs() if robust else None
-    timed = time_emulation(emulations[c], model, access_logs=logs)
-    sens = None
-    if robust:
-        machine = MachineKey.parse(key)
-        sens = claim_checks.perturbed_timings(emulations[c], machine.label, machine.memory, timed.last, logs=logs)
-    return timed.last, sens
+    return claim_checks.timed_with_robustness(emulations[c], model, key, robust, what)
 
 
 def _refusal(emulation, model) -> str | None:
@@ -152,7 +144,7 @@ def run_scene(scene: SortScene, cpus: list[str] | None = None, progress=None, ro
     from sim.guest.emu import Machine
     from sim.parallel import SharedPool
 
-    say = progress or (lambda msg: None)
+    say = progress or (lambda *a, **kw: None)
     models = []
     for key in map(MachineKey.parse, cpus or scene.cpus):
         model = make_model(key.label, key.memory or None)
@@ -162,6 +154,7 @@ def run_scene(scene: SortScene, cpus: list[str] | None = None, progress=None, ro
     robust = _robust_cases(scene, models) if robustness else set()
     machines: dict = {}  # kernel file -> Machine, reused run after run (arena reset each time)
     cases = scene.cases()
+    say(more=len(cases) * len(models))  # the nominal timings (fewer if refused; the re-timings add theirs)
     pending = []
 
     def collect(item):
@@ -174,14 +167,13 @@ def run_scene(scene: SortScene, cpus: list[str] | None = None, progress=None, ro
                 result.timings.append(SortTiming(name, dist, n, MachineKey.parse(key).label, model.dram.name, counters))
                 if sens is not None:
                     result.sensitivity[(name, dist, n, key)] = sens
-            say(f"{scene.name}: {name} on {key}: " + ("timed" if (name, key) not in result.refused else "refused"))
         pool.close()
 
     try:
         for name in scene.variants:
             variant = V.VARIANTS[name]
             runs = [(d, n) for v, d, n in cases if v == name]
-            say(f"{scene.name}: {name}: emulating {len(runs)} runs")
+            say(f"{name}: emulating {len(runs)} runs")
             machine = machines.get(variant.file) or machines.setdefault(variant.file, Machine.from_source(variant.source))
             emulations = []
             for dist, n in runs:
@@ -197,10 +189,11 @@ def run_scene(scene: SortScene, cpus: list[str] | None = None, progress=None, ro
                     message = _refusal(emulations[0], model)
                     if message is not None:
                         result.refused[(name, key)] = message
+                        say(more=-len(runs))  # not timed there
             shared = (emulations, models)
-            pool = SharedPool(shared, jobs, [m for _, m in models])
+            pool = SharedPool(shared, jobs, [m for _, m in models], progress)
             futures = [[None if (name, key) in result.refused else
-                        pool.submit(_time_task, c, i, (name, dist, n, key) in robust)
+                        pool.submit(_time_task, c, i, (name, dist, n, key) in robust, f"{name} {n:,} {dist} on {MachineKey.parse(key).label}")
                         for c, (dist, n) in enumerate(runs)] for i, (key, _) in enumerate(models)]
             pool.release()
             pending.append((name, runs, pool, futures))

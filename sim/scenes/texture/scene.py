@@ -395,16 +395,21 @@ def emulate_variant(variant: str, timed: F.SpanParams, width: int, height: int, 
     return emulate(kernels_root() / F.KERNEL, f"frame_{variant}", frame_setup(timed, width, height, tex), repeat=2)
 
 
-def _time_task(shared, variant: str, index: int) -> dict:
-    from sim.timing.kernel import time_emulation
+def _time_task(shared, variant: str, index: int, what: str) -> dict:
+    from sim.scenes.progress import timed_run
 
     emulations, models = shared[0], shared[1]
-    return time_emulation(emulations[variant], models[index]).last
+    return timed_run(what, emulations[variant], models[index]).last
 
 
-def _probe_task(shared, cpu: str, memory: str) -> dict:
+def _probe_task(shared, cpu: str, memory: str, what: str) -> dict:
+    from sim.parallel import report
+
     _, _, first = shared
-    return measure_probes(cpu, memory, first)
+    report(what)
+    probes = measure_probes(cpu, memory, first)
+    report(done=1)  # a machine's probes count as one machine run
+    return probes
 
 
 def run_scene(scene: TextureScene, cpus: list[str] | None = None, progress=None, robustness: bool = True,
@@ -414,7 +419,8 @@ def run_scene(scene: TextureScene, cpus: list[str] | None = None, progress=None,
     from sim.cpus.build import make_model
     from sim.parallel import SharedPool
 
-    say = progress or (lambda msg: None)
+    say = progress or (lambda *a, **kw: None)
+    say(more=len(cpus or scene.cpus) * (len(scene.variants) + 1))  # each variant's timing, and the probes, per machine
     w, h = scene.width, scene.height
     geometry = scene.build_geometry()
     params = F.span_params(geometry, w, h)
@@ -424,7 +430,7 @@ def run_scene(scene: TextureScene, cpus: list[str] | None = None, progress=None,
     u_exact, v_exact = F.exact_coordinates(geometry, params)
     emulations = {}
     for variant in scene.variants:
-        say(f"{scene.name}: variant {variant}: drawing and checking {params.pixels:,} pixels")
+        say(f"variant {variant}: drawing and checking {params.pixels:,} pixels")
         model_pixels = F.variant_pixels(variant, params)
         got = draw_frame(variant, params, w, h, tex)
         if not np.array_equal(got, expected_frame(model_pixels, params, w, h, tex)):
@@ -437,19 +443,18 @@ def run_scene(scene: TextureScene, cpus: list[str] | None = None, progress=None,
     keys = [str(MachineKey(m.label, model.dram.name)) for m, model in zip(machines, models)]
     result.keys = keys
     shared = (emulations, models, params.select(np.arange(len(params)) == 0))
-    pool = SharedPool(shared, jobs, models)
+    pool = SharedPool(shared, jobs, models, progress)
     futures = []
     for i, key in enumerate(keys):
         for variant in scene.variants:
-            futures.append(("t", variant, i, pool.submit(_time_task, variant, i)))
+            futures.append(("t", variant, i, pool.submit(_time_task, variant, i, f"variant {variant} on {key}")))
         machine = MachineKey.parse(key)
-        futures.append(("p", None, i, pool.submit(_probe_task, machine.label, machine.memory)))
+        futures.append(("p", None, i, pool.submit(_probe_task, machine.label, machine.memory, f"probes on {key}")))
     try:
         for kind, variant, i, fut in futures:
             if kind == "t":
                 result.timings[(variant, keys[i])] = {k: int(v) for k, v in fut.result().items()
                                                       if isinstance(v, (int, np.integer))}
-                say(f"{scene.name}: variant {variant} on {keys[i]}: timed")
             else:
                 result.probes[keys[i]] = fut.result()
     finally:

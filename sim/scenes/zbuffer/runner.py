@@ -14,11 +14,11 @@ from sim.cpus.machine import MachineKey
 from sim.errors import RetrosimError
 from sim.parallel import SharedPool
 from sim.scenes import raster
-from sim.scenes.kind import Progress, Timing
+from sim.scenes.kind import Timing
+from sim.scenes.progress import Progress
 from sim.scenes.zbuffer import metrics
 from sim.scenes.zbuffer.frames import VARIANT_LABELS, draw_frames
 from sim.scenes.zbuffer.scene import Scene
-from sim.timing.kernel import time_emulation
 
 
 @dataclass(frozen=True)
@@ -85,19 +85,13 @@ def _claim_machines(scene: Scene, models: dict) -> dict[str, set]:
     return out
 
 
-def _time_task(shared, i: int, key: str, robust: bool) -> tuple[dict, dict | None]:
+def _time_task(shared, i: int, key: str, robust: bool, what: str) -> tuple[dict, dict | None]:
     """Counters of the last call of the shared emulation on machine `i`, and the claims' robustness
-    re-timings when `robust` (a pure function of its arguments: the same in any process)."""
+    re-timings when `robust` (sim.scenes.claims.timed_with_robustness)."""
     from sim.scenes import claims as claim_checks
-    from sim.memory.replay import AccessLogs
 
     emulation, models = shared
-    logs = AccessLogs() if robust else None  # the re-timings replay this timing's cache results
-    timed = time_emulation(emulation, models[i], access_logs=logs)
-    machine = MachineKey.parse(key)
-    sens = (claim_checks.perturbed_timings(emulation, machine.label, machine.memory, timed.last, logs=logs)
-            if robust else None)
-    return timed.last, sens
+    return claim_checks.timed_with_robustness(emulation, models[i], key, robust, what)
 
 
 def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | None = None,
@@ -109,7 +103,7 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
     `jobs` > 1 times each variant's emulation on the machines in that many forked processes
     sharing the trace (sim.parallel), while this process emulates the next variant; the result is
     the same for any `jobs`."""
-    say = progress or (lambda msg: None)
+    say = progress or (lambda *a, **kw: None)
     geometry = scene.build_geometry()
     w, h = scene.width, scene.height
     spans = raster.rasterize(geometry, w, h)
@@ -125,6 +119,7 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
     models = {}
     for cpu, memory in _cpu_keys(cpus or scene.cpus):
         models[(cpu, memory)] = make_model(cpu, memory)
+    say(more=len(scene.variants) * len(models))  # the nominal timings (the re-timings add theirs: claims.py)
     robust = _claim_machines(scene, models) if robustness else {}
     pending = []  # (variant, pixels, pool, [(cpu, memory name, future)]): collected in this order
 
@@ -132,7 +127,6 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
         variant, npix, pool, futures = item
         for cpu, mem, fut in futures:
             counters, sens = fut.result()
-            say(f"{scene.name}: {variant} on {cpu} with {mem}: timed")
             result.timings.append(Timing(variant, cpu, mem, npix, counters))
             if sens is not None:
                 result.sensitivity[(variant, f"{cpu}:{mem}")] = sens
@@ -140,7 +134,7 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
 
     try:
         for variant in scene.variants:
-            say(f"{scene.name}: {VARIANT_LABELS[variant]}: emulating {scene.frames} frame(s) of {pixels:,} pixels")
+            say(f"{VARIANT_LABELS[variant]}: emulating {scene.frames} frame(s) of {pixels:,} pixels")
             run = draw_frames(spans, variant, w, h, scene.frames, geometry.colour)
             expect_z, expect_f = raster.simulate_frame(spans, variant, w, h)
             same = bool(np.array_equal(run.zbuf.view(np.uint8), expect_z.view(np.uint8)) and np.array_equal(run.fbuf, expect_f))
@@ -160,10 +154,10 @@ def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | 
             futures = []
             for i, ((cpu, _), model) in enumerate(models.items()):
                 key = f"{cpu}:{model.dram.name}"
-                futures.append([cpu, model.dram.name, (i, key, key in robust.get(variant, ()))])
+                futures.append([cpu, model.dram.name, (i, key, key in robust.get(variant, ()), f"{variant} on {key}")])
             while pending:  # the previous variant's timings ran while this one was emulated
                 collect(pending.pop(0))
-            pool = SharedPool(shared, jobs, models.values())
+            pool = SharedPool(shared, jobs, models.values(), progress)
             # the machines with claims' re-timings (many times the work of one timing) start first,
             # so that no core is left waiting on one long task at the end; results keep their order
             for f in sorted(futures, key=lambda f: not f[2][2]):
