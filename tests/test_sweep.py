@@ -133,3 +133,45 @@ def test_the_sweep_module_imports_without_the_command_line():
     code = "import sys, sim.sweep; print(sorted(m for m in ('click', 'rich', 'sim.cli') if m in sys.modules))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+LATENCY_SPEC = """[sweep]
+cpus = ["pentium2-233", "k6-233", "pentium-mmx-233"]
+[[sweep.kernels]]
+source = "zbuffer/fp16z.S"
+entry = "fp16z_span"
+args = "buf:u16:4096:0xFFFF,buf:u16:4096,4096,0x10000000,0x10000,0x1234"
+[grid]
+"memory.overhead_bus_clocks" = [4, 9, 14]
+"""
+
+
+def test_points_on_the_same_data_caches_share_one_walk_and_time_as_alone(tmp_path, monkeypatch):
+    """A grid over a latency: each family's points replay the first one's cache walk (one record,
+    two replays each for the P6 and the K6), and every point's counters equal its own run's."""
+    from sim.cpus.build import make_model
+    from sim.cpus.machine import resolve
+    from sim.memory import replay
+    from sim.sweep import _emulation, run_group
+    from sim.timing.kernel import time_emulation
+
+    path = tmp_path / "latency.toml"
+    path.write_text(LATENCY_SPEC)
+    spec = load_spec(path)
+    starts = []
+    real_start = replay.AccessLogs.start
+
+    def start(self, *a):
+        log = real_start(self, *a)
+        starts.append((a[0], int(log[0])))
+        return log
+
+    monkeypatch.setattr(replay.AccessLogs, "start", start)
+    (group,) = spec.groups
+    rows = run_group(group)
+    modes = {fam: [m for f, m in starts if f == fam] for fam in ("p6", "k6")}
+    assert all(m == [replay.LOG_RECORD, replay.LOG_REPLAY, replay.LOG_REPLAY] for m in modes.values()), starts
+    emulation, _ = _emulation(group)
+    for p, row in zip(group["points"], rows):
+        alone = time_emulation(emulation, make_model(resolve(p["cpu"], p["set"], p["memory"]))).last
+        assert not row["error"] and all(row[k] == v for k, v in alone.items()), p
