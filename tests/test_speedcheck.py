@@ -67,3 +67,36 @@ def test_a_regression_exits_1_with_its_figures(monkeypatch):
     r = CliRunner().invoke(main, ["bench", "--check"])
     assert r.exit_code == 1, r.output
     assert "speed regression: k6-233: 0.200 of the native trace's rate, recorded 0.300 (-33%" in r.stderr
+
+
+def test_a_placement_is_the_same_core_compiled_apart(monkeypatch, tmp_path):
+    """A copy of a core is a module of its own (its own compiled simulate) that times a trace to
+    the same counters, and the model gets its own core back after the measurement swaps it in."""
+    import numpy as np
+
+    from sim.cpus.build import make_model
+    from sim.cpus.p5 import core, model as p5_model
+    from sim.guest.kernels import kernels_root
+    from sim.timing.kernel import time_kernel
+
+    monkeypatch.setattr(speedcheck, "PLACEMENT_DIR", tmp_path)
+    package, copy = speedcheck.core_placements("p5", 2)
+    assert package is core and copy is not core and copy.simulate is not core.simulate
+    assert (tmp_path / "p5_core_1.py").read_text().endswith(open(core.__file__).read())
+
+    def setup(m):
+        return [m.arena.put(np.full(256, 0xFFFF, np.uint16)), m.arena.put(np.zeros(256, np.uint16)), 256,
+                0x10000000, 0x100000, 0x1234]
+
+    def counters(module):
+        model = make_model("pentium-mmx-233")
+        speedcheck._placed(model, module)
+        try:
+            return time_kernel(kernels_root() / "zbuffer/fp16z.S", "fp16z_span", setup, cpu=model).last
+        finally:
+            speedcheck._placed(model, core)
+
+    assert not copy.simulate.signatures  # compiled only when a run reaches it
+    assert counters(copy) == counters(core)
+    assert copy.simulate.signatures  # the copy timed its run
+    assert p5_model.core is core and p5_model.P5Session.CORE is core
