@@ -411,23 +411,23 @@ def run_group(group: dict) -> list[dict]:
     for i, p in enumerate(group["points"]):
         try:
             machine = resolve(p["cpu"], p["set"], p["memory"])  # the point's text, resolved in its worker
-            model = make_model(machine)
-            planned.append((i, machine, model, (model.family, model.dside.arrays()[3].tobytes())))
+            model = make_model(machine)  # built again to time it: a grid's models are not all held at once
+            planned.append((i, machine, (model.family, model.dside.arrays()[3].tobytes())))
         except Exception as e:  # recorded, the sweep goes on
             rows[i] = _row(p, None, None, _error(e))
     sharing = {}
-    for _, _, _, key in planned:
+    for _, _, key in planned:
         sharing[key] = sharing.get(key, 0) + 1
     logs: dict = {}  # configuration -> AccessLogs, one alive at a time
     rank = {key: k for k, key in enumerate(sharing)}  # configurations in order of first appearance
-    for i, machine, model, key in sorted(planned, key=lambda t: rank[t[3]]):
+    for i, machine, key in sorted(planned, key=lambda t: rank[t[2]]):
         p = group["points"][i]
         try:
             emulation, pixels = emulation_for(p)
             if key not in logs:
                 logs.clear()
                 logs[key] = AccessLogs() if sharing[key] > 1 else None
-            counters = time_emulation(emulation, model, access_logs=logs[key]).last
+            counters = time_emulation(emulation, make_model(machine), access_logs=logs[key]).last
             rows[i] = _row(p, {"machine": machine.label, "memory": machine.memory.name, "pixels": pixels}, counters, "")
         except Exception as e:  # recorded, the sweep goes on
             rows[i] = _row(p, None, None, _error(e))
