@@ -53,6 +53,8 @@ def core_placements(family: str, n: int) -> list:
     import importlib.util
     import sys
 
+    from sim.output import atomic_write
+
     package = importlib.import_module(f"sim.cpus.{family}.core")
     source = Path(package.__file__)
     h = hashlib.sha256()
@@ -65,7 +67,7 @@ def core_placements(family: str, n: int) -> list:
         name = f"{family}_core_{i}"
         path = PLACEMENT_DIR / f"{name}.py"
         if not path.is_file() or path.read_text() != text:
-            path.write_text(text)
+            atomic_write(path, text.encode(), "speed-check copy of a core")
         spec = importlib.util.spec_from_file_location(f"sim_speedcheck_{name}", path)
         module = importlib.util.module_from_spec(spec)
         sys.modules[spec.name] = module
