@@ -1,5 +1,5 @@
 """Reading a file a user names: one bounded reader for kernel sources and their includes, TOML
-inputs and the baselines file.
+inputs and the baselines file; and :func:`files_hash`, what a set of the package's own files holds.
 
 Only a regular file is read (a FIFO would block, /dev/zero never ends), opened without waiting
 for a writer, its size checked on the open file itself and again while reading (it may grow), so
@@ -8,8 +8,10 @@ no input makes retrosim hang or read gigabytes. Every refusal is one error namin
 
 from __future__ import annotations
 
+import hashlib
 import os
 import stat
+from collections.abc import Iterable
 from pathlib import Path
 
 from sim.errors import RetrosimError
@@ -44,3 +46,12 @@ def read_bounded(path: str | os.PathLike, max_bytes: int, kind: str, error: type
                 raise error(f"{where}:{named} {too_big}")
             chunks.append(chunk)
     return b"".join(chunks)
+
+
+def files_hash(paths: Iterable[Path], root: Path) -> str:
+    """SHA-256 of files by their path relative to `root` and their content, in path order: what a
+    cached result computed from them (a sweep point, a compiled copy of a core) must match."""
+    h = hashlib.sha256()
+    for path in sorted(paths):
+        h.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
+    return h.hexdigest()

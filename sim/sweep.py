@@ -84,6 +84,7 @@ from typing import Callable, Iterator
 
 from sim.cpus.machine import MachineKey
 from sim.errors import OutputError, RetrosimError
+from sim.inputfile import files_hash
 from sim.output import check_output_dir, check_output_file, file_mode
 from sim.reports.render import atomic_write
 from sim.tomlfile import read_toml
@@ -175,10 +176,7 @@ def model_hash(root: Path | None = None) -> str:
     A stored point timed by another version of the model is stale even when its scene and presets
     are unchanged (a sweep resumed after a model change would otherwise keep old counters)."""
     root = MODEL_DIR if root is None else root
-    h = hashlib.sha256()
-    for path in sorted(p for p in root.rglob("*") if p.suffix in (".py", ".toml") and p.is_file()):
-        h.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
-    return h.hexdigest()
+    return files_hash((p for p in root.rglob("*") if p.suffix in (".py", ".toml") and p.is_file()), root)
 
 
 def load_spec(path: str | Path, max_points: int = MAX_POINTS) -> Spec:

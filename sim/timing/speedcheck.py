@@ -48,19 +48,17 @@ def core_placements(family: str, n: int) -> list:
     (numba compiles and caches each apart, so each lands at its own address). A copy's text carries
     a hash of the modules the cores compile in (sim/cpus, sim/memory): numba's cache of a copy
     would not see an edit to a helper it imports, a new text makes it compile again."""
-    import hashlib
     import importlib
     import importlib.util
     import sys
 
+    from sim.inputfile import files_hash
     from sim.output import atomic_write
 
     package = importlib.import_module(f"sim.cpus.{family}.core")
     source = Path(package.__file__)
-    h = hashlib.sha256()
-    for path in sorted(p for d in ("cpus", "memory") for p in (ROOT / "sim" / d).rglob("*.py")):
-        h.update(path.relative_to(ROOT).as_posix().encode() + b"\0" + path.read_bytes())
-    text = f"# speed-check copy of {source.relative_to(ROOT).as_posix()} ({h.hexdigest()[:16]})\n" + source.read_text()
+    compiled_in = files_hash((p for d in ("cpus", "memory") for p in (ROOT / "sim" / d).rglob("*.py")), ROOT)
+    text = f"# speed-check copy of {source.relative_to(ROOT).as_posix()} ({compiled_in[:16]})\n" + source.read_text()
     modules = [package]
     PLACEMENT_DIR.mkdir(parents=True, exist_ok=True)
     for i in range(1, n):
