@@ -125,14 +125,15 @@ def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, logs=None
     # serves every other run; a geometry re-timing walks them without a log (its own recording
     # would only evict the nominal one, which the log store keys by the geometry anyway)
     logs = AccessLogs() if logs is None else logs
-    ends = [(p, value) for p in parameters(cpu, memory) for value in (p.low, p.high)]
-    runs = sum(value != p.nominal and exercised(p, nominal) for p, value in ends)
+    ends = [(p, value, value != p.nominal and exercised(p, nominal))  # (parameter, value, re-timed?)
+            for p in parameters(cpu, memory) for value in (p.low, p.high)]
+    runs = sum(rerun for _, _, rerun in ends)
     # which re-timings run is known only now, from the nominal counters: the runs a progress display
     # counts grow by them
     report(more=runs)
     n = 0
-    for p, value in ends:
-        if value == p.nominal or not exercised(p, nominal):
+    for p, value, rerun in ends:
+        if not rerun:
             out[(p.key, value)] = nominal
             continue
         n += 1
