@@ -504,17 +504,29 @@ def _placement(timings, align: int, offset: int) -> dict:
               help="the models' speed check: each model alone (P6, K6, P5) against the native trace's rate in "
                    "this process, compared with benchmarks/model_speed.json; exit 1 when a ratio is more than "
                    "15 % below its recorded figure")
-@click.option("--record", is_flag=True, help="measure the models' speed ratios and write benchmarks/model_speed.json")
+@click.option("--count", "count", is_flag=True,
+              help="the models' instruction count: host instructions per guest instruction of each model alone, "
+                   "counted by valgrind for a generic x86-64 CPU (exact, whatever the load), compared with "
+                   "benchmarks/model_count.json; exit 1 when one grows more than 5 % (sim/timing/speedcount.py)")
+@click.option("--record", is_flag=True, help="measure the models' speed ratios (with --count: their instruction "
+                                             "counts) and write benchmarks/model_speed.json (model_count.json)")
 @click.option("--rounds", default=3, show_default=True, callback=bounded(1, 50),
               help="--check/--record: interleaved rounds, the best of which is kept (per placement of each core)")
 @click.option("--placements", default=4, show_default=True, callback=bounded(1, 16),
               help="--check/--record: copies of each core, each compiled at its own address; a model's figure "
                    "is their mean (one placement varies by about a fifth: sim/timing/speedcheck.py)")
-def bench_cmd(pixels: int, as_json: bool, check_speed: bool, record: bool, rounds: int, placements: int):
+def bench_cmd(pixels: int, as_json: bool, check_speed: bool, count: bool, record: bool, rounds: int,
+              placements: int):
     """Emulation speed: Unicorn bare, with Python hooks, with the native trace (same workload).
-    With --check or --record: the models' speed ratios (sim/timing/speedcheck.py)."""
+    With --check or --record: the models' speed ratios (sim/timing/speedcheck.py); with --count:
+    their instruction counts (sim/timing/speedcount.py)."""
     from sim.timing.bench import run_bench
 
+    if count:
+        if check_speed:
+            raise ArgumentError("--check and --count: choose one (--count checks the counts)")
+        _count_check(record, as_json)
+        return
     if check_speed or record:
         _speed_check(check_speed, record, rounds, placements, as_json)
         return
@@ -547,6 +559,39 @@ def bench_cmd(pixels: int, as_json: bool, check_speed: bool, record: bool, round
                   f"{result['bare_vs_end_to_end']:.1f}x slower than bare Unicorn; each model alone against the native "
                   f"trace (target >= 0.8): P6 [bold]{result['model_only_vs_native']:.2f}[/], "
                   f"K6 [bold]{result['k6_model_only_vs_native']:.2f}[/], P5 [bold]{result['p5_model_only_vs_native']:.2f}[/]")
+
+
+def _count_check(record: bool, as_json: bool) -> None:
+    from sim.timing import speedcount
+
+    say = None if as_json or not console.is_terminal else (lambda m: console.print(f"[dim]{escape(m)} ...[/]"))
+    baseline = None if record else speedcount.load(speedcount.BASELINE_FILE)
+    result = speedcount.measure(pixels=baseline["pixels"] if baseline else speedcount.PIXELS, progress=say)
+    failed = [] if record else speedcount.regressions(result, baseline)
+    if record:
+        speedcount.record(result)
+    if as_json:
+        click.echo(json.dumps({**result, "baseline": baseline and baseline["host_per_guest"], "regressions": failed},
+                              indent=2))
+    else:
+        table = Table(title=f"model instruction count: fp16z_span, {result['instructions']:,} guest instructions, "
+                            "host instructions per guest instruction (valgrind, generic x86-64)")
+        for col in ("model alone", "host/guest", "recorded", "change"):
+            table.add_column(col, justify="left" if col == "model alone" else "right")
+        for cpu, v in result["models"].items():
+            want = baseline["host_per_guest"].get(cpu) if baseline else None
+            table.add_row(cpu, f"{v['host_per_guest']:,.1f}", "-" if want is None else f"{want:,.1f}",
+                          "-" if want is None else f"{v['host_per_guest'] / want - 1:+.1%}")
+        console.print(table)
+        if baseline and baseline["versions"] != result["versions"]:
+            console.print(f"[yellow]recorded with {baseline['versions']}, measured with {result['versions']}: "
+                          "other versions compile other code[/]")
+        if record:
+            console.print(f"wrote {speedcount.BASELINE_FILE}")
+    if failed:
+        for line in failed:
+            click.echo(f"instruction-count regression: {line}", err=True)
+        sys.exit(1)
 
 
 def _speed_check(check_speed: bool, record: bool, rounds: int, placements: int, as_json: bool) -> None:
