@@ -68,7 +68,7 @@ from sim.cpus.contract import (
     S_STALL_DECODE, S_STALL_DEPENDENCY, S_STALL_MEMORY, S_STALL_MISPREDICT, S_STALL_PARTIAL, S_STALL_PORT,
     S_STALL_STORE_FORWARD, S_STALL_WINDOW, S_UOPS, T_NAMES,
 )
-from sim.cpus.shared_core import FW, WINDOW, btb_alloc, dram_busy, dram_lead_off, queued_store, remember_store
+from sim.cpus.shared_core import FW, IDX, WINDOW, btb_alloc, dram_busy, dram_lead_off, queued_store, remember_store
 from sim.cpus.shared_core import book_port as _shared_book_port
 from sim.memory.cache import HOT
 
@@ -366,10 +366,10 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
 
     for li in range(n):
         i = base + li
-        sid = dyn_sid[li]
+        sid = dyn_sid[li] & IDX
         pc = dyn_pc[li]
         nu = sf[sid, F_NUOPS]
-        u0 = sf[sid, F_UOP0]
+        u0 = sf[sid, F_UOP0] & IDX
         cyc = sf[sid, F_CYC]
         psid = sid if i >= stat_first else sink
         rep_later = rep_sid == sid and prev_pc == pc
@@ -384,7 +384,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             # own, `rep_element` clocks after the last; its accesses through the memory model
             acc = acc_next
             acc_end = acc
-            while acc_end < n_acc and mem_insn[acc_end] == li:
+            while acc_end < n_acc and mem_insn[acc_end & IDX] == li:
                 acc_end += 1
             acc_next = acc_end
             wait = 0
@@ -437,7 +437,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 rep_next += wait * OCC_SCALE
             done = t + wait + 1
             for j in range(s_ndst[sid]):
-                rid = s_dst[sid, j, 0]
+                rid = s_dst[sid, j, 0] & IDX
                 if rid < NREGS and rid != REG_ST0:
                     reg_ready[rid] = done
             if done > last_retire:
@@ -542,7 +542,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         top_after = (fp_top - sf[sid, F_FPDELTA]) & 7
         acc = acc_next
         acc_end = acc
-        while acc_end < n_acc and mem_insn[acc_end] == li:
+        while acc_end < n_acc and mem_insn[acc_end & IDX] == li:
             acc_end += 1
         acc_next = acc_end
         intra = 0           # latest result of this instruction's earlier ops (the op chain)
@@ -552,12 +552,12 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         store_ready = -1    # issue cycle of the store op (its data is in the queue from then)
         cause_disp = 0
         for k in range(nu):
-            u = u0 + k
+            u = (u0 + k) & IDX
             kind = uf[u, UF_KIND]
             ready = entry + 1
             partial = 0
-            for j in range(uf[u, UF_SRCS], uf[u, UF_DSTS]):
-                rid = _slot_of(opnd[j, 0], top_before, opnd[j, 2])
+            for j in range(uf[u, UF_SRCS] & IDX, uf[u, UF_DSTS]):
+                rid = _slot_of(opnd[j, 0] & IDX, top_before, opnd[j, 2])
                 r = reg_ready[rid]
                 if rid < 8 and (opnd[j, 1] & ~reg_pmask[rid]) != 0:
                     r += P[P_PARTIAL]  # merge a partial write (k6_machine.toml [partial_register])
@@ -568,11 +568,11 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if kind != LOAD and intra > ready:
                 ready = intra  # the instruction's own earlier ops (load -> ALU -> store)
             dep_wait = ready - (entry + 1)
-            if kind == STA and nstores >= sq_n and sq_ring[sq_pos] > ready:
-                w = sq_ring[sq_pos]
+            if kind == STA and nstores >= sq_n and sq_ring[sq_pos & IDX] > ready:
+                w = sq_ring[sq_pos & IDX]
                 counters[cs, C_STALL_STORE_BUFFER] += w - ready
                 ready = w
-            unit = uf[u, UF_UNIT]
+            unit = uf[u, UF_UNIT] & IDX
             ports = uf[u, UF_PORTS]
             rdy_u = ready
             if unit != U_NONE and unit != U_HOLD and unit_free[unit] > rdy_u:
@@ -632,8 +632,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 intra = max(intra, complete)
             if kind == BRANCH:
                 branch_done = complete
-            for j in range(uf[u, UF_DSTS], uf[u, UF_DSTS_END]):
-                reg_ready[_slot_of(opnd[j, 0], top_after, opnd[j, 2])] = complete
+            for j in range(uf[u, UF_DSTS] & IDX, uf[u, UF_DSTS_END]):
+                reg_ready[_slot_of(opnd[j, 0] & IDX, top_after, opnd[j, 2])] = complete
             if port >= 0:
                 counters[cs, C_PORT0 + port] += 1
                 per_static[psid, S_PORT0 + port] += 1
@@ -668,8 +668,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             rt = floor
         last_retire = rt
         qring[cur_slot] = rt
-        for j in range(sf[sid, F_GPRS], sf[sid, F_GPRS_END]):
-            reg_pmask[opnd[j, 0]] = opnd[j, 1]
+        for j in range(sf[sid, F_GPRS] & IDX, sf[sid, F_GPRS_END]):
+            reg_pmask[opnd[j, 0] & IDX] = opnd[j, 1]
         fp_top = top_after
 
         # ---- stores: commit to L1 after retirement, in order -----------------------------------
@@ -703,7 +703,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     if lvl == d_levels:
                         per_static[psid, S_L2_MISSES] += 1
                 fw_n = remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_ready, commit)
-            sq_ring[sq_pos] = commit
+            sq_ring[sq_pos & IDX] = commit
             sq_pos = sq_pos + 1 if sq_pos + 1 < sq_n else 0
             nstores += 1
             last_commit = commit

@@ -54,7 +54,7 @@ from sim.memory.hierarchy import (
     walk_pte_level, walk_read_result,
 )
 from sim.cpus.lowering import BR_COND, BR_NONE, BR_RET, REG_ST0
-from sim.cpus.shared_core import dram_busy, dram_lead_off
+from sim.cpus.shared_core import IDX, dram_busy, dram_lead_off
 from sim.cpus.shared_core import btb_alloc  # shared BTB victim choice (LRU by last use)
 
 # parameter vector indices
@@ -281,7 +281,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
     nrdtsc = 0
     li = 0  # (from a constant: indexing with it needs no check for negative indices)
     while li < n:
-        a = dyn_sid[li]
+        a = dyn_sid[li] & IDX
         pa = a if li >= first_l else sink
         pc_a = np.int64(dyn_pc[li])
         # a later element of a REP string instruction: the same PC again
@@ -300,7 +300,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
             code = pair_cache[a, first_ok]
             if code < 0:
                 if li + 1 < n:
-                    b = dyn_sid[li + 1]
+                    b = dyn_sid[li + 1] & IDX
                 elif s_cls[a] == NP or s_cls[a] == PV or s_cls[a] == FXCH:
                     b = a  # the answer does not depend on the next instruction (_pair_reason)
                 else:
@@ -356,7 +356,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
         # ---- AGI: an address register written in the preceding clock ------------------------
         agi = 0
         for k in range(0 if rep_later else group):
-            s = dyn_sid[li + k]
+            s = dyn_sid[li + k] & IDX
             m = s_addr[s]
             r = 0
             while m != 0:
@@ -375,7 +375,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
         # ---- x87 and MMX readiness -----------------------------------------------------------
         fp_wait = 0
         for k in range(group):
-            s = dyn_sid[li + k]
+            s = dyn_sid[li + k] & IDX
             if s_fp[s] == 0 and s_mmx[s] == 0:
                 continue
             ready = start
@@ -400,7 +400,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
         # ---- execute: duration, memory --------------------------------------------------------
         dur = s_cyc[a]
         if group == 2:
-            b = dyn_sid[li + 1]
+            b = dyn_sid[li + 1] & IDX
             if s_cyc[b] > dur:
                 dur = s_cyc[b]
             # a read/modify/write in U with a read/modify or read/modify/write in V overlaps it
@@ -423,7 +423,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
         u_lo = np.int64(-1)   # dword range of the U instruction's accesses
         u_hi = np.int64(-2)
         for k in range(group):
-            s = dyn_sid[li + k]
+            s = dyn_sid[li + k] & IDX
             ps = s if li + k >= first_l else sink
             for q in range(acc_start[li + k], acc_start[li + k] + acc_count[li + k]):
                 addr = np.int64(mem_addr[q])
@@ -515,7 +515,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
                 shadow_groups = 2
         # ---- results --------------------------------------------------------------------------
         for k in range(group):
-            s = dyn_sid[li + k]
+            s = dyn_sid[li + k] & IDX
             done = start + (dur if group == 1 else s_cyc[s]) + mem + mis
             w = s_wmask[s]
             r = 0
@@ -555,7 +555,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
             fp_top = top_after
         # ---- branches -----------------------------------------------------------------------
         last = li + group - 1
-        sb = dyn_sid[last]
+        sb = dyn_sid[last] & IDX
         psb = sb if last >= first_l else sink
         if s_branch[sb] != BR_NONE:
             counters[seg, C_BRANCHES] += 1
@@ -608,7 +608,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
             counters[seg, C_PAIRS] += 1
             counters[seg, C_U] += 1
             counters[seg, C_V] += 1
-            pb = dyn_sid[li + 1] if li + 1 >= first_l else sink
+            pb = dyn_sid[li + 1] & IDX if li + 1 >= first_l else sink
             per_static[pa, S_U] += 1
             per_static[pa, S_PAIRED_U] += 1
             per_static[pb, S_V] += 1
@@ -622,7 +622,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
                 per_static[pa, S_REASON_REG] = rreg
         per_static[pa, S_CYCLES] += end - t
         for k in range(group):
-            s = dyn_sid[li + k]
+            s = dyn_sid[li + k] & IDX
             seen[s] += 1
             ps = s if li + k >= first_l else sink
             per_static[ps, S_EXEC] += 1

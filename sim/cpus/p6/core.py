@@ -73,7 +73,7 @@ from sim.cpus.contract import (
     S_MISPREDICTS, S_PORT0, S_PORT1, S_PORT2, S_PORT3, S_PORT4, S_DECODE_TO_RETIRE, S_STALL_STORE_FORWARD,
     S_STALL_WINDOW, S_L1D_MISSES, S_L2_MISSES, T_NAMES, NT, CAUSES,
 )
-from sim.cpus.shared_core import FW, WINDOW, book_port, btb_alloc, queued_store, remember_store
+from sim.cpus.shared_core import FW, IDX, WINDOW, book_port, btb_alloc, queued_store, remember_store
 
 # parameter vector indices (the counter, per-instruction and timeline schemas are the contract's)
 (P_ROB, P_RS, P_RENAME, P_RETIRE, P_QUEUE, P_FETCH_BLOCK, P_L1_LAT, P_L2_LAT, P_DRAM_LAT, P_DRAM_LINE,
@@ -336,7 +336,7 @@ def _register_reads(u, u_nsrc, u_src, top, reg_ready, t, old_group, mask, n):
     words and other pseudo-registers do not count). A register whose writer was renamed in a
     group after `old_group` (reg_ready[NREGS + rid]) or has not completed by cycle t is free."""
     for j in range(u_nsrc[u]):
-        rid = u_src[u, j, 0]
+        rid = u_src[u, j, 0] & IDX
         if rid == REG_ST0:
             rid = REG_ST0 + ((top + u_src[u, j, 1]) & 7)
         if (rid < REG_FPSW or REG_MM0 <= rid < REG_OTHER) and reg_ready[rid] <= t and \
@@ -365,7 +365,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     everything else counts instructions from the run's start. `next_pc`: the PC of the
     instruction after the chunk, -1 at the end of the run. Returns the latest retire cycle."""
     n = dyn_sid.shape[0]
-    sink = per_static.shape[0] - 1  # per-static sums only from stat_first: earlier ones go to this row
+    sink = (per_static.shape[0] - 1) & IDX  # per-static sums only from stat_first: earlier ones go to this row
     rob_n, rs_n, rename_w, retire_w = P[P_ROB], P[P_RS], P[P_RENAME], P[P_RETIRE]
     queue_n, block = P[P_QUEUE], P[P_FETCH_BLOCK]
     l2_lat = P[P_L2_LAT]
@@ -415,6 +415,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     q_pos = sv[V_Q_POS]  # u_global % queue_n
     seg = sv[V_SEG]
     seg_start_retire = sv[V_SEG_START_RETIRE]
+    seg_next = seg_end[seg] if seg < seg_end.shape[0] else -1  # the instruction count that ends segment seg
     max_retire = sv[V_MAX_RETIRE]
     prev_pc = sv[V_PREV_PC]
     rep_sid = sv[V_REP_SID]
@@ -452,11 +453,11 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
 
     for li in range(n):
         i = base + li
-        sid = dyn_sid[li]
+        sid = dyn_sid[li] & IDX
         pc = dyn_pc[li]
         length = s_len[sid]
         nu = s_nuops[sid]
-        u0 = s_uop0[sid]
+        u0 = s_uop0[sid] & IDX
         dec = s_dec[sid]
         psid = sid if i >= stat_first else sink
         rep_later = rep_sid == sid and prev_pc == pc
@@ -472,7 +473,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             # ---- a later element of a REP string: the microcode loop ----------------------------
             acc = acc_next
             acc_end = acc
-            while acc_end < n_acc and mem_insn[acc_end] == li:
+            while acc_end < n_acc and mem_insn[acc_end & IDX] == li:
                 acc_end += 1
             acc_next = acc_end
             if acc_end == acc:
@@ -483,7 +484,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 wait = 0
             else:
                 sv[V_REP_COUNT] += 1
-                a = np.int64(mem_addr[acc])
+                a = np.int64(mem_addr[acc & IDX])
                 if sv[V_REP_COUNT] == 2:
                     sv[V_REP_MODE] |= REP_FORWARD if a > sv[V_REP_ADDR] else REP_BACKWARD
                 fast = (sv[V_REP_MODE] & (REP_CAPABLE | REP_FORWARD)) == REP_CAPABLE | REP_FORWARD
@@ -493,9 +494,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 t = -(-sv[V_REP_NEXT] // OCC_SCALE)
                 wait = 0
                 while acc < acc_end:
-                    a = np.int64(mem_addr[acc])
-                    sz = np.int64(mem_size[acc])
-                    w_ = mem_write[acc] != 0
+                    a = np.int64(mem_addr[acc & IDX])
+                    sz = np.int64(mem_size[acc & IDX])
+                    w_ = mem_write[acc & IDX] != 0
                     acc += 1
                     if w_:
                         n_stores += 1
@@ -526,7 +527,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 sv[V_REP_NEXT] += wait * OCC_SCALE
             done = t + wait + 1
             for j in range(s_ndst[sid]):
-                rid = s_dst[sid, j, 0]
+                rid = s_dst[sid, j, 0] & IDX
                 if rid < NREGS and rid != REG_ST0:
                     reg_ready[rid] = done
                     reg_ready[NREGS + rid] = rr_group
@@ -556,7 +557,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 row[5] = done - 1
                 row[6] = done
                 row[7] = 0
-            if seg < seg_end.shape[0] and i + 1 == seg_end[seg]:
+            if i + 1 == seg_next:
                 counters[seg, C_CYCLES] = max_retire - seg_start_retire
                 _add_counts(counters, seg, n_insns, n_uops, n_groups, n_stall_decode, n_stall_dep, n_stall_port,
                             n_loads, n_stores, n_branches, n_dec0, n_dec1, n_dec2, n_port0, n_port1, n_port2,
@@ -565,6 +566,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 n_branches = n_dec0 = n_dec1 = n_dec2 = n_port0 = n_port1 = n_port2 = n_port3 = n_port4 = 0
                 seg_start_retire = max_retire
                 seg += 1
+                seg_next = seg_end[seg] if seg < seg_end.shape[0] else -1
             continue
 
         # ---- front end: fetch (L1I) and decode ------------------------------------------------
@@ -592,7 +594,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             d = dec_cycle + 1 if dec_pos > 0 else dec_cycle
         # uop queue: uop u0 enters only when uop u0 - queue_n has left it (been allocated)
         if queue_n > 0 and u_global >= queue_n:
-            qfree = queue_ring[q_pos]
+            qfree = queue_ring[q_pos & IDX]
             if qfree > d:
                 d = qfree
                 new_group = True
@@ -627,7 +629,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             n_dec0 += slot == 0
             n_dec1 += slot == 1
             n_dec2 += slot == 2
-            per_static[psid, S_DECODER0 + slot] += 1
+            per_static[psid, S_DECODER0 + (slot & IDX)] += 1
         decode_time = d
         dec_cycle = d
         if dec == DEC_MSROM:
@@ -644,7 +646,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         # the scan finds nothing unless a GPR read is partially written or a flag read is stale
         scan = (p_gpr_bits[sid] & partial_live) != 0 or (p_flags_read[sid] & ~flags_mask) != 0
         for k in range(p_nsrc[sid] if scan else 0):
-            rid = p_src[sid, k, 0]
+            rid = p_src[sid, k, 0] & IDX
             mask = p_src[sid, k, 1]
             if rid < 8:
                 if (mask & ~reg_pmask[rid]) != 0 and reg_zeroed[rid] == 0:
@@ -669,7 +671,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         acc_first = acc_next
         acc = acc_next
         acc_end = acc
-        while acc_end < n_acc and mem_insn[acc_end] == li:
+        while acc_end < n_acc and mem_insn[acc_end & IDX] == li:
             acc_end += 1
         acc_next = acc_end
         inst_complete = 0
@@ -682,7 +684,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         store_std = 0
         intra = 0  # latest result of this instruction's loads and compute uops (the uop chain)
         for k in range(nu):
-            u = u0 + k
+            u = (u0 + k) & IDX
             kind = u_kind[u]
             t = inst_ready if k == 0 else max(inst_ready, decode_time + 1 + k // 3)
             # rename bandwidth
@@ -691,10 +693,10 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if t < ren_cycle:
                 t = ren_cycle if ren_count < rename_w else ren_cycle + 1
             # ROB entry of the uop rob_n older must have retired
-            if u_global >= rob_n and rob_ring[rob_pos] > t:
-                counters[seg, C_STALL_ROB] += rob_ring[rob_pos] - t
-                per_static[psid, S_STALL_WINDOW] += rob_ring[rob_pos] - t
-                t = rob_ring[rob_pos]
+            if u_global >= rob_n and rob_ring[rob_pos & IDX] > t:
+                counters[seg, C_STALL_ROB] += rob_ring[rob_pos & IDX] - t
+                per_static[psid, S_STALL_WINDOW] += rob_ring[rob_pos & IDX] - t
+                t = rob_ring[rob_pos & IDX]
                 cause_alloc = max(cause_alloc, 2)
             # RS entries are freed at dispatch; a full RS holds allocation until one leaves
             while rs_time < t:
@@ -711,9 +713,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 t = w
                 cause_alloc = max(cause_alloc, 2)
             # a store needs a store-buffer entry
-            if kind == STA and nstores >= sb_n and sb_ring[sb_pos] > t:
-                counters[seg, C_STALL_STORE_BUFFER] += sb_ring[sb_pos] - t
-                t = sb_ring[sb_pos]
+            if kind == STA and nstores >= sb_n and sb_ring[sb_pos & IDX] > t:
+                counters[seg, C_STALL_STORE_BUFFER] += sb_ring[sb_pos & IDX] - t
+                t = sb_ring[sb_pos & IDX]
                 cause_alloc = max(cause_alloc, 2)
             if rrf_reads > 0 and u_swap[u] == 0:
                 # register read stall (p6_machine.toml [rob.register_read]): a rename group reads at
@@ -733,14 +735,14 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             ren_count += 1
             alloc = t
             if queue_n > 0:
-                queue_ring[q_pos] = alloc
+                queue_ring[q_pos & IDX] = alloc
                 q_pos = q_pos + 1 if q_pos + 1 < queue_n else 0
             if k == 0:
                 first_alloc = alloc
             # sources
             ready = alloc + 1
             for j in range(u_nsrc[u]):
-                rid = u_src[u, j, 0]
+                rid = u_src[u, j, 0] & IDX
                 if rid == REG_ST0:
                     rid = REG_ST0 + ((top_before + u_src[u, j, 1]) & 7)
                 if reg_ready[rid] > ready:
@@ -752,7 +754,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             dep_wait = ready - (alloc + 1)
             ready_unit = ready
             if u_unit[u] != 0:
-                free = -(-unit_free[u_unit[u]] // OCC_SCALE)  # held through part of a cycle: the next one
+                free = -(-unit_free[u_unit[u] & IDX] // OCC_SCALE)  # held through part of a cycle: the next one
                 if free > ready:
                     ready_unit = free
             if u_ports[u] == 0:
@@ -764,17 +766,17 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if u_unit[u] != 0:
                 # a resource held for a fractional throughput (EMMS 5.67) averages it: the hold
                 # runs from when it was due, not from the whole cycle the uop waited for
-                unit_free[u_unit[u]] = max(unit_free[u_unit[u]], disp * OCC_SCALE - OCC_SCALE + 1) + u_occ[u]
+                unit_free[u_unit[u] & IDX] = max(unit_free[u_unit[u] & IDX], disp * OCC_SCALE - OCC_SCALE + 1) + u_occ[u]
             lat = u_lat[u]
             mem_wait = 0
             fwd_wait = 0
             if kind == LOAD and acc < acc_end:
                 # find the access this load makes (the next read of this instruction)
-                while acc < acc_end and mem_write[acc]:
+                while acc < acc_end and mem_write[acc & IDX]:
                     acc += 1
                 if acc < acc_end:
-                    a = np.int64(mem_addr[acc])
-                    sz = np.int64(mem_size[acc])
+                    a = np.int64(mem_addr[acc & IDX])
+                    sz = np.int64(mem_size[acc & IDX])
                     acc += 1
                     # store forwarding: newest older store still in the store buffer that overlaps
                     fwd = queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
@@ -820,7 +822,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 branch_done = complete
             # destinations
             for j in range(u_ndst[u]):
-                rid = u_dst[u, j, 0]
+                rid = u_dst[u, j, 0] & IDX
                 if rid == REG_ST0:
                     rid = REG_ST0 + ((top_after + u_dst[u, j, 1]) & 7)
                 elif rid == REG_X87_ORDER and reg_ready[rid] > complete:
@@ -845,7 +847,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 ret_cycle = rt
                 ret_count = 0
             ret_count += 1
-            rob_ring[rob_pos] = rt
+            rob_ring[rob_pos & IDX] = rt
             rob_pos = rob_pos + 1 if rob_pos + 1 < rob_n else 0
             # enter the RS (left at dispatch)
             if u_ports[u] != 0:
@@ -885,7 +887,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
 
         # ---- after the instruction: register state, stores, branches --------------------------
         for j in range(p_ndst[sid]):
-            rid = p_dst[sid, j, 0]
+            rid = p_dst[sid, j, 0] & IDX
             mask = p_dst[sid, j, 1]
             if rid < 8:
                 if mask == 15:
@@ -923,11 +925,11 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         if is_store:
             # commit after retirement, in order; a write miss first fetches the line (write-allocate)
             commit = max(inst_retire, last_commit + 1)
-            while acc < acc_end and not mem_write[acc]:
+            while acc < acc_end and not mem_write[acc & IDX]:
                 acc += 1
             if acc < acc_end:
-                a = np.int64(mem_addr[acc])
-                sz = np.int64(mem_size[acc])
+                a = np.int64(mem_addr[acc & IDX])
+                sz = np.int64(mem_size[acc & IDX])
                 n_stores += 1
                 hit_row, hit_way = ((-1, -1) if not l1_write_back or (a >> TLB_PAGE_BITS != tlb_page and has_tlb) else
                                     _l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
@@ -949,7 +951,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     tlb_page = dclock[TLB_LAST]
                     commit += w
                 fw_n = remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_std, commit)
-            sb_ring[sb_pos] = commit
+            sb_ring[sb_pos & IDX] = commit
             sb_pos = sb_pos + 1 if sb_pos + 1 < sb_n else 0
             nstores += 1
             last_commit = commit
@@ -960,14 +962,14 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             taken = nxt != pc + length
             mispredicted = False
             redirect = False
-            bset = s_bset[sid]
+            bset = s_bset[sid] & IDX
             way = -1
             for w in range(btb_ways):
                 if btb_tag[bset, w] == pc:
                     way = w
             if br == BR_COND:
                 if way >= 0:
-                    h = btb_hist[bset, way]
+                    h = btb_hist[bset, way] & IDX
                     predict = pht[bset, way, h] >= 2
                     cnt = pht[bset, way, h]
                     pht[bset, way, h] = min(3, cnt + 1) if taken else max(0, cnt - 1)
@@ -1043,7 +1045,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if fe_ready >= decode_time and decode_time > 0 and cause == 0 and stall_fetch > 0:
                 cause = 1
             row[7] = cause
-        if seg < seg_end.shape[0] and i + 1 == seg_end[seg]:
+        if i + 1 == seg_next:
             counters[seg, C_CYCLES] = max_retire - seg_start_retire
             _add_counts(counters, seg, n_insns, n_uops, n_groups, n_stall_decode, n_stall_dep, n_stall_port, n_loads,
                         n_stores, n_branches, n_dec0, n_dec1, n_dec2, n_port0, n_port1, n_port2, n_port3, n_port4)
@@ -1051,6 +1053,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             n_branches = n_dec0 = n_dec1 = n_dec2 = n_port0 = n_port1 = n_port2 = n_port3 = n_port4 = 0
             seg_start_retire = max_retire
             seg += 1
+            seg_next = seg_end[seg] if seg < seg_end.shape[0] else -1
 
     if seg < counters.shape[0]:
         _add_counts(counters, seg, n_insns, n_uops, n_groups, n_stall_decode, n_stall_dep, n_stall_port, n_loads,
