@@ -588,10 +588,7 @@ def _count_check(record: bool, as_json: bool) -> None:
                           "other versions compile other code[/]")
         if record:
             console.print(f"wrote {speedcount.BASELINE_FILE}")
-    if failed:
-        for line in failed:
-            click.echo(f"instruction-count regression: {line}", err=True)
-        sys.exit(1)
+    _exit_on_regressions(failed, "instruction-count regression")
 
 
 def _speed_check(check_speed: bool, record: bool, rounds: int, placements: int, as_json: bool) -> None:
@@ -623,7 +620,12 @@ def _speed_check(check_speed: bool, record: bool, rounds: int, placements: int, 
         console.print(table)
         if record:
             console.print(f"wrote {speedcheck.BASELINE_FILE}")
+    _exit_on_regressions(failed, "speed regression")
+
+
+def _exit_on_regressions(failed: list[str], what: str) -> None:
+    """One line per regression on standard error, then exit 1; nothing when there is none."""
     if failed:
         for line in failed:
-            click.echo(f"speed regression: {line}", err=True)
+            click.echo(f"{what}: {line}", err=True)
         sys.exit(1)

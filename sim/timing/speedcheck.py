@@ -166,8 +166,6 @@ def machine() -> dict:
 
 def record(result: dict, path: Path = BASELINE_FILE) -> None:
     """Write the measured ratios as the baseline (atomically)."""
-    from sim.output import atomic_write
-
     doc = {"about": "model speed ratios (each model alone / the native trace, instructions per CPU-second, "
                     "the mean over placements of each core of the best of the rounds); `retrosim bench --check` "
                     "fails when one falls more than "
@@ -175,20 +173,33 @@ def record(result: dict, path: Path = BASELINE_FILE) -> None:
            "machine": machine(), "pixels": result["pixels"], "rounds": result["rounds"],
            "placements": result.get("placements", 1),
            "ratios": {cpu: round(v["ratio"], 4) for cpu, v in result["models"].items()}}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(path, (json.dumps(doc, indent=2) + "\n").encode(), "speed baseline")
+    write_baseline(path, doc, "speed baseline")
 
 
 def load(path: Path = BASELINE_FILE) -> dict:
+    return read_baseline(path, "speed baseline", "retrosim bench --record",
+                         lambda doc: {**doc, "ratios": {str(k): float(v) for k, v in doc["ratios"].items()}})
+
+
+def write_baseline(path: Path, doc: dict, what: str) -> None:
+    """A benchmark baseline (JSON) written atomically."""
+    from sim.output import atomic_write
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(path, (json.dumps(doc, indent=2) + "\n").encode(), what)
+
+
+def read_baseline(path: Path, what: str, record_command: str, parse) -> dict:
+    """A benchmark baseline read as bounded input: `parse` turns its JSON into the figures, and any
+    malformed part is one error naming the file and the command that records one."""
     from sim.errors import ArgumentError
     from sim.inputfile import read_bounded
 
     try:
-        doc = json.loads(read_bounded(path, 1 << 20, "speed baseline", ArgumentError).decode("utf-8"))
-        ratios = {str(k): float(v) for k, v in doc["ratios"].items()}
+        return parse(json.loads(read_bounded(path, 1 << 20, what, ArgumentError).decode("utf-8")))
     except (ValueError, KeyError, TypeError, AttributeError) as e:  # UnicodeDecodeError is a ValueError
-        raise ArgumentError(f"{path}: not a speed baseline ({e}); record one with `retrosim bench --record`")
-    return {**doc, "ratios": ratios}
+        article = "an" if what[0] in "aeiou" else "a"
+        raise ArgumentError(f"{path}: not {article} {what} ({e}); record one with `{record_command}`")
 
 
 def regressions(result: dict, baseline: dict, tolerance: float = TOLERANCE) -> list[str]:

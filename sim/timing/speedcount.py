@@ -115,30 +115,23 @@ def measure(cpus=CPUS, pixels: int = PIXELS, progress=None) -> dict:
 
 def record(result: dict, path: Path = BASELINE_FILE) -> None:
     """Write the measured counts as the baseline (atomically)."""
-    from sim.output import atomic_write
+    from sim.timing.speedcheck import write_baseline
 
     doc = {"about": "host instructions per guest instruction of each model alone on the speed check's trace, "
                     "counted by valgrind for a generic x86-64 CPU; `retrosim bench --count` fails when one grows "
                     f"more than {TOLERANCE:.0%}; `retrosim bench --count --record` re-measures",
            "versions": result["versions"], "pixels": result["pixels"],
            "host_per_guest": {cpu: v["host_per_guest"] for cpu, v in result["models"].items()}}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(path, (json.dumps(doc, indent=2) + "\n").encode(), "instruction-count baseline")
+    write_baseline(path, doc, "instruction-count baseline")
 
 
 def load(path: Path = BASELINE_FILE) -> dict:
-    from sim.errors import ArgumentError
-    from sim.inputfile import read_bounded
+    from sim.timing.speedcheck import read_baseline
 
-    try:
-        doc = json.loads(read_bounded(path, 1 << 20, "instruction-count baseline", ArgumentError).decode("utf-8"))
-        counts = {str(k): float(v) for k, v in doc["host_per_guest"].items()}
-        versions_ = {str(k): str(v) for k, v in doc.get("versions", {}).items()}
-        pixels = int(doc.get("pixels", PIXELS))
-    except (ValueError, KeyError, TypeError, AttributeError) as e:  # UnicodeDecodeError is a ValueError
-        raise ArgumentError(f"{path}: not an instruction-count baseline ({e}); record one with "
-                            "`retrosim bench --count --record`")
-    return {**doc, "host_per_guest": counts, "versions": versions_, "pixels": pixels}
+    return read_baseline(path, "instruction-count baseline", "retrosim bench --count --record", lambda doc: {
+        **doc, "host_per_guest": {str(k): float(v) for k, v in doc["host_per_guest"].items()},
+        "versions": {str(k): str(v) for k, v in doc.get("versions", {}).items()},
+        "pixels": int(doc.get("pixels", PIXELS))})
 
 
 def regressions(result: dict, baseline: dict, tolerance: float = TOLERANCE) -> list[str]:
