@@ -22,6 +22,8 @@ SKIPPED = {
     ".venv/bin/python -m pytest -q": "the test suite itself, which includes this test",
     ".venv/bin/retrosim bench --check": "the models' speed check, a measurement on a quiet machine (a timed test "
                                         "would flake under load); tests/test_speedcheck.py tests its comparison",
+    ".venv/bin/retrosim bench --count": "the models' instruction count (valgrind, about 3 minutes): .ci/run runs "
+                                        "it after the tests; tests/test_speedcount.py tests its parts",
 }
 
 
