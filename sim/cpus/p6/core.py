@@ -51,8 +51,8 @@ from sim.memory.cache import LOAD as CACHE_LOAD
 from sim.memory.cache import LRU, STORE as CACHE_STORE
 from sim.memory.hierarchy import (
     CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS, CFG_WRITE_BACK, memory_fill_page_hits,
-    memory_fills, memory_writeback_page_hits, memory_writebacks, served_level, service, CFG_TLB_WAYS, TLB_LAST,
-    TLB_PAGE_BITS, tlb_missed, walk_pde_level, walk_pte_level, walk_read_result,
+    memory_fills, memory_writeback_page_hits, memory_writebacks, served_level, service, CFG_TLB_SETS, CFG_TLB_WAYS,
+    TLB_LAST, TLB_PAGE_BITS, tlb_missed, walk_pde_level, walk_pte_level, walk_read_result,
 )
 from sim.memory.replay import LOG_OFF, LOG_RECORD, LOG_REPLAY, logged_service, record_hit, replayed_hit
 from sim.cpus.lowering import (
@@ -180,7 +180,8 @@ def _bind_port(ports, bound0, bound1, tie):
 def _l1_way(tags, addr, size, ob, row0, set_mask, ways):
     """(row, way) of the first-level line holding [addr, addr + size), or (-1, -1) if it is not
     there or the access crosses a line (the lookup of sim.memory.cache.lookup, without updates).
-    The caller takes this path only for the page it translated last (see tlb_page in simulate)."""
+    The caller takes this path only for a page that is its TLB set's most recent entry (see
+    tlb_mru in simulate)."""
     line = addr >> ob
     if (addr + size - 1) >> ob == line:
         s = row0 + (line & set_mask)
@@ -241,6 +242,15 @@ def _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size,
         counters[seg, C_STALL_MEMORY] += wait
         per_static[psid, S_STALL_MEMORY] += wait
     return wait, bus_free, l2bus_free
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _translated(tlb_mru, set_mask, a, size):
+    """service translated [a, a + size): each page it touched is now its TLB set's most recent entry
+    (the last one translated wins a set both fall in)."""
+    first, last = a >> TLB_PAGE_BITS, (a + size - 1) >> TLB_PAGE_BITS
+    tlb_mru[first & set_mask] = first
+    tlb_mru[last & set_mask] = last
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -431,12 +441,18 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     l1_lru = dconfig[0, CFG_REPLACEMENT] == LRU
     l1_write_back = dconfig[0, CFG_WRITE_BACK] != 0
     d_now = dclock[0]
-    # The data TLB: an access to the page the walk translated last takes the inline L1-hit path
-    # (that page is its set's most recent entry: service would change nothing in the TLB); any
-    # other goes through service, which translates it (a lookup, or a page walk on a miss). A
-    # replayed log says itself which accesses were plain hits (_logged_hit): no TLB state then.
+    # The data TLB: an access to a page known to be its TLB set's most recent entry (tlb_mru, per
+    # set) takes the inline L1-hit path. service would only re-stamp that entry with a newer clock,
+    # and it already holds its set's newest stamp: no later victim choice, which compares stamps
+    # within a set, can differ. Any other access goes through service, which translates it (a
+    # lookup, or a page walk on a miss) and leaves each page it translated its set's most recent
+    # entry. At the start only the page translated last is known. A replayed log says itself which
+    # accesses were plain hits (_logged_hit): no TLB state then.
     has_tlb = dconfig[0, CFG_TLB_WAYS] > 0 and dlog[0] != LOG_REPLAY
-    tlb_page = dclock[TLB_LAST]
+    tlb_set_mask = max(dconfig[0, CFG_TLB_SETS], 1) - 1
+    tlb_mru = np.full(tlb_set_mask + 1, -1, np.int64)
+    if dclock[TLB_LAST] >= 0:
+        tlb_mru[dclock[TLB_LAST] & tlb_set_mask] = dclock[TLB_LAST]
     log_off = dlog[0] == LOG_OFF  # a log, once on, stays on (it may only overflow: replay.logged_service)
     # GPRs whose last writer was partial (reg_pmask != 15), as bits, plus ALWAYS_SCAN
     partial_live = ALWAYS_SCAN
@@ -502,7 +518,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                         n_stores += 1
                     else:
                         n_loads += 1
-                    hit_row, hit_way = ((-1, -1) if (w_ and not l1_write_back) or (a >> TLB_PAGE_BITS != tlb_page
+                    hit_row, hit_way = ((-1, -1) if (w_ and not l1_write_back) or (tlb_mru[(a >> TLB_PAGE_BITS) & tlb_set_mask] != a >> TLB_PAGE_BITS
                                                                                    and has_tlb) else
                                         _l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
                                         _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
@@ -521,7 +537,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                                                                a, sz, w_, t, P, mshr, bus_free, l2bus_free, counters,
                                                                per_static, seg, psid)
                         d_now = dclock[0]
-                        tlb_page = dclock[TLB_LAST]
+                        _translated(tlb_mru, tlb_set_mask, a, sz)
                         if w > wait:
                             wait = w  # the loop waits for its memory
                 sv[V_REP_NEXT] += wait * OCC_SCALE
@@ -781,7 +797,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     # store forwarding: newest older store still in the store buffer that overlaps
                     fwd = queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
                     n_loads += 1
-                    hit_row, hit_way = ((-1, -1) if a >> TLB_PAGE_BITS != tlb_page and has_tlb else
+                    hit_row, hit_way = ((-1, -1) if tlb_mru[(a >> TLB_PAGE_BITS) & tlb_set_mask] != a >> TLB_PAGE_BITS and has_tlb else
                                         _l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
                                         _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
                     if hit_row >= 0:
@@ -797,7 +813,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                                                                       a, sz, False, disp, P, mshr, bus_free, l2bus_free,
                                                                       counters, per_static, seg, psid)
                         d_now = dclock[0]
-                        tlb_page = dclock[TLB_LAST]
+                        _translated(tlb_mru, tlb_set_mask, a, sz)
                     if fwd >= 0:
                         if fw_addr[fwd] == a and sz <= fw_size[fwd]:
                             counters[seg, C_STORE_FORWARDS] += 1
@@ -931,7 +947,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 a = np.int64(mem_addr[acc & IDX])
                 sz = np.int64(mem_size[acc & IDX])
                 n_stores += 1
-                hit_row, hit_way = ((-1, -1) if not l1_write_back or (a >> TLB_PAGE_BITS != tlb_page and has_tlb) else
+                hit_row, hit_way = ((-1, -1) if not l1_write_back or (tlb_mru[(a >> TLB_PAGE_BITS) & tlb_set_mask] != a >> TLB_PAGE_BITS and has_tlb) else
                                     _l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
                                     _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
                 if hit_row >= 0:
@@ -948,7 +964,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                                                            True, commit, P, mshr, bus_free, l2bus_free, counters,
                                                            per_static, seg, psid)
                     d_now = dclock[0]
-                    tlb_page = dclock[TLB_LAST]
+                    _translated(tlb_mru, tlb_set_mask, a, sz)
                     commit += w
                 fw_n = remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_std, commit)
             sb_ring[sb_pos & IDX] = commit
