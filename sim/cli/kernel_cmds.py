@@ -506,7 +506,7 @@ def _placement(timings, align: int, offset: int) -> dict:
                    "15 % below its recorded figure")
 @click.option("--count", "count", is_flag=True,
               help="the models' instruction count: host instructions per guest instruction of each model alone, "
-                   "counted by valgrind for a generic x86-64 CPU (exact, whatever the load), compared with "
+                   "counted by valgrind for a generic x86-64 CPU (repeatable whatever the load), compared with "
                    "benchmarks/model_count.json; exit 1 when one grows more than 5 % (sim/timing/speedcount.py)")
 @click.option("--record", is_flag=True, help="measure the models' speed ratios (with --count: their instruction "
                                              "counts) and write benchmarks/model_speed.json (model_count.json)")
