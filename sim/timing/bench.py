@@ -33,6 +33,19 @@ def span_workload(pixels: int) -> tuple[np.ndarray, tuple[int, int, int]]:
     return ref.fp16z_encode(earlier), (0x28000000, 0x18000000 // pixels, 0x7BEF)
 
 
+def span_emulation(pixels: int, isa_cpu: str | None = None):
+    """The span workload's call emulated once with the native trace (no instruction budget): the
+    trace every model-alone measurement times (bench's model_only, the speed check, the instruction count)."""
+    from sim.timing.kernel import emulate
+
+    zinit, (z, dz, colour) = span_workload(pixels)
+
+    def setup(m):
+        return [m.arena.put(zinit), m.arena.put(np.zeros(pixels, np.uint16)), pixels, z, dz, colour]
+
+    return emulate(kernels_root() / SPAN_KERNEL, "fp16z_span", setup, repeat=1, budget=0, isa_cpu=isa_cpu)
+
+
 def run_bench(pixels: int = 1 << 20, progress=None) -> dict:
     m = Machine.from_source(kernels_root() / SPAN_KERNEL)
     zinit, (z, dz, colour) = span_workload(pixels)
@@ -61,7 +74,7 @@ def run_bench(pixels: int = 1 << 20, progress=None) -> dict:
     results["end_to_end_seconds"] = _end_to_end(zinit, z, dz, colour, pixels, "pentium2-233")
     if progress is not None:
         progress.print("[dim]measuring the P6 model alone on the emulated trace (pentium2-233) ...[/]")
-    results["model_only_seconds"] = _model_only(zinit, z, dz, colour, pixels, "pentium2-233")
+    results["model_only_seconds"] = _model_only(pixels, "pentium2-233")
     if progress is not None:
         progress.print("[dim]measuring end to end with the K6 model (k6-233) ...[/]")
     results["k6_end_to_end_seconds"] = _end_to_end(zinit, z, dz, colour, pixels, "k6-233")
@@ -71,7 +84,7 @@ def run_bench(pixels: int = 1 << 20, progress=None) -> dict:
     for prefix, cpu in (("k6_", "k6-233"), ("p5_", "pentium-mmx-233")):
         if progress is not None:
             progress.print(f"[dim]measuring the {prefix[:2].upper()} model alone on the emulated trace ({cpu}) ...[/]")
-        results[f"{prefix}model_only_seconds"] = _model_only(zinit, z, dz, colour, pixels, cpu)
+        results[f"{prefix}model_only_seconds"] = _model_only(pixels, cpu)
     n = results["instructions"]
     for mode in ("unicorn_bare", "python_hook", "native_trace", "end_to_end", "model_only", "k6_end_to_end",
                  "p5_end_to_end", "k6_model_only", "p5_model_only"):
@@ -103,17 +116,14 @@ def _end_to_end(zinit, z, dz, colour, pixels, cpu: str) -> float:
     return best
 
 
-def _model_only(zinit, z, dz, colour, pixels, cpu: str) -> float:
+def _model_only(pixels, cpu: str) -> float:
     """Seconds to time an already emulated call on `cpu` (decode, ISA check, model with its caches):
     the best of two, each on a fresh emulation object so that nothing decoded is reused."""
     from sim.cpus.build import make_model
-    from sim.timing.kernel import emulate, time_emulation
-
-    def setup(m):
-        return [m.arena.put(zinit), m.arena.put(np.zeros(pixels, np.uint16)), pixels, z, dz, colour]
+    from sim.timing.kernel import time_emulation
 
     model = make_model(cpu)
-    emu = emulate(kernels_root() / SPAN_KERNEL, "fp16z_span", setup, repeat=1, budget=0, isa_cpu=cpu)
+    emu = span_emulation(pixels, isa_cpu=cpu)
     best = float("inf")
     for _ in range(2):
         fresh = replace(emu)  # the same trace, no decoder cached yet

@@ -94,8 +94,8 @@ def measure(pixels: int = PIXELS, rounds: int = ROUNDS, cpus=CPUS, progress=None
     from sim.cpus.build import make_model
     from sim.guest.emu import Machine
     from sim.guest.kernels import kernels_root
-    from sim.timing.bench import SPAN_KERNEL, span_workload
-    from sim.timing.kernel import emulate, time_emulation
+    from sim.timing.bench import SPAN_KERNEL, span_emulation, span_workload
+    from sim.timing.kernel import time_emulation
 
     zinit, (z, dz, colour) = span_workload(pixels)
     source = kernels_root() / SPAN_KERNEL
@@ -108,10 +108,7 @@ def measure(pixels: int = PIXELS, rounds: int = ROUNDS, cpus=CPUS, progress=None
         r = m.call("fp16z_span", zb, fb, n, z, dz, colour, trace=True, budget=0)
         return time.thread_time() - start, r.instructions
 
-    def setup(mm):
-        return [mm.arena.put(zinit), mm.arena.put(np.zeros(pixels, np.uint16)), pixels, z, dz, colour]
-
-    emu = emulate(source, "fp16z_span", setup, repeat=1, budget=0)
+    emu = span_emulation(pixels)
     models = {cpu: make_model(cpu) for cpu in cpus}
     native(4096)  # warm up: translation cache, trace buffer
     cores = {}

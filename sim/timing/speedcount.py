@@ -150,20 +150,12 @@ def _child(argv: list[str]) -> None:
     the guest instruction count as JSON (the parent counts the host instructions)."""
     from dataclasses import replace
 
-    import numpy as np
-
     from sim.cpus.build import make_model
-    from sim.guest.kernels import kernels_root
-    from sim.timing.bench import SPAN_KERNEL, span_workload
-    from sim.timing.kernel import emulate, time_emulation
+    from sim.timing.bench import span_emulation
+    from sim.timing.kernel import time_emulation
 
     pixels, timings, cpus = int(argv[0]), int(argv[1]), argv[2:]
-    zinit, (z, dz, colour) = span_workload(pixels)
-
-    def setup(mm):
-        return [mm.arena.put(zinit), mm.arena.put(np.zeros(pixels, np.uint16)), pixels, z, dz, colour]
-
-    emu = emulate(kernels_root() / SPAN_KERNEL, "fp16z_span", setup, repeat=1, budget=0)
+    emu = span_emulation(pixels)
     for cpu in cpus:
         model = make_model(cpu)
         for _ in range(1 + timings):  # the first compiles or loads the model's code
