@@ -57,6 +57,9 @@ class Estimate:
     range_reason: str       # why the range
     overridable: bool = True  # a make_model override (estimates.NAME) and re-timed by the claims
     only_with: str = ""     # a CpuPreset attribute (a cache level) without which the model never reads it
+    # it sets what the machine holds from call to call (a table's indexing, a queue's size), not only
+    # when things happen: the claims re-time it over the whole emulation (sim/scenes/claims.py)
+    structural: bool = False
 
     @property
     def key(self) -> str:
@@ -103,7 +106,8 @@ def _record(name: str) -> Family:
         for est, e in table.get("estimates", {}).items():
             low, high = e["range"]
             estimates[est] = Estimate(est, e["default"], low, high, e["mechanism"], e["reason"], e["range_reason"],
-                                      bool(e.get("overridable", True)), e.get("only_with", ""))
+                                      bool(e.get("overridable", True)), e.get("only_with", ""),
+                                      bool(e.get("structural", False)))
         return Family(name, fam["display_name"], fam["marker"], frozenset(fam["lacks"]),
                       fam.get("conformance_isa"), tuple(fam["explain"]), tuple(fam["loop_counters"]),
                       frozenset(fam["table_fields"]), estimates, dict(table.get("rules", {})),

@@ -14,6 +14,7 @@ precisions), so a run fed in any number of chunks reports exactly what one fed w
 from __future__ import annotations
 
 import threading
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -78,6 +79,10 @@ class Statics:
         return np.array(sorted(range(len(self.records)), key=key), np.int64)
 
 
+def _rdtsc_statics(records) -> np.ndarray:
+    return np.array([int(r.mnemonic == "rdtsc") for r in records], np.int64)
+
+
 def grown_state(state: tuple, pos: int, rows: int, fill: int = 0) -> tuple:
     """A core's state tuple whose array at `pos` has at least `rows` rows (contents kept, new rows
     `fill`): room for the resources or static instructions a later chunk brought."""
@@ -96,6 +101,33 @@ def grow_rows(a: np.ndarray, rows: int) -> np.ndarray:
     grown = np.zeros((max(rows + 1, 2 * a.shape[0]),) + a.shape[1:], a.dtype)
     grown[:a.shape[0] - 1] = a[:-1]
     return grown
+
+
+@dataclass(frozen=True)
+class SessionStart:
+    """A run's machine state between two feeds (:meth:`CoreSession.snapshot`): the core's state, the
+    counts so far and the caches' contents, copied; and the run's statics, shared (they only grow).
+    :meth:`CoreSession.restore` continues another model's session of the same trace from it."""
+
+    statics: Statics
+    base: int
+    total: int
+    state: tuple
+    counters: np.ndarray
+    per_static: np.ndarray
+    dstats: np.ndarray
+    istats: np.ndarray
+    rdtsc: tuple
+    family: dict       # the family session's own state (:meth:`CoreSession.family_state`)
+    dside: tuple       # the data side's (tags, stamps, dirty, work); its configuration apart:
+    dconfig: np.ndarray
+    iside: tuple
+    iconfig: np.ndarray
+
+
+def _contents(hierarchy) -> tuple:
+    tags, stamps, dirty, config, work = hierarchy.arrays()
+    return tuple(a.copy() for a in (tags, stamps, dirty, work)), config.copy()
 
 
 class CoreSession:
@@ -162,7 +194,7 @@ class CoreSession:
             self.program = self.model.lower(records, precisions)
             self.per_static = grow_rows(self.per_static, len(records))
             self.grown(self.program)
-            self.rdtsc_sid = np.array([int(r.mnemonic == "rdtsc") for r in records], np.int64)
+            self.rdtsc_sid = _rdtsc_statics(records)
         rdtsc_sid = self.rdtsc_sid
         rdtsc_out = np.zeros(int(rdtsc_sid[index].sum()) if rdtsc_sid.any() else 0, np.int64)
         self.total = self.time_chunk(chunk, index, next_pc, rdtsc_sid, rdtsc_out, access_logs)
@@ -171,6 +203,48 @@ class CoreSession:
 
     def grown(self, program) -> None:
         """The static program gained instructions: make room in the core's state."""
+
+    def family_state(self) -> dict:
+        """The family session's state beyond the core's (attribute name -> value, not changed in
+        place by later feeds), for :meth:`snapshot`."""
+        return {}
+
+    def snapshot(self) -> SessionStart:
+        """The machine state after the chunks fed so far, for :meth:`restore`."""
+        (dside, dconfig), (iside, iconfig) = _contents(self.model.dside), _contents(self.model.iside)
+        return SessionStart(self.statics, self.base, self.total, tuple(a.copy() for a in self.state),
+                            self.counters.copy(), self.per_static.copy(), self.dstats.copy(), self.istats.copy(),
+                            tuple(self.rdtsc), self.family_state(), dside, dconfig, iside, iconfig)
+
+    def restore(self, start: SessionStart) -> bool:
+        """Continue from `start`, a snapshot of another session of the same trace and segments,
+        whose model may differ from this one in its timing parameters only. False when it differs
+        in more (the caches' or TLB's geometry, or the size of any core state array, as a uop queue
+        or a history table has): this session must then not be used."""
+        model = self.model
+        if not (np.array_equal(model.dside.config, start.dconfig) and np.array_equal(model.iside.config, start.iconfig)):
+            return False
+        records, precisions = start.statics.snapshot()
+        self.statics = start.statics
+        self.program = model.lower(records, precisions)
+        self.grown(self.program)
+        fresh = [a.shape for a in self.state]
+        self.state = tuple(a.copy() for a in start.state)
+        self.grown(self.program)
+        if [a.shape for a in self.state] != fresh:
+            return False
+        for name, value in start.family.items():
+            setattr(self, name, value)
+        self.base, self.total = start.base, start.total
+        self.counters, self.dstats, self.istats = start.counters.copy(), start.dstats.copy(), start.istats.copy()
+        self.per_static = grow_rows(start.per_static.copy(), len(records))
+        self.rdtsc = list(start.rdtsc)
+        self.rdtsc_sid = _rdtsc_statics(records)
+        for hierarchy, contents in ((model.dside, start.dside), (model.iside, start.iside)):
+            tags, stamps, dirty, _, work = hierarchy.arrays()
+            for into, saved in zip((tags, stamps, dirty, work), contents):
+                np.copyto(into, saved)
+        return True
 
     def time_chunk(self, chunk: Trace, index: np.ndarray, next_pc: int, rdtsc_sid: np.ndarray,
                    rdtsc_out: np.ndarray, access_logs) -> int:

@@ -16,7 +16,22 @@ the page geometry (``pages.open_pages``, ``pages.page_bytes``) changes what the 
 decides, so those re-timings read the caches' results back instead of walking them
 (sim/memory/replay.py); the page geometry decides which fills are page hits, so a re-timing with
 another geometry walks the caches itself (the geometry is part of the cache configuration a
-replay log is keyed by, so it could not replay the nominal log anyway). A parameter whose mechanism never fires in a variant (no
+replay log is keyed by, so it could not replay the nominal log anyway).
+
+A re-timing times the last call only (the one the claims compare), from the machine state the
+nominal timing left at its start (sim.timing.kernel.resume_last_call), where the calls before it are
+at least as long as it (:func:`resumes`: a Z-buffer scene's first frame; this halves the re-timings).
+The caches, TLB, DRAM pages and branch predictors hold then what they would with any value of a
+timing parameter (each is updated in program order, never by the clock); what differs is what is
+in flight at the call boundary (queues, buses, port reservations), which a long call drains early.
+Measured on the article Z-buffer scene against re-timing the whole emulation: the same cycles in all
+but a few re-timings, off by at most 18 of 14.8 million (tests/test_claims_resume.py bounds it). A
+short first call may leave much in flight (the sort scene's key copy leaves its writes queued for
+the bus: resuming there moved ratios by up to 7e-4), so such emulations are re-timed whole. A
+parameter that changes what the machine holds (``structural``: the page geometry, a predictor's
+indexing, a queue's size) is re-timed over the whole emulation.
+
+A parameter whose mechanism never fires in a variant (no
 store forward, no MSROM uop, no DRAM fill, ...) cannot change its timing and is not re-run. A claim
 whose verdict on a machine differs at either end of a range from the nominal verdict is reported as
 "depends on <parameter>", never as reproduced. Only the ends are timed: between them the verdict is
@@ -61,6 +76,7 @@ class Param:
     high: float
     why: str
     mechanism: str | None = None  # the counter that must be non-zero for it to matter (None: always)
+    structural: bool = False  # it changes what the machine holds, not only when: re-timed whole (perturbed_timings)
 
     def describe(self) -> str:
         return f"{self.key} {_n(self.low)}..{_n(self.high)} (model {_n(self.nominal)})"
@@ -79,7 +95,8 @@ def parameters(cpu: str, memory: str | None = None) -> list[Param]:
     preset = load_preset(cpu)
     values = overridable(cpu, memory)
     estimates = families.FAMILIES[preset.family].estimates.values() if preset.family in families.FAMILIES else ()
-    out = [Param(e.key, values[e.key], e.low, e.high, e.range_reason, None if e.mechanism == families.ALWAYS else e.mechanism)
+    out = [Param(e.key, values[e.key], e.low, e.high, e.range_reason, None if e.mechanism == families.ALWAYS else e.mechanism,
+                 e.structural)
            for e in estimates if e.key in values and e.applies_to(preset)]  # applies_to: e.g. no on-die L2, never read
     for level, cache in (("l2", preset.l2), ("l3", preset.board_cache)):
         if cache is not None and cache.estimated and f"{level}.latency_cycles" in values:
@@ -101,7 +118,8 @@ def parameters(cpu: str, memory: str | None = None) -> list[Param]:
     for field in sorted(pages.ranges if pages else (), key=lambda f: f in dram.PAGE_GEOMETRY):
         low, high, why = pages.ranges[field]
         key = f"pages.{field}"
-        out.append(Param(key, values[key], low, high, f"estimated page figure ({pages.chipset}): {why}", MECHANISM[key]))
+        out.append(Param(key, values[key], low, high, f"estimated page figure ({pages.chipset}): {why}", MECHANISM[key],
+                         key in PAGE_GEOMETRY_KEYS))
     return out
 
 
@@ -110,21 +128,25 @@ def exercised(param: Param, counters: dict) -> bool:
     return name is None or counters.get(name, 1) != 0
 
 
-def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, logs=None, what: str = "") -> dict:
+def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, logs=None, start=None, what: str = "") -> dict:
     """{(param key, value): counters of the last call} with each parameter at each end of its range;
     parameters whose mechanism does not fire reuse the nominal counters (their timing cannot move).
-    `logs`: the sim.memory.replay.AccessLogs the nominal timing recorded into, if it did. Each
-    re-timing is reported as a machine run (sim.scenes.progress), named `what` and its number."""
+    `logs`: the sim.memory.replay.AccessLogs the nominal timing recorded into, if it did. `start`:
+    the machine state the nominal timing left at the last call's start (sim.timing.kernel
+    resume_last_call), if it kept it: a re-timing then times the last call only, where the
+    machine allows. Each re-timing is reported as a machine run (sim.scenes.progress), named `what`
+    and its number."""
     from sim.cpus.build import make_model
     from sim.memory.replay import AccessLogs
     from sim.parallel import report
-    from sim.scenes.progress import timed_run
+    from sim.scenes.progress import machine_run
+    from sim.timing.kernel import resume_last_call, time_emulation
 
     out = {}
-    # no parameter here but the page geometry changes what the data caches decide: one walk of them
-    # serves every other run; a geometry re-timing walks them without a log (its own recording
-    # would only evict the nominal one, which the log store keys by the geometry anyway)
-    logs = AccessLogs() if logs is None else logs
+    # no parameter here but the page geometry changes what the data caches' walk decides: one walk
+    # of them serves every other run; a geometry re-timing walks them without a log (its own
+    # recording would only evict the nominal one, which the log store keys by the geometry anyway)
+    logs = AccessLogs(keep=2) if logs is None else logs
     ends = [(p, value, value != p.nominal and exercised(p, nominal))  # (parameter, value, re-timed?)
             for p in parameters(cpu, memory) for value in (p.low, p.high)]
     runs = sum(rerun for _, _, rerun in ends)
@@ -139,9 +161,22 @@ def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, logs=None
         n += 1
         model = make_model(cpu, memory, {p.key: value})
         geometry = p.key in PAGE_GEOMETRY_KEYS
-        out[(p.key, value)] = timed_run(f"{what}: re-timing {n} of {runs}", emulation, model,
-                                        access_logs=None if geometry else logs).last
+        with machine_run(f"{what}: re-timing {n} of {runs}"):
+            counters = None if p.structural or start is None else resume_last_call(emulation, model, start, logs)
+            if counters is None:  # the whole emulation (or a machine whose state differs in shape)
+                counters = time_emulation(emulation, model, access_logs=None if geometry else logs,
+                                          resumable=start is not None).last  # fed as the nominal was: its logs replay
+        out[(p.key, value)] = counters
     return out
+
+
+def resumes(emulation) -> bool:
+    """Whether the re-timings of `emulation` time its last call alone (perturbed_timings): where the
+    calls before it are at least as long (a Z-buffer scene's first frame), which halves them. Where
+    they are short (the sort scene's key copy), the whole emulation is re-timed: resuming would save
+    little, and the state in flight after a short call can be far from drained (a copy's writes still
+    queued for the bus)."""
+    return 2 * emulation.last_call >= emulation.trace.instructions
 
 
 def timed_with_robustness(emulation, model, key: str, robust: bool, what: str) -> tuple[dict, dict | None]:
@@ -151,12 +186,15 @@ def timed_with_robustness(emulation, model, key: str, robust: bool, what: str) -
     from sim.memory.replay import AccessLogs
     from sim.scenes.progress import timed_run
 
-    logs = AccessLogs() if robust else None  # the re-timings replay this timing's cache results
-    timed = timed_run(what, emulation, model, access_logs=logs)
+    # the re-timings replay this timing's cache results (when resumable, one log for the calls before
+    # the last and one for the last: sim.timing.kernel Emulation.parts)
+    logs = AccessLogs(keep=2) if robust else None
+    timed = timed_run(what, emulation, model, access_logs=logs, resumable=robust and resumes(emulation))
     if not robust:
         return timed.last, None
     machine = MachineKey.parse(key)
-    return timed.last, perturbed_timings(emulation, machine.label, machine.memory, timed.last, logs=logs, what=what)
+    return timed.last, perturbed_timings(emulation, machine.label, machine.memory, timed.last, logs=logs,
+                                         start=timed.last_call_start, what=what)
 
 
 # -- what a claim names --------------------------------------------------------------------------

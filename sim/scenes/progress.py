@@ -12,6 +12,7 @@ be coming (negative: fewer than announced). The timings themselves run in forked
 from __future__ import annotations
 
 import threading
+from contextlib import contextmanager
 from typing import Callable
 
 from sim.parallel import report
@@ -19,15 +20,20 @@ from sim.parallel import report
 Progress = Callable[..., None]
 
 
+@contextmanager
+def machine_run(what: str):
+    """The block is one machine run named `what` (from a pool's task: see sim.parallel.report)."""
+    report(what)
+    yield
+    report(done=1)
+
+
 def timed_run(what: str, emulation, model, **kw):
-    """time_emulation(emulation, model, **kw), reported as one machine run named `what` (from a
-    pool's task: see sim.parallel.report)."""
+    """time_emulation(emulation, model, **kw), reported as one machine run named `what`."""
     from sim.timing.kernel import time_emulation
 
-    report(what)
-    timed = time_emulation(emulation, model, **kw)
-    report(done=1)
-    return timed
+    with machine_run(what):
+        return time_emulation(emulation, model, **kw)
 
 
 class RunCount:

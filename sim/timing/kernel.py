@@ -17,6 +17,7 @@ from typing import Callable
 import numpy as np
 
 from sim.cpus.build import make_model
+from sim.cpus.session import SessionStart
 from sim.errors import LimitError, RetrosimError
 from sim.guest.cpu import GuestCpu
 from sim.guest.decode import Decoder
@@ -37,6 +38,8 @@ class TimingResult:
     model: object = field(repr=False)
     run: object = field(repr=False)
     trace: Trace | None = field(repr=False)  # None when the run was streamed (sim/timing/stream.py)
+    # the machine state at the last call's start (time_emulation's `resumable`): for resume_last_call
+    last_call_start: SessionStart | None = field(default=None, repr=False)
 
     @property
     def last(self) -> dict:
@@ -80,6 +83,7 @@ class Emulation:
     # one decoder per emulation: its records and its trace index are computed once however many
     # machines (and claim re-timings) time the trace
     _decoder: Decoder | None = field(default=None, init=False, repr=False, compare=False)
+    _parts: tuple[Trace, Trace] | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def last_call(self) -> int:
@@ -89,6 +93,13 @@ class Emulation:
         if self._decoder is None:
             self._decoder = Decoder(self.machine.image.fetch)
         return self._decoder
+
+    def parts(self) -> tuple[Trace, Trace]:
+        """(the calls before the last, the last call) as traces of their own; the same two objects
+        each time, so an access log recorded on them (sim.memory.replay, keyed by the trace) replays."""
+        if self._parts is None:
+            self._parts = (self.trace.part(0, self.last_call), self.trace.part(self.last_call, self.trace.instructions))
+        return self._parts
 
     def replay(self, rdtsc_values: list[int]) -> Emulation:
         return emulate(self.source, self.entry, self.setup, self.repeat, self.budget, self.assembler, rdtsc_values,
@@ -155,19 +166,34 @@ def check_model_memory(instructions: int) -> None:
 
 
 def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None,
-                   timeline_iterations: int = 0, access_logs=None) -> TimingResult:
+                   timeline_iterations: int = 0, access_logs=None, resumable: bool = False) -> TimingResult:
     """Time an emulation on one CPU preset (a name, or a model from make_model).
     `timeline_iterations`: record a per-instruction timeline of that many iterations of the hot
     loop (the last call's most executed PC), from the middle of the last call. `access_logs`
     (a sim.memory.replay.AccessLogs): re-timings of the same emulation on the same data caches
-    reuse the first one's cache results (the P6 and K6 cores; the P5 core walks its caches each time)."""
+    reuse the first one's cache results (the P6 and K6 cores; the P5 core walks its caches each time).
+    `resumable`: keep the machine state at the last call's start (``last_call_start``, for
+    :func:`resume_last_call`; the calls before it and the last are fed apart, which times them the
+    same); not with a timeline, and not kept for a kernel that reads RDTSC."""
     model = make_model(cpu, memory) if isinstance(cpu, str) else cpu
     cpu = model.preset.name
     check_model_memory(emu.trace.instructions)
     timeline = hot_loop_window(emu.trace.pc, emu.last_call, timeline_iterations)
     decoder = emu.decoder()
     check_isa(emu, decoder, GuestCpu.from_preset(model.preset))
-    run = model.run(emu.trace, decoder, emu.bounds, timeline, emu.last_call, access_logs=access_logs)
+    if resumable and timeline_iterations == 0 and emu.last_call > 0:
+        session = model.session(decoder, emu.bounds, emu.last_call)
+        head, last = emu.parts()
+        session.feed(head, int(last.pc[0]), access_logs)
+        start = session.snapshot()
+        session.feed(last, -1, access_logs)
+        run = session.finish()
+        if run.rdtsc.size == 0:
+            calls = [run.segment(k) for k in range(len(emu.bounds))]
+            return TimingResult(cpu, model.dram.name, emu.entry, emu.source, emu.repeat, calls, model, run, emu.trace,
+                                start)
+    else:
+        run = model.run(emu.trace, decoder, emu.bounds, timeline, emu.last_call, access_logs=access_logs)
     if run.rdtsc.size:
         replay = emu.replay([int(c) for c in run.rdtsc])
         if not np.array_equal(replay.trace.pc, emu.trace.pc):
@@ -176,6 +202,19 @@ def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None
         run = model.run(emu.trace, emu.decoder(), emu.bounds, timeline, emu.last_call, access_logs=access_logs)
     calls = [run.segment(k) for k in range(len(emu.bounds))]
     return TimingResult(cpu, model.dram.name, emu.entry, emu.source, emu.repeat, calls, model, run, emu.trace)
+
+
+def resume_last_call(emu: Emulation, model, start: SessionStart, access_logs=None) -> dict | None:
+    """The counters of the emulation's last call on `model` (from make_model, not yet run), timed
+    from `start`, the machine state another model's resumable timing of `emu` left at that call's
+    start (time_emulation): caches, TLB, predictors and the core's queues as that run left them,
+    and only the last call timed. None when `model`'s machine differs from that one in more than
+    its timing parameters (CoreSession.restore): time the whole emulation then."""
+    session = model.session(emu.decoder(), emu.bounds, emu.last_call)
+    if not session.restore(start):
+        return None
+    session.feed(emu.parts()[1], -1, access_logs)
+    return session.finish().segment(len(emu.bounds) - 1)
 
 
 def check_isa(emu: Emulation, decoder: Decoder, cpu: GuestCpu) -> None:

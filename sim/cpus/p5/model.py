@@ -325,6 +325,9 @@ class P5Session(CoreSession):
         n = len(program.records)
         self.state = grown_state(grown_state(self.state, core.SEEN, n), core.PAIR_CACHE, n, fill=-1)
 
+    def family_state(self) -> dict:
+        return {"held": self.held}
+
     def _simulate(self, base, next_pc, index, pc, acc_start, acc_count, chunk, rdtsc_sid, rdtsc_out) -> int:
         model = self.model
         return core.simulate(base, next_pc, index, pc, acc_start, acc_count, chunk.mem_addr, chunk.mem_size,
