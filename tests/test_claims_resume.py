@@ -61,9 +61,12 @@ def test_a_machine_of_another_shape_or_cache_geometry_is_not_resumed(emulation):
     timed, logs = nominal(emulation, "pentium2-233", "edo")
     start = timed.last_call_start
     bigger_queue = make_model("pentium2-233", "edo", {"estimates.uop_queue": 12})
-    other_pages = make_model("pentium2-233", "edo", {"pages.page_bytes": 4096})
+    smaller_l2 = make_model("pentium2-233", "edo", {"l2.size_kb": 128})
     assert resume_last_call(emulation, bigger_queue, start, logs) is None
-    assert resume_last_call(emulation, other_pages, start, None) is None
+    assert resume_last_call(emulation, smaller_l2, start, None) is None
+    # another DRAM page geometry is resumed, with its pages closed at the call's start
+    other_pages = make_model("pentium2-233", "edo", {"pages.page_bytes": 4096})
+    assert resume_last_call(emulation, other_pages, start, None) is not None
     k6 = {p.key: p for p in claims.parameters("k6-2-300")}
     assert k6["estimates.bht_history_bits"].structural and k6["estimates.store_queue"].structural
     assert not k6["estimates.mispredict_restart"].structural and not k6["memory.overhead_bus_clocks"].structural

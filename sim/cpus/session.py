@@ -119,15 +119,8 @@ class SessionStart:
     istats: np.ndarray
     rdtsc: tuple
     family: dict       # the family session's own state (:meth:`CoreSession.family_state`)
-    dside: tuple       # the data side's (tags, stamps, dirty, work); its configuration apart:
-    dconfig: np.ndarray
+    dside: tuple       # the data and instruction sides' contents (sim.memory.hierarchy Hierarchy.contents)
     iside: tuple
-    iconfig: np.ndarray
-
-
-def _contents(hierarchy) -> tuple:
-    tags, stamps, dirty, config, work = hierarchy.arrays()
-    return tuple(a.copy() for a in (tags, stamps, dirty, work)), config.copy()
 
 
 class CoreSession:
@@ -211,18 +204,19 @@ class CoreSession:
 
     def snapshot(self) -> SessionStart:
         """The machine state after the chunks fed so far, for :meth:`restore`."""
-        (dside, dconfig), (iside, iconfig) = _contents(self.model.dside), _contents(self.model.iside)
         return SessionStart(self.statics, self.base, self.total, tuple(a.copy() for a in self.state),
                             self.counters.copy(), self.per_static.copy(), self.dstats.copy(), self.istats.copy(),
-                            tuple(self.rdtsc), self.family_state(), dside, dconfig, iside, iconfig)
+                            tuple(self.rdtsc), self.family_state(), self.model.dside.contents(),
+                            self.model.iside.contents())
 
     def restore(self, start: SessionStart) -> bool:
         """Continue from `start`, a snapshot of another session of the same trace and segments,
-        whose model may differ from this one in its timing parameters only. False when it differs
-        in more (the caches' or TLB's geometry, or the size of any core state array, as a uop queue
-        or a history table has): this session must then not be used."""
+        whose model may differ from this one in its timing parameters (and its DRAM page geometry:
+        the pages then start closed, Hierarchy.restore). False when it differs in more (the caches'
+        or TLB's geometry, or the size of any core state array, as a uop queue has): this session
+        must then not be used."""
         model = self.model
-        if not (np.array_equal(model.dside.config, start.dconfig) and np.array_equal(model.iside.config, start.iconfig)):
+        if not (model.dside.restore(start.dside) and model.iside.restore(start.iside)):
             return False
         records, precisions = start.statics.snapshot()
         self.statics = start.statics
@@ -240,10 +234,6 @@ class CoreSession:
         self.per_static = grow_rows(start.per_static.copy(), len(records))
         self.rdtsc = list(start.rdtsc)
         self.rdtsc_sid = _rdtsc_statics(records)
-        for hierarchy, contents in ((model.dside, start.dside), (model.iside, start.iside)):
-            tags, stamps, dirty, _, work = hierarchy.arrays()
-            for into, saved in zip((tags, stamps, dirty, work), contents):
-                np.copyto(into, saved)
         return True
 
     def time_chunk(self, chunk: Trace, index: np.ndarray, next_pc: int, rdtsc_sid: np.ndarray,

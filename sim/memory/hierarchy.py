@@ -674,6 +674,24 @@ class Hierarchy:
         :func:`simulate` and :func:`simulate_classified` (all levels in one array per field)."""
         return self.tags, self.stamps, self.dirty, self.config, self.work
 
+    def contents(self) -> tuple:
+        """A copy of what the caches, TLB and DRAM pages hold, with the configuration, for :meth:`restore`."""
+        return tuple(a.copy() for a in (self.tags, self.stamps, self.dirty, self.work, self.config))
+
+    def restore(self, contents: tuple) -> bool:
+        """Hold again what :meth:`contents` saved, from a hierarchy of the same caches and TLB (False
+        otherwise, nothing changed). One of another DRAM page geometry is taken with every page
+        closed: which rows its accesses would have left open here is not known."""
+        *arrays, config = contents
+        pages = [CFG_PAGE_SHIFT, CFG_PAGE_MASK]
+        if not np.array_equal(np.delete(self.config, pages, axis=1), np.delete(config, pages, axis=1)):
+            return False
+        for into, saved in zip((self.tags, self.stamps, self.dirty, self.work), arrays):
+            np.copyto(into, saved)
+        if not np.array_equal(self.config[:, pages], config[:, pages]):
+            self.work[OPEN_PAGE_BASE:OPEN_PAGE_BASE + MAX_OPEN_PAGES] = -1
+        return True
+
     def new_counts(self) -> np.ndarray:
         """A zeroed counts array for :func:`service`."""
         return np.zeros((len(self.states) + 1, NSTATS), np.int64)

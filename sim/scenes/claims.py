@@ -27,9 +27,11 @@ in flight at the call boundary (queues, buses, port reservations), which a long 
 Measured on the article Z-buffer scene against re-timing the whole emulation: the same cycles in all
 but a few re-timings, off by at most 18 of 14.8 million (tests/test_claims_resume.py bounds it). A
 short first call may leave much in flight (the sort scene's key copy leaves its writes queued for
-the bus: resuming there moved ratios by up to 7e-4), so such emulations are re-timed whole. A
-parameter that changes what the machine holds (``structural``: the page geometry, a predictor's
-indexing, a queue's size) is re-timed over the whole emulation.
+the bus: resuming there moved ratios by up to 7e-4), so such emulations are re-timed whole. A page
+geometry's re-timing starts the last call with every DRAM page closed (which rows another geometry
+would have left open is not known; the caches hold the same lines whatever the geometry): at most
+one access per bank differs. An estimate that changes what the machine holds from call to call
+(``structural``: a predictor's indexing, a queue's size) is re-timed over the whole emulation.
 
 A parameter whose mechanism never fires in a variant (no
 store forward, no MSROM uop, no DRAM fill, ...) cannot change its timing and is not re-run. A claim
@@ -118,8 +120,7 @@ def parameters(cpu: str, memory: str | None = None) -> list[Param]:
     for field in sorted(pages.ranges if pages else (), key=lambda f: f in dram.PAGE_GEOMETRY):
         low, high, why = pages.ranges[field]
         key = f"pages.{field}"
-        out.append(Param(key, values[key], low, high, f"estimated page figure ({pages.chipset}): {why}", MECHANISM[key],
-                         key in PAGE_GEOMETRY_KEYS))
+        out.append(Param(key, values[key], low, high, f"estimated page figure ({pages.chipset}): {why}", MECHANISM[key]))
     return out
 
 
@@ -162,7 +163,8 @@ def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, logs=None
         model = make_model(cpu, memory, {p.key: value})
         geometry = p.key in PAGE_GEOMETRY_KEYS
         with machine_run(f"{what}: re-timing {n} of {runs}"):
-            counters = None if p.structural or start is None else resume_last_call(emulation, model, start, logs)
+            counters = (None if p.structural or start is None else
+                        resume_last_call(emulation, model, start, None if geometry else logs))
             if counters is None:  # the whole emulation (or a machine whose state differs in shape)
                 counters = time_emulation(emulation, model, access_logs=None if geometry else logs,
                                           resumable=start is not None).last  # fed as the nominal was: its logs replay
