@@ -57,19 +57,34 @@ def test_a_timing_estimate_re_timed_from_the_last_call_stays_close_to_the_whole_
     assert moved >= 3  # the estimates do move this workload's cycles
 
 
-def test_a_machine_of_another_shape_or_cache_geometry_is_not_resumed(emulation):
+def test_a_machine_of_other_caches_is_not_resumed_and_other_queues_and_pages_are(emulation):
     timed, logs = nominal(emulation, "pentium2-233", "edo")
     start = timed.last_call_start
-    bigger_queue = make_model("pentium2-233", "edo", {"estimates.uop_queue": 12})
-    smaller_l2 = make_model("pentium2-233", "edo", {"l2.size_kb": 128})
-    assert resume_last_call(emulation, bigger_queue, start, logs) is None
-    assert resume_last_call(emulation, smaller_l2, start, None) is None
-    # another DRAM page geometry is resumed, with its pages closed at the call's start
-    other_pages = make_model("pentium2-233", "edo", {"pages.page_bytes": 4096})
-    assert resume_last_call(emulation, other_pages, start, None) is not None
+    assert resume_last_call(emulation, make_model("pentium2-233", "edo", {"l2.size_kb": 128}), start, None) is None
+    # another DRAM page geometry (its pages closed at the call's start), another uop queue size
+    for change in ({"pages.page_bytes": 4096}, {"estimates.uop_queue": 12}, {"estimates.uop_queue": 4}):
+        assert resume_last_call(emulation, make_model("pentium2-233", "edo", change), start, None) is not None
     k6 = {p.key: p for p in claims.parameters("k6-2-300")}
-    assert k6["estimates.bht_history_bits"].structural and k6["estimates.store_queue"].structural
-    assert not k6["estimates.mispredict_restart"].structural and not k6["memory.overhead_bus_clocks"].structural
+    assert k6["estimates.bht_history_bits"].structural
+    assert not any(k6[key].structural for key in ("estimates.store_queue", "estimates.mispredict_restart",
+                                                  "memory.overhead_bus_clocks"))
+
+
+def test_a_resized_queue_keeps_the_cycles_of_the_entries_both_sizes_hold():
+    from sim.cpus.session import resized_ring
+    import numpy as np
+
+    # events 0..9 with cycles 10, 20, ..., 100 in a ring of 4: slot count % 4 holds the oldest (event 6)
+    count, ring = 10, np.zeros(4, np.int64)
+    for e in range(count):
+        ring[e % 4] = 10 * (e + 1)
+    smaller, pos = resized_ring(ring, count % 4, count, 3)
+    assert pos == 1 and [smaller[(pos + k) % 3] for k in range(3)] == [80, 90, 100]  # oldest first
+    bigger, pos = resized_ring(ring, count % 4, count, 6)
+    assert pos == 4 and [bigger[(pos + k) % 6] for k in range(6)] == [70, 70, 70, 80, 90, 100]
+    ring = np.array([10, 20, 0, 0])  # two events so far: the other slots are not read yet
+    few, pos = resized_ring(ring, 2, 2, 6)
+    assert pos == 2 and list(few[:2]) == [10, 20]
 
 
 def test_an_emulation_whose_first_call_is_short_is_re_timed_whole(emulation):

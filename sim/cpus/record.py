@@ -57,8 +57,8 @@ class Estimate:
     range_reason: str       # why the range
     overridable: bool = True  # a make_model override (estimates.NAME) and re-timed by the claims
     only_with: str = ""     # a CpuPreset attribute (a cache level) without which the model never reads it
-    # it sets what the machine holds from call to call (a table's indexing, a queue's size), not only
-    # when things happen: the claims re-time it over the whole emulation (sim/scenes/claims.py)
+    # it sets what the machine learns from call to call (a predictor table's indexing), not only when
+    # things happen: the claims re-time it over the whole emulation (sim/scenes/claims.py)
     structural: bool = False
 
     @property

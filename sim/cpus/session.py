@@ -83,6 +83,20 @@ def _rdtsc_statics(records) -> np.ndarray:
     return np.array([int(r.mnemonic == "rdtsc") for r in records], np.int64)
 
 
+def resized_ring(ring: np.ndarray, pos: int, count: int, n: int) -> tuple[np.ndarray, int]:
+    """A core's ring of the cycles of the last `n` events (a queue's entries: slot ``count % n``
+    holds the oldest) made from one of another size (`ring`, `pos` = count % its size), and the new
+    position. The events both rings hold keep their cycles; older ones the old ring did not hold take
+    its oldest (cycles do not decrease from one event to the next, so that is the latest they can
+    have been)."""
+    old = ring.shape[0]
+    out = np.zeros(n, ring.dtype)
+    known = min(old, count)
+    for k in range(1, min(n, count) + 1):
+        out[(count - k) % n] = ring[(pos - min(k, known)) % old]
+    return out, count % n
+
+
 def grown_state(state: tuple, pos: int, rows: int, fill: int = 0) -> tuple:
     """A core's state tuple whose array at `pos` has at least `rows` rows (contents kept, new rows
     `fill`): room for the resources or static instructions a later chunk brought."""
@@ -197,6 +211,11 @@ class CoreSession:
     def grown(self, program) -> None:
         """The static program gained instructions: make room in the core's state."""
 
+    def fitted(self, state: tuple) -> tuple:
+        """Another model's core state (a copy) fitted to this model's queue sizes where they differ
+        (:func:`resized_ring`); as it is by default."""
+        return state
+
     def family_state(self) -> dict:
         """The family session's state beyond the core's (attribute name -> value, not changed in
         place by later feeds), for :meth:`snapshot`."""
@@ -211,10 +230,10 @@ class CoreSession:
 
     def restore(self, start: SessionStart) -> bool:
         """Continue from `start`, a snapshot of another session of the same trace and segments,
-        whose model may differ from this one in its timing parameters (and its DRAM page geometry:
-        the pages then start closed, Hierarchy.restore). False when it differs in more (the caches'
-        or TLB's geometry, or the size of any core state array, as a uop queue has): this session
-        must then not be used."""
+        whose model may differ from this one in its timing parameters, its queues' sizes (:meth:`fitted`)
+        and its DRAM page geometry (the pages then start closed, Hierarchy.restore). False when it
+        differs in more (the caches' or TLB's geometry, or the size of another core state array): this
+        session must then not be used."""
         model = self.model
         if not (model.dside.restore(start.dside) and model.iside.restore(start.iside)):
             return False
@@ -223,7 +242,7 @@ class CoreSession:
         self.program = model.lower(records, precisions)
         self.grown(self.program)
         fresh = [a.shape for a in self.state]
-        self.state = tuple(a.copy() for a in start.state)
+        self.state = self.fitted(tuple(a.copy() for a in start.state))
         self.grown(self.program)
         if [a.shape for a in self.state] != fresh:
             return False

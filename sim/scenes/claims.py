@@ -24,14 +24,17 @@ at least as long as it (:func:`resumes`: a Z-buffer scene's first frame; this ha
 The caches, TLB, DRAM pages and branch predictors hold then what they would with any value of a
 timing parameter (each is updated in program order, never by the clock); what differs is what is
 in flight at the call boundary (queues, buses, port reservations), which a long call drains early.
-Measured on the article Z-buffer scene against re-timing the whole emulation: the same cycles in all
-but a few re-timings, off by at most 18 of 14.8 million (tests/test_claims_resume.py bounds it). A
+Measured on the article Z-buffer scene against re-timing the whole emulation (a P6, a K6 and a P5
+machine): the same cycles in all but a few re-timings, off by at most 18 of 14.8 million
+(tests/test_claims_resume.py bounds it on a smaller frame). A
 short first call may leave much in flight (the sort scene's key copy leaves its writes queued for
 the bus: resuming there moved ratios by up to 7e-4), so such emulations are re-timed whole. A page
 geometry's re-timing starts the last call with every DRAM page closed (which rows another geometry
 would have left open is not known; the caches hold the same lines whatever the geometry): at most
-one access per bank differs. An estimate that changes what the machine holds from call to call
-(``structural``: a predictor's indexing, a queue's size) is re-timed over the whole emulation.
+one access per bank differs. A queue of another size (a uop queue, a store queue) starts with the
+cycles of the nominal's last entries (sim.cpus.session.resized_ring). An estimate that changes what
+the machine learns from call to call (``structural``: a predictor table's indexing) is re-timed over
+the whole emulation.
 
 A parameter whose mechanism never fires in a variant (no
 store forward, no MSROM uop, no DRAM fill, ...) cannot change its timing and is not re-run. A claim
@@ -78,7 +81,7 @@ class Param:
     high: float
     why: str
     mechanism: str | None = None  # the counter that must be non-zero for it to matter (None: always)
-    structural: bool = False  # it changes what the machine holds, not only when: re-timed whole (perturbed_timings)
+    structural: bool = False  # it changes what the machine learns, not only when: re-timed whole (perturbed_timings)
 
     def describe(self) -> str:
         return f"{self.key} {_n(self.low)}..{_n(self.high)} (model {_n(self.nominal)})"
@@ -165,7 +168,7 @@ def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, logs=None
         with machine_run(f"{what}: re-timing {n} of {runs}"):
             counters = (None if p.structural or start is None else
                         resume_last_call(emulation, model, start, None if geometry else logs))
-            if counters is None:  # the whole emulation (or a machine whose state differs in shape)
+            if counters is None:  # the whole emulation (structural, or a machine restore refuses)
                 counters = time_emulation(emulation, model, access_logs=None if geometry else logs,
                                           resumable=start is not None).last  # fed as the nominal was: its logs replay
         out[(p.key, value)] = counters

@@ -266,6 +266,7 @@ def new_state(P: np.ndarray, units: int) -> tuple:
 
 
 UNIT_FREE = 4  # position of unit_free in new_state's tuple
+SQ_RING = 6  # position of sq_ring
 
 
 @njit(cache=True, nogil=True)

@@ -142,6 +142,7 @@ def new_state(P: np.ndarray, units: int) -> tuple:
             np.full(16, -1, np.int64))            # iline_seen
 
 
+QUEUE_RING = 7  # position of queue_ring in new_state's tuple
 UNIT_FREE = 9  # position of unit_free in new_state's tuple
 P01 = 3  # the port mask of a uop that may use port 0 or port 1 (sim/cpus/lowering.py port_mask)
 
