@@ -149,6 +149,9 @@ class CoreSession:
     chunk's new static instructions before they are lowered (the ISA check)."""
 
     CORE = None    # the family's core module: NC, NS, NT (counter, per-static, timeline widths), new_state
+    # the core's queues of another model's size that :meth:`restore` resizes: (the ring's position in
+    # the state tuple, the state vector's slots of its position and of its event count)
+    QUEUES: tuple[tuple[int, int, int], ...] = ()
     TL_STATIC = 1  # the timeline column holding the static id
 
     def __init__(self, model, decoder: Decoder, segments, timeline: tuple[int, int] = (0, 0),
@@ -211,9 +214,15 @@ class CoreSession:
     def grown(self, program) -> None:
         """The static program gained instructions: make room in the core's state."""
 
-    def fitted(self, state: tuple) -> tuple:
-        """Another model's core state (a copy) fitted to this model's queue sizes where they differ
-        (:func:`resized_ring`); as it is by default."""
+    def fitted(self, state: tuple, shapes: list) -> tuple:
+        """Another model's core state (a copy) with each of the core's queues (:attr:`QUEUES`) resized
+        to its length in `shapes`, this model's state shapes (:func:`resized_ring`)."""
+        sv = state[0]
+        for pos, at, count in self.QUEUES:
+            n = shapes[pos][0]
+            if state[pos].shape[0] != n:
+                ring, sv[at] = resized_ring(state[pos], int(sv[at]), int(sv[count]), n)
+                state = state[:pos] + (ring,) + state[pos + 1:]
         return state
 
     def family_state(self) -> dict:
@@ -242,7 +251,7 @@ class CoreSession:
         self.program = model.lower(records, precisions)
         self.grown(self.program)
         fresh = [a.shape for a in self.state]
-        self.state = self.fitted(tuple(a.copy() for a in start.state))
+        self.state = self.fitted(tuple(a.copy() for a in start.state), fresh)
         self.grown(self.program)
         if [a.shape for a in self.state] != fresh:
             return False

@@ -164,12 +164,11 @@ def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, logs=None
             continue
         n += 1
         model = make_model(cpu, memory, {p.key: value})
-        geometry = p.key in PAGE_GEOMETRY_KEYS
+        replay = None if p.key in PAGE_GEOMETRY_KEYS else logs
         with machine_run(f"{what}: re-timing {n} of {runs}"):
-            counters = (None if p.structural or start is None else
-                        resume_last_call(emulation, model, start, None if geometry else logs))
+            counters = None if p.structural or start is None else resume_last_call(emulation, model, start, replay)
             if counters is None:  # the whole emulation (structural, or a machine restore refuses)
-                counters = time_emulation(emulation, model, access_logs=None if geometry else logs,
+                counters = time_emulation(emulation, model, access_logs=replay,
                                           resumable=start is not None).last  # fed as the nominal was: its logs replay
         out[(p.key, value)] = counters
     return out

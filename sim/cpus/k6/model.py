@@ -60,7 +60,7 @@ from sim.cpus.lowering import (
     BRANCH, COMPUTE, DEC_COMPLEX, DEC_MSROM, DEC_SIMPLE, LOAD, STA, StaticProgram, lower, rep_timing,
 )
 from sim.cpus.presets import CpuPreset, model_by_cpuid
-from sim.cpus.session import CoreSession, grown_state, resized_ring
+from sim.cpus.session import CoreSession, grown_state
 from sim.cpus.table import Match
 
 PORT_BITS = {"int-x": core.X, "int-y": core.Y, "int-xy": core.X | core.Y, "load": core.LOAD_SLOT,
@@ -370,6 +370,7 @@ class K6Session(CoreSession):
     """One K6 run fed in order, chunk by chunk (the core's state is kept between chunks)."""
 
     CORE = core
+    QUEUES = ((core.SQ_RING, core.V_SQ_POS, core.V_NSTORES),)  # the store queue (estimates.store_queue)
 
     def __init__(self, model: K6Model, decoder: Decoder, segments: list[int], timeline: tuple[int, int] = (0, 0),
                  stat_first: int = 0, check=None):
@@ -379,14 +380,6 @@ class K6Session(CoreSession):
     def grown(self, program) -> None:
         self.k6_static = self.model.rules.decode_arrays(program)
         self.state = grown_state(self.state, core.UNIT_FREE, int(program.u_unit.max(initial=0)) + 1)
-
-    def fitted(self, state: tuple) -> tuple:
-        """The store queue resized (estimates.store_queue)."""
-        n, ring, sv = int(self.model.params[core.P_SQ]), state[core.SQ_RING], state[0]
-        if ring.shape[0] == n:
-            return state
-        ring, sv[core.V_SQ_POS] = resized_ring(ring, int(sv[core.V_SQ_POS]), int(sv[core.V_NSTORES]), n)
-        return state[:core.SQ_RING] + (ring,) + state[core.SQ_RING + 1:]
 
     def time_chunk(self, chunk, index, next_pc, rdtsc_sid, rdtsc_out, access_logs) -> int:
         model, program = self.model, self.program

@@ -25,7 +25,7 @@ Memory: the data hierarchy of sim.memory (L1D, L2 when present), a fill-buffer l
 outstanding misses, a backside-bus occupancy per L2 line and a front-side-bus occupancy per DRAM
 line fill and writeback; a data-TLB miss runs its page walk before the access (TLB_WALK cycles, then
 each walk read that missed L1 charged as a load, in _access_slow; the inline L1-hit path takes only
-the page translated last; a store's walk at commit; walks are not serialised). Instruction fetch goes through its own
+a page that is its TLB set's most recent entry; a store's walk at commit; walks are not serialised). Instruction fetch goes through its own
 L1I, which misses to the L2 (no instruction TLB).
 Branches: BTB of BTB_SETS x BTB_WAYS entries with HIST_BITS of local history and a table of 2-bit
 counters per entry (two-level adaptive); static prediction on a BTB miss (backward taken); a

@@ -19,7 +19,7 @@ from sim.cpus.locking import lock_cost, locked_match
 from sim.cpus.lowering import StaticProgram, lower
 from sim.cpus.p6.lowering import P6Limits, uops_rule
 from sim.cpus.presets import CpuPreset
-from sim.cpus.session import CoreSession, grown_state, resized_ring
+from sim.cpus.session import CoreSession, grown_state
 
 class P6Model(FamilyModel):
     """The P6 model: parameters, caches and estimates as every family's (:class:`FamilyModel`); an
@@ -109,17 +109,10 @@ class P6Session(CoreSession):
     """One P6 run fed in order, chunk by chunk (the core's state is kept between chunks)."""
 
     CORE = core
+    QUEUES = ((core.QUEUE_RING, core.V_Q_POS, core.V_U_GLOBAL),)  # the decoded-uop queue (estimates.uop_queue)
 
     def grown(self, program) -> None:
         self.state = grown_state(self.state, core.UNIT_FREE, int(program.u_unit.max(initial=0)) + 1)
-
-    def fitted(self, state: tuple) -> tuple:
-        """The decoded-uop queue resized (estimates.uop_queue)."""
-        n, ring, sv = max(int(self.model.params[core.P_QUEUE]), 1), state[core.QUEUE_RING], state[0]
-        if ring.shape[0] == n:
-            return state
-        ring, sv[core.V_Q_POS] = resized_ring(ring, int(sv[core.V_Q_POS]), int(sv[core.V_U_GLOBAL]), n)
-        return state[:core.QUEUE_RING] + (ring,) + state[core.QUEUE_RING + 1:]
 
     def time_chunk(self, chunk, index, next_pc, rdtsc_sid, rdtsc_out, access_logs) -> int:
         model, program = self.model, self.program
