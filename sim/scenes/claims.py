@@ -132,14 +132,16 @@ def exercised(param: Param, counters: dict) -> bool:
     return name is None or counters.get(name, 1) != 0
 
 
-def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, logs=None, start=None, what: str = "") -> dict:
+def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, logs=None, start=None, what: str = "",
+                      warm_start: bool = False) -> dict:
     """{(param key, value): counters of the last call} with each parameter at each end of its range;
     parameters whose mechanism does not fire reuse the nominal counters (their timing cannot move).
     `logs`: the sim.memory.replay.AccessLogs the nominal timing recorded into, if it did. `start`:
     the machine state the nominal timing left at the last call's start (sim.timing.kernel
     resume_last_call), if it kept it: a re-timing then times the last call only, where the
-    machine allows. Each re-timing is reported as a machine run (sim.scenes.progress), named `what`
-    and its number."""
+    machine allows. `warm_start`: the nominal timing was a warm start (sim.timing.kernel
+    time_emulation), and so is a re-timing of the whole emulation. Each re-timing is reported as a
+    machine run (sim.scenes.progress), named `what` and its number."""
     from sim.cpus.build import make_model
     from sim.memory.replay import AccessLogs
     from sim.parallel import report
@@ -168,8 +170,8 @@ def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, logs=None
         with machine_run(f"{what}: re-timing {n} of {runs}"):
             counters = None if p.structural or start is None else resume_last_call(emulation, model, start, replay)
             if counters is None:  # the whole emulation (structural, or a machine restore refuses)
-                counters = time_emulation(emulation, model, access_logs=replay,
-                                          resumable=start is not None).last  # fed as the nominal was: its logs replay
+                counters = time_emulation(emulation, model, access_logs=replay, resumable=start is not None,
+                                          warm_start=warm_start).last  # fed as the nominal was: its logs replay
         out[(p.key, value)] = counters
     return out
 
@@ -183,22 +185,26 @@ def resumes(emulation) -> bool:
     return 2 * emulation.last_call >= emulation.trace.instructions
 
 
-def timed_with_robustness(emulation, model, key: str, robust: bool, what: str) -> tuple[dict, dict | None]:
+def timed_with_robustness(emulation, model, key: str, robust: bool, what: str,
+                          warm_start: bool = False) -> tuple[dict, dict | None]:
     """Counters of the last call of `emulation` on `model` (machine `key`), and the claims' robustness
     re-timings (:func:`perturbed_timings`) when `robust`: a pool's task of the kinds whose claims are
-    re-timed (a pure function of its arguments: the same in any process); reported as `what`."""
+    re-timed (a pure function of its arguments: the same in any process); reported as `what`.
+    `warm_start`: the calls before the last only warm the machine (sim.timing.kernel
+    time_emulation); every re-timing then resumes from the nominal's start, exactly."""
     from sim.memory.replay import AccessLogs
     from sim.scenes.progress import timed_run
 
     # the re-timings replay this timing's cache results (when resumable, one log for the calls before
     # the last and one for the last: sim.timing.kernel Emulation.parts)
     logs = AccessLogs(keep=2) if robust else None
-    timed = timed_run(what, emulation, model, access_logs=logs, resumable=robust and resumes(emulation))
+    timed = timed_run(what, emulation, model, access_logs=logs, warm_start=warm_start,
+                      resumable=robust and (warm_start or resumes(emulation)))
     if not robust:
         return timed.last, None
     machine = MachineKey.parse(key)
     return timed.last, perturbed_timings(emulation, machine.label, machine.memory, timed.last, logs=logs,
-                                         start=timed.last_call_start, what=what)
+                                         start=timed.last_call_start, what=what, warm_start=warm_start)
 
 
 # -- what a claim names --------------------------------------------------------------------------

@@ -267,6 +267,7 @@ def new_state(P: np.ndarray, units: int) -> tuple:
 
 UNIT_FREE = 4  # position of unit_free in new_state's tuple
 SQ_RING = 6  # position of sq_ring
+LEARNED = tuple(range(12, 19))  # wb_seen, bht, btc_tag, btc_stamp, btc_target, rsb, known
 
 
 @njit(cache=True, nogil=True)

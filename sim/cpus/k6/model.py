@@ -371,6 +371,9 @@ class K6Session(CoreSession):
 
     CORE = core
     QUEUES = ((core.SQ_RING, core.V_SQ_POS, core.V_NSTORES),)  # the store queue (estimates.store_queue)
+    # the global history and the count of L1 fills already charged go with the caches' counts
+    KEEP_SLOTS = (core.V_FP_TOP, core.V_SEG, core.V_PREV_PC, core.V_RSB_TOP, core.V_GHIST, core.V_L1_FILL_SEEN)
+    KEEP_ARRAYS = core.LEARNED  # writebacks already charged, BHT, BTC, return stack, L1I lines known
 
     def __init__(self, model: K6Model, decoder: Decoder, segments: list[int], timeline: tuple[int, int] = (0, 0),
                  stat_first: int = 0, check=None):
