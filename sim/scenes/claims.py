@@ -19,22 +19,25 @@ another geometry walks the caches itself (the geometry is part of the cache conf
 replay log is keyed by, so it could not replay the nominal log anyway).
 
 A re-timing times the last call only (the one the claims compare), from the machine state the
-nominal timing left at its start (sim.timing.kernel.resume_last_call), where the calls before it are
-at least as long as it (:func:`resumes`: a Z-buffer scene's first frame; this halves the re-timings).
-The caches, TLB, DRAM pages and branch predictors hold then what they would with any value of a
-timing parameter (each is updated in program order, never by the clock); what differs is what is
-in flight at the call boundary (queues, buses, port reservations), which a long call drains early.
-Measured on the article Z-buffer scene against re-timing the whole emulation (a P6, a K6 and a P5
-machine): the same cycles in all but a few re-timings, off by at most 18 of 14.8 million
-(tests/test_claims_resume.py bounds it on a smaller frame). A
-short first call may leave much in flight (the sort scene's key copy leaves its writes queued for
-the bus: resuming there moved ratios by up to 7e-4), so such emulations are re-timed whole. A page
-geometry's re-timing starts the last call with every DRAM page closed (which rows another geometry
-would have left open is not known; the caches hold the same lines whatever the geometry): at most
-one access per bank differs. A queue of another size (a uop queue, a store queue) starts with the
-cycles of the nominal's last entries (sim.cpus.session.resized_ring). An estimate that changes what
-the machine learns from call to call (``structural``: a predictor table's indexing) is re-timed over
-the whole emulation.
+nominal timing left at its start (sim.timing.kernel.resume_last_call). The caches, TLB, DRAM pages
+and branch predictors hold then what they would with any value of a timing parameter (each is
+updated in program order, never by the clock); what differs is what is in flight at the call
+boundary (queues, buses, port reservations).
+
+- A Z-buffer scene's frames are timed from a warm start (`warm_start`: the frames before the last
+  only warm the machine, and the last starts from an empty pipeline), so nothing is in flight and
+  every re-timing that resumes times exactly what re-timing the whole emulation does
+  (tests/test_warm_start.py). A page geometry's re-timing warms up again (its warm-up leaves other
+  DRAM rows open); an estimate that changes what the machine learns from call to call
+  (``structural``: a predictor table's indexing) is re-timed over the whole emulation.
+- Other emulations (the sort scene: a key copy, then the sort) are timed whole, and their
+  re-timings resume only where the calls before the last are at least as long as it
+  (:func:`resumes`): a short first call may leave much in flight (the key copy leaves its writes
+  queued for the bus: resuming there moved ratios by up to 7e-4), so the sort scene is re-timed
+  whole. Where one resumes, a page geometry's re-timing starts with every DRAM page closed and a
+  queue of another size (a uop queue, a store queue) with the cycles of the nominal's last entries
+  (sim.cpus.session.resized_ring); measured against re-timing the whole emulation, off by at most
+  18 of 14.8 million cycles (tests/test_claims_resume.py bounds it on a smaller frame).
 
 A parameter whose mechanism never fires in a variant (no
 store forward, no MSROM uop, no DRAM fill, ...) cannot change its timing and is not re-run. A claim
