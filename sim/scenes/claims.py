@@ -26,15 +26,18 @@ boundary (queues, buses, port reservations).
 
 - A Z-buffer scene's frames are timed from a warm start (`warm_start`: the frames before the last
   only warm the machine, and the last starts from an empty pipeline), so nothing is in flight and
-  every re-timing that resumes times exactly what re-timing the whole emulation does
-  (tests/test_warm_start.py). A page geometry's re-timing warms up again (its warm-up leaves other
-  DRAM rows open); an estimate that changes what the machine learns from call to call
-  (``structural``: a predictor table's indexing) is re-timed over the whole emulation.
+  a re-timing that resumes times exactly what re-timing the whole emulation does
+  (tests/test_warm_start.py), but for another DRAM page geometry: its re-timing starts the call
+  with every page closed (which rows its warm-up would have left open is not known; the caches
+  hold the same lines whatever the geometry), so at most one access per bank differs. Warming up
+  again with the geometry instead made the article scene's P6 re-timings a quarter slower. An
+  estimate that changes what the machine learns from call to call (``structural``: a predictor
+  table's indexing) is re-timed over the whole emulation.
 - Other emulations (the sort scene: a key copy, then the sort) are timed whole, and their
   re-timings resume only where the calls before the last are at least as long as it
   (:func:`resumes`): a short first call may leave much in flight (the key copy leaves its writes
   queued for the bus: resuming there moved ratios by up to 7e-4), so the sort scene is re-timed
-  whole. Where one resumes, a page geometry's re-timing starts with every DRAM page closed and a
+  whole. Where one resumes, a page geometry's re-timing starts with every DRAM page closed too, and a
   queue of another size (a uop queue, a store queue) with the cycles of the nominal's last entries
   (sim.cpus.session.resized_ring); measured against re-timing the whole emulation, off by at most
   18 of 14.8 million cycles (tests/test_claims_resume.py bounds it on a smaller frame).
@@ -171,10 +174,7 @@ def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, logs=None
         model = make_model(cpu, memory, {p.key: value})
         replay = None if p.key in PAGE_GEOMETRY_KEYS else logs
         with machine_run(f"{what}: re-timing {n} of {runs}"):
-            # a warm start resumes exactly, but for another page geometry, whose warm-up leaves other
-            # rows open: that one warms up again (cheap where the family walks its warm-up untimed)
-            whole = p.structural or start is None or (warm_start and p.key in PAGE_GEOMETRY_KEYS)
-            counters = None if whole else resume_last_call(emulation, model, start, replay)
+            counters = None if p.structural or start is None else resume_last_call(emulation, model, start, replay)
             if counters is None:  # the whole emulation (structural, or a machine restore refuses)
                 counters = time_emulation(emulation, model, access_logs=replay, resumable=start is not None,
                                           warm_start=warm_start).last  # fed as the nominal was: its logs replay
