@@ -68,7 +68,9 @@ from sim.cpus.contract import (
     S_STALL_DECODE, S_STALL_DEPENDENCY, S_STALL_MEMORY, S_STALL_MISPREDICT, S_STALL_PARTIAL, S_STALL_PORT,
     S_STALL_STORE_FORWARD, S_STALL_WINDOW, S_UOPS, T_NAMES,
 )
-from sim.cpus.shared_core import FW, IDX, WINDOW, btb_alloc, dram_busy, dram_lead_off, queued_store, remember_store
+from sim.cpus.shared_core import (
+    FW, IDX, WINDOW, access_end, btb_alloc, dram_busy, dram_lead_off, queued_store, remember_store, segments_ended,
+)
 from sim.cpus.shared_core import book_port as _shared_book_port
 from sim.memory.cache import HOT
 
@@ -904,7 +906,6 @@ def warm(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write
     before them), and nothing it times. The session drains the timing state after it
     (tests/test_warm_start.py: the same learned state as timing the chunk)."""
     n = dyn_sid.shape[0]
-    n_acc = mem_insn.shape[0]
     bht_mask = P[P_BHT] - 1
     hist_mask = (1 << P[P_HIST_BITS]) - 1
     btc_ways = P[P_BTC]
@@ -925,9 +926,7 @@ def warm(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write
         if rep_sid >= 0 and not rep_later:
             rep_sid = -1
         acc = acc_next
-        acc_end = acc
-        while acc_end < n_acc and mem_insn[acc_end & IDX] == li:
-            acc_end += 1
+        acc_end = access_end(mem_insn, acc, li)
         acc_next = acc_end
         if rep_later:
             if acc_end == acc:
@@ -968,10 +967,7 @@ def warm(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write
             nxt = dyn_pc[li + 1] if li + 1 < n else (next_pc if next_pc >= 0 else fall)
             _, _, _, ghist, rsb_top = _predict(br, pc, nxt, fall, i, s_target[sid], ghist, bht, bht_mask, hist_mask,
                                                rsb, rsb_top, rsb_n, btc_tag, btc_stamp, btc_target, btc_ways)
-    seg = sv[V_SEG]
-    while seg < seg_end.shape[0] and seg_end[seg] <= base + n:
-        seg += 1
-    sv[V_SEG] = seg
+    sv[V_SEG] = segments_ended(seg_end, sv[V_SEG], base + n)
     sv[V_FP_TOP] = fp_top
     sv[V_GHIST] = ghist
     sv[V_RSB_TOP] = rsb_top

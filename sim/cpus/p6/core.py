@@ -73,7 +73,9 @@ from sim.cpus.contract import (
     S_MISPREDICTS, S_PORT0, S_PORT1, S_PORT2, S_PORT3, S_PORT4, S_DECODE_TO_RETIRE, S_STALL_STORE_FORWARD,
     S_STALL_WINDOW, S_L1D_MISSES, S_L2_MISSES, T_NAMES, NT, CAUSES,
 )
-from sim.cpus.shared_core import FW, IDX, WINDOW, book_port, btb_alloc, queued_store, remember_store
+from sim.cpus.shared_core import (
+    FW, IDX, WINDOW, access_end, book_port, btb_alloc, queued_store, remember_store, segments_ended,
+)
 
 # parameter vector indices (the counter, per-instruction and timeline schemas are the contract's)
 (P_ROB, P_RS, P_RENAME, P_RETIRE, P_QUEUE, P_FETCH_BLOCK, P_L1_LAT, P_L2_LAT, P_DRAM_LAT, P_DRAM_LINE,
@@ -1246,7 +1248,6 @@ def warm(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write
     (its TLB stamps can be newer, in the same order within each set). The session drains the
     timing state after it (tests/test_warm_start.py: the same learned state as timing the chunk)."""
     n = dyn_sid.shape[0]
-    n_acc = mem_insn.shape[0]
     btb_sets, btb_ways, hist_bits = P[P_BTB_SETS], P[P_BTB_WAYS], P[P_HIST_BITS]
     fp_top = sv[V_FP_TOP]
     rsb_top = sv[V_RSB_TOP]
@@ -1264,9 +1265,7 @@ def warm(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write
         if rep_sid >= 0 and not rep_later:
             rep_sid = -1
         acc = acc_next
-        acc_end = acc
-        while acc_end < n_acc and mem_insn[acc_end & IDX] == li:
-            acc_end += 1
+        acc_end = access_end(mem_insn, acc, li)
         acc_next = acc_end
         if rep_later:
             if acc_end == acc:
@@ -1308,10 +1307,7 @@ def warm(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write
             nxt = dyn_pc[li + 1] if li + 1 < n else (next_pc if next_pc >= 0 else pc + length)
             _, _, rsb_top = _predict(br, pc, length, nxt, i, (s_pc[sid] % btb_sets) & IDX, s_target[sid], btb_tag,
                                      btb_stamp, btb_hist, btb_target, pht, rsb, rsb_top, btb_ways, hist_bits)
-    seg = sv[V_SEG]
-    while seg < seg_end.shape[0] and seg_end[seg] <= base + n:
-        seg += 1
-    sv[V_SEG] = seg
+    sv[V_SEG] = segments_ended(seg_end, sv[V_SEG], base + n)
     sv[V_FP_TOP] = fp_top
     sv[V_RSB_TOP] = rsb_top
     sv[V_LAST_ILINE] = last_iline
