@@ -179,8 +179,8 @@ def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None
     before the last only warm the machine (caches, TLB, DRAM pages, predictors: CoreSession.drain,
     and warm where the family walks them without timing them) and the last call is timed from an
     empty pipeline; their counters are then not timings (zero where walked). A scene's frames are
-    timed so; with `resumable`, every re-timing that resumes then times exactly what a whole one
-    does."""
+    timed so; with `resumable`, a re-timing that resumes then times exactly what a whole one does
+    (but for another DRAM page geometry: sim.scenes.claims). Neither with a timeline."""
     model = make_model(cpu, memory) if isinstance(cpu, str) else cpu
     cpu = model.preset.name
     check_model_memory(emu.trace.instructions)
