@@ -152,6 +152,11 @@ class CoreSession:
     # the core's queues of another model's size that :meth:`restore` resizes: (the ring's position in
     # the state tuple, the state vector's slots of its position and of its event count)
     QUEUES: tuple[tuple[int, int, int], ...] = ()
+    # what :meth:`drain` keeps of the core's state: the state vector's slots and the state arrays
+    # (positions in new_state's tuple) that hold what the machine has learned in program order
+    # (predictors, return stack, the x87 top, the L1I lines known, where the run is), not when
+    KEEP_SLOTS: tuple[int, ...] = ()
+    KEEP_ARRAYS: tuple[int, ...] = ()
     TL_STATIC = 1  # the timeline column holding the static id
 
     def __init__(self, model, decoder: Decoder, segments, timeline: tuple[int, int] = (0, 0),
@@ -194,6 +199,44 @@ class CoreSession:
         """Time the chunk's instructions; `next_pc`: the PC that follows the chunk (-1: the run ends).
         `access_logs` (sim.memory.replay) only for a run fed whole; `prepared`: :meth:`prepare`'s
         answer for this chunk, if it was asked already."""
+        index = self.indexed(chunk, prepared)
+        rdtsc_sid = self.rdtsc_sid
+        rdtsc_out = np.zeros(int(rdtsc_sid[index].sum()) if rdtsc_sid.any() else 0, np.int64)
+        self.total = self.time_chunk(chunk, index, next_pc, rdtsc_sid, rdtsc_out, access_logs)
+        self.rdtsc.append(rdtsc_out)
+        self.base += chunk.instructions
+
+    def warm(self, chunk: Trace, next_pc: int) -> None:
+        """The chunk's instructions as a warm-up: only what the machine learns from them is kept
+        (:meth:`drain` after timing them; a family whose core can walk them without timing them
+        overrides :meth:`warm_chunk`, which must leave the same)."""
+        if not self.warm_chunk(chunk, next_pc):
+            self.feed(chunk, next_pc)
+        self.drain()
+
+    def warm_chunk(self, chunk: Trace, next_pc: int) -> bool:
+        """Walk the chunk through the caches, TLB, DRAM pages and predictors without timing it, as
+        the core would leave them; False when the family cannot (it is timed, then drained)."""
+        return False
+
+    def drain(self) -> None:
+        """Empty the pipeline between two feeds: the core's queues, rings and times back to reset
+        (the next feed's cycles count from 0), keeping what the machine has learned
+        (:attr:`KEEP_SLOTS`, :attr:`KEEP_ARRAYS`); the caches, TLB and DRAM pages are the model's and
+        stay as they are. A scene's last frame is timed from here (sim.timing.kernel
+        time_emulation's `warm_start`), so that its timing depends on the frames before it only
+        through what they left learned: the same for every timing parameter."""
+        old = self.state
+        self.state = self.CORE.new_state(self.model.params, 0)
+        self.grown(self.program)
+        sv = self.state[0]
+        for slot in self.KEEP_SLOTS:
+            sv[slot] = old[0][slot]
+        self.state = tuple(old[k].copy() if k in self.KEEP_ARRAYS else a for k, a in enumerate(self.state))
+        self.total = 0
+
+    def indexed(self, chunk: Trace, prepared=None) -> np.ndarray:
+        """The chunk's static ids (:meth:`prepare`'s, if it was asked already), its new statics lowered."""
         index, added = prepared if prepared is not None else self.statics.index(chunk)
         if added:
             if self.check is not None:
@@ -205,11 +248,7 @@ class CoreSession:
             self.per_static = grow_rows(self.per_static, len(records))
             self.grown(self.program)
             self.rdtsc_sid = _rdtsc_statics(records)
-        rdtsc_sid = self.rdtsc_sid
-        rdtsc_out = np.zeros(int(rdtsc_sid[index].sum()) if rdtsc_sid.any() else 0, np.int64)
-        self.total = self.time_chunk(chunk, index, next_pc, rdtsc_sid, rdtsc_out, access_logs)
-        self.rdtsc.append(rdtsc_out)
-        self.base += chunk.instructions
+        return index
 
     def grown(self, program) -> None:
         """The static program gained instructions: make room in the core's state."""

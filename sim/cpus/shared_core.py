@@ -92,3 +92,21 @@ def dram_busy(r, line, line_hit, wb, wb_hit):
 def dram_lead_off(r, miss, hit):
     """Lead-off of an access's line fills: the open-page figure only if every line it waits for hit."""
     return hit if memory_fill_page_hits(r) == memory_fills(r) else miss
+
+
+@njit(cache=True, nogil=True, inline="always")
+def access_end(mem_insn, acc, li):
+    """The end (exclusive) of chunk instruction li's accesses, the first of which is `acc`
+    (mem_insn lists each access's instruction, in program order)."""
+    end = acc
+    while end < mem_insn.shape[0] and mem_insn[end & IDX] == li:
+        end += 1
+    return end
+
+
+@njit(cache=True, nogil=True, inline="always")
+def segments_ended(seg_end, seg, count):
+    """The first segment from `seg` not yet ended after `count` instructions of the run."""
+    while seg < seg_end.shape[0] and seg_end[seg] <= count:
+        seg += 1
+    return seg

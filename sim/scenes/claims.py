@@ -19,22 +19,28 @@ another geometry walks the caches itself (the geometry is part of the cache conf
 replay log is keyed by, so it could not replay the nominal log anyway).
 
 A re-timing times the last call only (the one the claims compare), from the machine state the
-nominal timing left at its start (sim.timing.kernel.resume_last_call), where the calls before it are
-at least as long as it (:func:`resumes`: a Z-buffer scene's first frame; this halves the re-timings).
-The caches, TLB, DRAM pages and branch predictors hold then what they would with any value of a
-timing parameter (each is updated in program order, never by the clock); what differs is what is
-in flight at the call boundary (queues, buses, port reservations), which a long call drains early.
-Measured on the article Z-buffer scene against re-timing the whole emulation (a P6, a K6 and a P5
-machine): the same cycles in all but a few re-timings, off by at most 18 of 14.8 million
-(tests/test_claims_resume.py bounds it on a smaller frame). A
-short first call may leave much in flight (the sort scene's key copy leaves its writes queued for
-the bus: resuming there moved ratios by up to 7e-4), so such emulations are re-timed whole. A page
-geometry's re-timing starts the last call with every DRAM page closed (which rows another geometry
-would have left open is not known; the caches hold the same lines whatever the geometry): at most
-one access per bank differs. A queue of another size (a uop queue, a store queue) starts with the
-cycles of the nominal's last entries (sim.cpus.session.resized_ring). An estimate that changes what
-the machine learns from call to call (``structural``: a predictor table's indexing) is re-timed over
-the whole emulation.
+nominal timing left at its start (sim.timing.kernel.resume_last_call). The caches, TLB, DRAM pages
+and branch predictors hold then what they would with any value of a timing parameter (each is
+updated in program order, never by the clock); what differs is what is in flight at the call
+boundary (queues, buses, port reservations).
+
+- A Z-buffer scene's frames are timed from a warm start (`warm_start`: the frames before the last
+  only warm the machine, and the last starts from an empty pipeline), so nothing is in flight and
+  a re-timing that resumes times exactly what re-timing the whole emulation does
+  (tests/test_warm_start.py), but for another DRAM page geometry: its re-timing starts the call
+  with every page closed (which rows its warm-up would have left open is not known; the caches
+  hold the same lines whatever the geometry), so at most one access per bank differs. Warming up
+  again with the geometry instead made the article scene's P6 re-timings a quarter slower. An
+  estimate that changes what the machine learns from call to call (``structural``: a predictor
+  table's indexing) is re-timed over the whole emulation.
+- Other emulations (the sort scene: a key copy, then the sort) are timed whole, and their
+  re-timings resume only where the calls before the last are at least as long as it
+  (:func:`resumes`): a short first call may leave much in flight (the key copy leaves its writes
+  queued for the bus: resuming there moved ratios by up to 7e-4), so the sort scene is re-timed
+  whole. Where one resumes, a page geometry's re-timing starts with every DRAM page closed too, and a
+  queue of another size (a uop queue, a store queue) with the cycles of the nominal's last entries
+  (sim.cpus.session.resized_ring); measured against re-timing the whole emulation, off by at most
+  18 of 14.8 million cycles (tests/test_claims_resume.py bounds it on a smaller frame).
 
 A parameter whose mechanism never fires in a variant (no
 store forward, no MSROM uop, no DRAM fill, ...) cannot change its timing and is not re-run. A claim
@@ -132,14 +138,16 @@ def exercised(param: Param, counters: dict) -> bool:
     return name is None or counters.get(name, 1) != 0
 
 
-def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, logs=None, start=None, what: str = "") -> dict:
+def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, logs=None, start=None, what: str = "",
+                      warm_start: bool = False) -> dict:
     """{(param key, value): counters of the last call} with each parameter at each end of its range;
     parameters whose mechanism does not fire reuse the nominal counters (their timing cannot move).
     `logs`: the sim.memory.replay.AccessLogs the nominal timing recorded into, if it did. `start`:
     the machine state the nominal timing left at the last call's start (sim.timing.kernel
     resume_last_call), if it kept it: a re-timing then times the last call only, where the
-    machine allows. Each re-timing is reported as a machine run (sim.scenes.progress), named `what`
-    and its number."""
+    machine allows. `warm_start`: the nominal timing was a warm start (sim.timing.kernel
+    time_emulation), and so is a re-timing of the whole emulation. Each re-timing is reported as a
+    machine run (sim.scenes.progress), named `what` and its number."""
     from sim.cpus.build import make_model
     from sim.memory.replay import AccessLogs
     from sim.parallel import report
@@ -168,8 +176,8 @@ def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, logs=None
         with machine_run(f"{what}: re-timing {n} of {runs}"):
             counters = None if p.structural or start is None else resume_last_call(emulation, model, start, replay)
             if counters is None:  # the whole emulation (structural, or a machine restore refuses)
-                counters = time_emulation(emulation, model, access_logs=replay,
-                                          resumable=start is not None).last  # fed as the nominal was: its logs replay
+                counters = time_emulation(emulation, model, access_logs=replay, resumable=start is not None,
+                                          warm_start=warm_start).last  # fed as the nominal was: its logs replay
         out[(p.key, value)] = counters
     return out
 
@@ -183,22 +191,26 @@ def resumes(emulation) -> bool:
     return 2 * emulation.last_call >= emulation.trace.instructions
 
 
-def timed_with_robustness(emulation, model, key: str, robust: bool, what: str) -> tuple[dict, dict | None]:
+def timed_with_robustness(emulation, model, key: str, robust: bool, what: str,
+                          warm_start: bool = False) -> tuple[dict, dict | None]:
     """Counters of the last call of `emulation` on `model` (machine `key`), and the claims' robustness
     re-timings (:func:`perturbed_timings`) when `robust`: a pool's task of the kinds whose claims are
-    re-timed (a pure function of its arguments: the same in any process); reported as `what`."""
+    re-timed (a pure function of its arguments: the same in any process); reported as `what`.
+    `warm_start`: the calls before the last only warm the machine (sim.timing.kernel
+    time_emulation); every re-timing then resumes from the nominal's start, exactly."""
     from sim.memory.replay import AccessLogs
     from sim.scenes.progress import timed_run
 
     # the re-timings replay this timing's cache results (when resumable, one log for the calls before
     # the last and one for the last: sim.timing.kernel Emulation.parts)
     logs = AccessLogs(keep=2) if robust else None
-    timed = timed_run(what, emulation, model, access_logs=logs, resumable=robust and resumes(emulation))
+    timed = timed_run(what, emulation, model, access_logs=logs, warm_start=warm_start,
+                      resumable=robust and (warm_start or resumes(emulation)))
     if not robust:
         return timed.last, None
     machine = MachineKey.parse(key)
     return timed.last, perturbed_timings(emulation, machine.label, machine.memory, timed.last, logs=logs,
-                                         start=timed.last_call_start, what=what)
+                                         start=timed.last_call_start, what=what, warm_start=warm_start)
 
 
 # -- what a claim names --------------------------------------------------------------------------

@@ -166,7 +166,8 @@ def check_model_memory(instructions: int) -> None:
 
 
 def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None,
-                   timeline_iterations: int = 0, access_logs=None, resumable: bool = False) -> TimingResult:
+                   timeline_iterations: int = 0, access_logs=None, resumable: bool = False,
+                   warm_start: bool = False) -> TimingResult:
     """Time an emulation on one CPU preset (a name, or a model from make_model).
     `timeline_iterations`: record a per-instruction timeline of that many iterations of the hot
     loop (the last call's most executed PC), from the middle of the last call. `access_logs`
@@ -174,24 +175,34 @@ def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None
     reuse the first one's cache results (the P6 and K6 cores; the P5 core walks its caches each time).
     `resumable`: keep the machine state at the last call's start (``last_call_start``, for
     :func:`resume_last_call`; the calls before it and the last are fed apart, which times them the
-    same); not with a timeline, and not kept for a kernel that reads RDTSC."""
+    same); not with a timeline, and not kept for a kernel that reads RDTSC. `warm_start`: the calls
+    before the last only warm the machine (caches, TLB, DRAM pages, predictors: CoreSession.drain,
+    and warm where the family walks them without timing them) and the last call is timed from an
+    empty pipeline; their counters are then not timings (zero where walked). A scene's frames are
+    timed so; with `resumable`, a re-timing that resumes then times exactly what a whole one does
+    (but for another DRAM page geometry: sim.scenes.claims). Neither with a timeline."""
     model = make_model(cpu, memory) if isinstance(cpu, str) else cpu
     cpu = model.preset.name
     check_model_memory(emu.trace.instructions)
     timeline = hot_loop_window(emu.trace.pc, emu.last_call, timeline_iterations)
     decoder = emu.decoder()
     check_isa(emu, decoder, GuestCpu.from_preset(model.preset))
-    if resumable and timeline_iterations == 0 and emu.last_call > 0:
+    if (resumable or warm_start) and timeline_iterations == 0 and emu.last_call > 0:
         session = model.session(decoder, emu.bounds, emu.last_call)
         head, last = emu.parts()
-        session.feed(head, int(last.pc[0]), access_logs)
-        start = session.snapshot()
+        if warm_start:
+            session.warm(head, int(last.pc[0]))
+        else:
+            session.feed(head, int(last.pc[0]), access_logs)
+        start = session.snapshot() if resumable else None
         session.feed(last, -1, access_logs)
         run = session.finish()
         if run.rdtsc.size == 0:
             calls = [run.segment(k) for k in range(len(emu.bounds))]
             return TimingResult(cpu, model.dram.name, emu.entry, emu.source, emu.repeat, calls, model, run, emu.trace,
                                 start)
+        if warm_start:  # the replay below times the whole run
+            raise RetrosimError(f"{emu.source}: {emu.entry} reads RDTSC: its calls cannot be timed from a warm start")
     else:
         run = model.run(emu.trace, decoder, emu.bounds, timeline, emu.last_call, access_logs=access_logs)
     if run.rdtsc.size:

@@ -68,7 +68,9 @@ from sim.cpus.contract import (
     S_STALL_DECODE, S_STALL_DEPENDENCY, S_STALL_MEMORY, S_STALL_MISPREDICT, S_STALL_PARTIAL, S_STALL_PORT,
     S_STALL_STORE_FORWARD, S_STALL_WINDOW, S_UOPS, T_NAMES,
 )
-from sim.cpus.shared_core import FW, IDX, WINDOW, btb_alloc, dram_busy, dram_lead_off, queued_store, remember_store
+from sim.cpus.shared_core import (
+    FW, IDX, WINDOW, access_end, btb_alloc, dram_busy, dram_lead_off, queued_store, remember_store, segments_ended,
+)
 from sim.cpus.shared_core import book_port as _shared_book_port
 from sim.memory.cache import HOT
 
@@ -267,6 +269,58 @@ def new_state(P: np.ndarray, units: int) -> tuple:
 
 UNIT_FREE = 4  # position of unit_free in new_state's tuple
 SQ_RING = 6  # position of sq_ring
+LEARNED = tuple(range(12, 19))  # wb_seen, bht, btc_tag, btc_stamp, btc_target, rsb, known
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _predict(br, pc, nxt, fall, i, target, ghist, bht, bht_mask, hist_mask, rsb, rsb_top, rsb_n, btc_tag, btc_stamp,
+             btc_target, btc_ways):
+    """The branch predictors on a branch (kind `br`) at `pc` going to `nxt` (`fall`: the next
+    instruction's address; `i`: the instruction's number; `target`: its direct target, -1 if none):
+    the prediction checked and every table updated, in program order (warm). Returns
+    (mispredicted, predicted taken, the BTC held it, global history, return stack top).
+    These are simulate's branch-section updates; simulate keeps its own inline copy (the same code
+    moved into this helper and called from simulate's loop made the compiled core slower: the speed
+    check measured the P6 core 28 % slower, the K6's 7 %), and tests/test_warm_start.py checks that
+    the two leave the same tables."""
+    taken = nxt != fall
+    predict_taken = True
+    mispredicted = False
+    if br == BR_COND:
+        h = (pc ^ ghist) & bht_mask
+        cnt = bht[h]
+        predict_taken = cnt >= 2
+        bht[h] = min(3, cnt + 1) if taken else max(0, cnt - 1)
+        ghist = ((ghist << 1) | (1 if taken else 0)) & hist_mask
+        mispredicted = predict_taken != taken
+    elif br == BR_RET:
+        rsb_top -= 1
+        mispredicted = rsb_top < 0 or rsb[rsb_top % rsb_n] != nxt
+        if rsb_top < 0:
+            rsb_top = 0
+    else:
+        if br == BR_CALL:
+            rsb[rsb_top % rsb_n] = fall
+            rsb_top += 1
+        if target < 0 or br == BR_INDIRECT:  # target unknown at decode: the BTC's guess
+            mispredicted = True
+            for w in range(btc_ways):
+                if btc_tag[0, w] == pc:  # a branch has at most one entry (allocated on a miss)
+                    mispredicted = btc_target[w] != nxt
+                    break
+    way = -1
+    hit = False
+    if taken:
+        for w in range(btc_ways):
+            if btc_tag[0, w] == pc:
+                way = w
+                btc_stamp[0, w] = i
+                break
+        hit = way >= 0
+        if not hit:
+            way = btb_alloc(btc_tag, btc_stamp, 0, btc_ways, pc, i)
+        btc_target[way] = nxt
+    return mispredicted, predict_taken, hit, ghist, rsb_top
 
 
 @njit(cache=True, nogil=True)
@@ -820,3 +874,103 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     sv[V_REP_SID] = rep_sid
     sv[V_REP_NEXT] = rep_next
     return last_retire
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _warm_access(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, w, wb_seen, l1_fill_seen):
+    """One access of :func:`warm`: service, and the bookkeeping simulate keeps of the fills and
+    writebacks it has charged (the same at every access site). Returns the new l1_fill_seen."""
+    r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, w)
+    if tlb_missed(r):  # the walk's own L1 fills are not this access's
+        l1_fill_seen += walk_l1_fills(r)
+    filled = dstats[0, S_FILLS] != l1_fill_seen
+    if served_level(r) > 0 or filled:
+        _new_writebacks(dstats, wb_seen, 0)
+        _new_writebacks(dstats, wb_seen, 1)
+        if not w or filled:
+            l1_fill_seen = dstats[0, S_FILLS]
+    return l1_fill_seen
+
+
+@njit(cache=True, nogil=True)
+def warm(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
+         s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
+         s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ, s_rep, s_cyc, s_first, s_pfx, s_cross,
+         P, dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
+         sv, reg_ready, reg_pmask, book, unit_free, qring, sq_ring, bus, fw_addr,
+         fw_size, fw_ready, fw_commit, wb_seen, bht, btc_tag, btc_stamp, btc_target, rsb, known):
+    """Instructions base .. base + len(dyn_sid) - 1 as a warm-up (CoreSession.warm): what simulate
+    does to the caches, TLB, DRAM pages, L1I, BHT, global history, BTC, return stack, x87 top and
+    its count of the fills and writebacks charged, in its order (a REP string's later elements'
+    accesses in turn; an instruction's loads, one per load op, then its store; the fetch line
+    before them), and nothing it times. The session drains the timing state after it
+    (tests/test_warm_start.py: the same learned state as timing the chunk)."""
+    n = dyn_sid.shape[0]
+    bht_mask = P[P_BHT] - 1
+    hist_mask = (1 << P[P_HIST_BITS]) - 1
+    btc_ways = P[P_BTC]
+    rsb_n = P[P_RSB]
+    fp_top = sv[V_FP_TOP]
+    ghist = sv[V_GHIST]
+    rsb_top = sv[V_RSB_TOP]
+    l1_fill_seen = sv[V_L1_FILL_SEEN]
+    prev_pc = sv[V_PREV_PC]
+    rep_sid = sv[V_REP_SID]
+    acc_next = 0
+    for li in range(n):
+        i = base + li
+        sid = dyn_sid[li] & IDX
+        pc = dyn_pc[li]
+        rep_later = rep_sid == sid and prev_pc == pc
+        prev_pc = pc
+        if rep_sid >= 0 and not rep_later:
+            rep_sid = -1
+        acc = acc_next
+        acc_end = access_end(mem_insn, acc, li)
+        acc_next = acc_end
+        if rep_later:
+            if acc_end == acc:
+                rep_sid = -1  # the closing execution
+            for j in range(acc, acc_end):
+                l1_fill_seen = _warm_access(dtags, dstamps, ddirty, dconfig, dclock, dstats, np.int64(mem_addr[j]),
+                                            np.int64(mem_size[j]), mem_write[j] != 0, wb_seen, l1_fill_seen)
+            continue
+        iline = pc >> 5
+        if known[iline & 63] != iline:
+            known[iline & 63] = iline
+            if served_level(service(itags, istamps, idirty, iconfig, iclock, istats, pc, 1, False)) > 0:
+                known[:] = -1
+                known[iline & 63] = iline
+        is_store = False
+        u0 = s_uop0[sid] & IDX
+        for k in range(s_nuops[sid]):
+            kind = u_kind[(u0 + k) & IDX]
+            if kind == LOAD:
+                j = _access_of(mem_write, acc, acc_end, False)
+                if j >= 0:
+                    acc = j + 1
+                    l1_fill_seen = _warm_access(dtags, dstamps, ddirty, dconfig, dclock, dstats, np.int64(mem_addr[j]),
+                                                np.int64(mem_size[j]), False, wb_seen, l1_fill_seen)
+            elif kind == STA:
+                is_store = True
+        if is_store:
+            j = _access_of(mem_write, acc, acc_end, True)
+            if j >= 0:
+                l1_fill_seen = _warm_access(dtags, dstamps, ddirty, dconfig, dclock, dstats, np.int64(mem_addr[j]),
+                                            np.int64(mem_size[j]), True, wb_seen, l1_fill_seen)
+        fp_top = (fp_top - s_fpdelta[sid]) & 7
+        if s_rep[sid, R_KIND] != REP_NONE:
+            rep_sid = sid
+        br = s_branch[sid]
+        if br != BR_NONE:
+            fall = pc + s_len[sid]
+            nxt = dyn_pc[li + 1] if li + 1 < n else (next_pc if next_pc >= 0 else fall)
+            _, _, _, ghist, rsb_top = _predict(br, pc, nxt, fall, i, s_target[sid], ghist, bht, bht_mask, hist_mask,
+                                               rsb, rsb_top, rsb_n, btc_tag, btc_stamp, btc_target, btc_ways)
+    sv[V_SEG] = segments_ended(seg_end, sv[V_SEG], base + n)
+    sv[V_FP_TOP] = fp_top
+    sv[V_GHIST] = ghist
+    sv[V_RSB_TOP] = rsb_top
+    sv[V_L1_FILL_SEEN] = l1_fill_seen
+    sv[V_PREV_PC] = prev_pc
+    sv[V_REP_SID] = rep_sid

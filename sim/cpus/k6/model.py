@@ -371,6 +371,9 @@ class K6Session(CoreSession):
 
     CORE = core
     QUEUES = ((core.SQ_RING, core.V_SQ_POS, core.V_NSTORES),)  # the store queue (estimates.store_queue)
+    # the global history and the count of L1 fills already charged go with the caches' counts
+    KEEP_SLOTS = (core.V_FP_TOP, core.V_SEG, core.V_PREV_PC, core.V_RSB_TOP, core.V_GHIST, core.V_L1_FILL_SEEN)
+    KEEP_ARRAYS = core.LEARNED  # writebacks already charged, BHT, BTC, return stack, L1I lines known
 
     def __init__(self, model: K6Model, decoder: Decoder, segments: list[int], timeline: tuple[int, int] = (0, 0),
                  stat_first: int = 0, check=None):
@@ -393,6 +396,15 @@ class K6Session(CoreSession):
         if access_logs is not None:
             access_logs.finish(dlog)
         return total
+
+    def warm_chunk(self, chunk, next_pc) -> bool:
+        index = self.indexed(chunk)
+        model = self.model
+        core.warm(self.base, next_pc, index, chunk.pc, chunk.mem_insn, chunk.mem_addr, chunk.mem_size, chunk.mem_write,
+                  self.seg_end, *self.program.arrays(), *self.k6_static, model.params, *model.dside.arrays(),
+                  self.dstats, *model.iside.arrays(), self.istats, *self.state)
+        self.base += chunk.instructions
+        return True
 
     def result(self, program, counters, per_static, timeline, rdtsc, total) -> K6CoreRun:
         return K6CoreRun(program, counters, per_static, timeline, rdtsc, total)

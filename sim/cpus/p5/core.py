@@ -233,6 +233,7 @@ def new_state(P: np.ndarray, nstatic: int) -> tuple:
 
 
 SEEN, PAIR_CACHE = 4, 5  # positions in new_state's tuple of the arrays with a row per static
+LEARNED = tuple(range(4, 12))  # seen, pair_cache, btb_tag, btb_stamp, btb_hist, btb_target, pht, iline_seen
 
 
 @njit(cache=True, nogil=True)

@@ -313,6 +313,8 @@ class P5Session(CoreSession):
     held back in turn), then the rest of the chunk: the groups are those of the whole trace."""
 
     CORE = core
+    KEEP_SLOTS = (core.V_FP_TOP, core.V_SEG, core.V_PREV_PC, core.V_LAST_ILINE)
+    KEEP_ARRAYS = core.LEARNED  # executions per static, pairing answers, BTB, pattern tables, L1I lines known
 
     def __init__(self, model: P5Model, decoder: Decoder, segments: list[int], timeline: tuple[int, int] = (0, 0),
                  stat_first: int = 0, check=None):
@@ -327,6 +329,10 @@ class P5Session(CoreSession):
 
     def family_state(self) -> dict:
         return {"held": self.held}
+
+    def drain(self) -> None:
+        assert self.held is None, "drained between two instructions that may pair"
+        super().drain()
 
     def _simulate(self, base, next_pc, index, pc, acc_start, acc_count, chunk, rdtsc_sid, rdtsc_out) -> int:
         model = self.model

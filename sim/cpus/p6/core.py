@@ -73,7 +73,9 @@ from sim.cpus.contract import (
     S_MISPREDICTS, S_PORT0, S_PORT1, S_PORT2, S_PORT3, S_PORT4, S_DECODE_TO_RETIRE, S_STALL_STORE_FORWARD,
     S_STALL_WINDOW, S_L1D_MISSES, S_L2_MISSES, T_NAMES, NT, CAUSES,
 )
-from sim.cpus.shared_core import FW, IDX, WINDOW, book_port, btb_alloc, queued_store, remember_store
+from sim.cpus.shared_core import (
+    FW, IDX, WINDOW, access_end, book_port, btb_alloc, queued_store, remember_store, segments_ended,
+)
 
 # parameter vector indices (the counter, per-instruction and timeline schemas are the contract's)
 (P_ROB, P_RS, P_RENAME, P_RETIRE, P_QUEUE, P_FETCH_BLOCK, P_L1_LAT, P_L2_LAT, P_DRAM_LAT, P_DRAM_LINE,
@@ -143,6 +145,7 @@ def new_state(P: np.ndarray, units: int) -> tuple:
 
 
 QUEUE_RING = 7  # position of queue_ring in new_state's tuple
+LEARNED = tuple(range(16, 23))  # btb_tag, btb_stamp, btb_hist, btb_target, pht, rsb, iline_seen
 UNIT_FREE = 9  # position of unit_free in new_state's tuple
 P01 = 3  # the port mask of a uop that may use port 0 or port 1 (sim/cpus/lowering.py port_mask)
 
@@ -357,6 +360,63 @@ def _register_reads(u, u_nsrc, u_src, top, reg_ready, t, old_group, mask, n):
                 mask |= bit
                 n += 1
     return mask, n
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _predict(br, pc, length, nxt, i, bset, target, btb_tag, btb_stamp, btb_hist, btb_target, pht, rsb, rsb_top,
+             btb_ways, hist_bits):
+    """The branch predictors on a branch (kind `br`) at `pc` going to `nxt` (instruction `i`; BTB set
+    `bset`; `target`: its direct target, -1 if none): the prediction checked and every table updated,
+    in program order (warm). Returns (mispredicted, redirected at decode, return stack top).
+    These are simulate's branch-section updates; simulate keeps its own inline copy (the same code
+    moved into this helper and called from simulate's loop made the compiled core slower: the speed
+    check measured the P6 core 28 % slower, the K6's 7 %), and tests/test_warm_start.py checks that
+    the two leave the same tables."""
+    taken = nxt != pc + length
+    mispredicted = False
+    redirect = False
+    way = -1
+    for w in range(btb_ways):
+        if btb_tag[bset, w] == pc:
+            way = w
+    if br == BR_COND:
+        if way >= 0:
+            h = btb_hist[bset, way] & IDX
+            predict = pht[bset, way, h] >= 2
+            cnt = pht[bset, way, h]
+            pht[bset, way, h] = min(3, cnt + 1) if taken else max(0, cnt - 1)
+            btb_hist[bset, way] = ((h << 1) | (1 if taken else 0)) & ((1 << hist_bits) - 1)
+            btb_stamp[bset, way] = i
+        else:
+            predict = target >= 0 and target < pc  # static: backward taken, forward not taken
+            redirect = predict  # a static taken prediction redirects fetch at decode
+            if taken:
+                way = btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, i)
+                btb_hist[bset, way] = 1
+                for h in range(1 << hist_bits):
+                    pht[bset, way, h] = 2
+        mispredicted = predict != taken
+    elif br == BR_RET:
+        predicted_target = -1
+        if rsb_top > 0:
+            rsb_top -= 1
+            predicted_target = rsb[rsb_top % rsb.shape[0]]
+        mispredicted = predicted_target != nxt
+    else:
+        if br == BR_CALL:
+            rsb[rsb_top % rsb.shape[0]] = pc + length
+            rsb_top += 1
+        if way >= 0 and btb_target[bset, way] == nxt:
+            btb_stamp[bset, way] = i
+        elif br == BR_INDIRECT:
+            mispredicted = True
+        else:
+            redirect = True  # direct target known at decode: a short redirect bubble
+        if way < 0:
+            way = btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, i)
+    if way >= 0:
+        btb_target[bset, way] = nxt if taken else btb_target[bset, way]
+    return mispredicted, redirect, rsb_top
 
 
 # error_model="numpy": no zero-divisor checks on the loop's divisions (every divisor is a machine
@@ -1170,3 +1230,86 @@ def _miss_latency(r, lvl, levels, start, P, mshr, bus_free, l2bus_free, ctr):
         done = (b + (P[P_DRAM_LAT_HIT] if fh == fills else P[P_DRAM_LAT])) if fills > 0 else t2
         mshr[k] = b + busy
     return max(0, done - start), bus_free, l2bus_free
+
+
+@njit(cache=True, nogil=True)
+def warm(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
+         s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
+         s_ndst, s_dst, u_kind, u_ports, u_lat, u_unit, u_occ, s_rep,
+         P, dtags, dstamps, ddirty, dconfig, dclock, dstats, itags, istamps, idirty, iconfig, iclock, istats,
+         sv, reg_ready, reg_pmask, reg_pretire, reg_zeroed, rob_ring, rs_by_cycle, queue_ring, book, unit_free,
+         sb_ring, mshr, fw_addr, fw_size, fw_ready, fw_commit, btb_tag, btb_stamp, btb_hist, btb_target, pht,
+         rsb, iline_seen):
+    """Instructions base .. base + len(dyn_sid) - 1 as a warm-up (CoreSession.warm): what simulate
+    does to the caches, TLB, DRAM pages, L1I, BTB, pattern tables, return stack and x87 top, in its
+    order (a REP string's later elements' accesses in turn; an instruction's loads, one per load
+    uop, then its store; the fetch line before them), and nothing it times. The hierarchy is walked
+    through service for every access, which leaves what simulate's inline L1-hit path leaves
+    (its TLB stamps can be newer, in the same order within each set). The session drains the
+    timing state after it (tests/test_warm_start.py: the same learned state as timing the chunk)."""
+    n = dyn_sid.shape[0]
+    btb_sets, btb_ways, hist_bits = P[P_BTB_SETS], P[P_BTB_WAYS], P[P_HIST_BITS]
+    fp_top = sv[V_FP_TOP]
+    rsb_top = sv[V_RSB_TOP]
+    last_iline = sv[V_LAST_ILINE]
+    prev_pc = sv[V_PREV_PC]
+    rep_sid = sv[V_REP_SID]
+    acc_next = 0
+    for li in range(n):
+        i = base + li
+        sid = dyn_sid[li] & IDX
+        pc = dyn_pc[li]
+        length = s_len[sid]
+        rep_later = rep_sid == sid and prev_pc == pc
+        prev_pc = pc
+        if rep_sid >= 0 and not rep_later:
+            rep_sid = -1
+        acc = acc_next
+        acc_end = access_end(mem_insn, acc, li)
+        acc_next = acc_end
+        if rep_later:
+            if acc_end == acc:
+                rep_sid = -1  # the closing execution
+            for q in range(acc, acc_end):
+                service(dtags, dstamps, ddirty, dconfig, dclock, dstats, np.int64(mem_addr[q]), np.int64(mem_size[q]),
+                        mem_write[q] != 0)
+            continue
+        iline = pc >> 5
+        if iline != last_iline and iline_seen[iline & 15] != iline:
+            if served_level(service(itags, istamps, idirty, iconfig, iclock, istats, pc, 1, False)) > 0:
+                iline_seen[:] = -1
+            iline_seen[iline & 15] = iline
+        last_iline = iline
+        is_store = False
+        u0 = s_uop0[sid] & IDX
+        for k in range(s_nuops[sid]):
+            kind = u_kind[(u0 + k) & IDX]
+            if kind == LOAD and acc < acc_end:
+                while acc < acc_end and mem_write[acc & IDX]:
+                    acc += 1
+                if acc < acc_end:
+                    service(dtags, dstamps, ddirty, dconfig, dclock, dstats, np.int64(mem_addr[acc & IDX]),
+                            np.int64(mem_size[acc & IDX]), False)
+                    acc += 1
+            elif kind == STA:
+                is_store = True
+        if is_store:
+            while acc < acc_end and not mem_write[acc & IDX]:
+                acc += 1
+            if acc < acc_end:
+                service(dtags, dstamps, ddirty, dconfig, dclock, dstats, np.int64(mem_addr[acc & IDX]),
+                        np.int64(mem_size[acc & IDX]), True)
+        fp_top = (fp_top - s_fpdelta[sid]) & 7
+        if s_rep[sid, R_KIND] != REP_NONE:
+            rep_sid = sid
+        br = s_branch[sid]
+        if br != BR_NONE:
+            nxt = dyn_pc[li + 1] if li + 1 < n else (next_pc if next_pc >= 0 else pc + length)
+            _, _, rsb_top = _predict(br, pc, length, nxt, i, (s_pc[sid] % btb_sets) & IDX, s_target[sid], btb_tag,
+                                     btb_stamp, btb_hist, btb_target, pht, rsb, rsb_top, btb_ways, hist_bits)
+    sv[V_SEG] = segments_ended(seg_end, sv[V_SEG], base + n)
+    sv[V_FP_TOP] = fp_top
+    sv[V_RSB_TOP] = rsb_top
+    sv[V_LAST_ILINE] = last_iline
+    sv[V_PREV_PC] = prev_pc
+    sv[V_REP_SID] = rep_sid

@@ -110,6 +110,8 @@ class P6Session(CoreSession):
 
     CORE = core
     QUEUES = ((core.QUEUE_RING, core.V_Q_POS, core.V_U_GLOBAL),)  # the decoded-uop queue (estimates.uop_queue)
+    KEEP_SLOTS = (core.V_FP_TOP, core.V_SEG, core.V_PREV_PC, core.V_RSB_TOP, core.V_LAST_ILINE)
+    KEEP_ARRAYS = core.LEARNED  # BTB, pattern tables, return stack, the L1I lines known
 
     def grown(self, program) -> None:
         self.state = grown_state(self.state, core.UNIT_FREE, int(program.u_unit.max(initial=0)) + 1)
@@ -127,6 +129,15 @@ class P6Session(CoreSession):
         if access_logs is not None:
             access_logs.finish(dlog)
         return total
+
+    def warm_chunk(self, chunk, next_pc) -> bool:
+        index = self.indexed(chunk)
+        model = self.model
+        core.warm(self.base, next_pc, index, chunk.pc, chunk.mem_insn, chunk.mem_addr, chunk.mem_size, chunk.mem_write,
+                  self.seg_end, *self.program.arrays(), model.params, *model.dside.arrays(), self.dstats,
+                  *model.iside.arrays(), self.istats, *self.state)
+        self.base += chunk.instructions
+        return True
 
     def result(self, program, counters, per_static, timeline, rdtsc, total) -> "CoreRun":
         return CoreRun(program, counters, per_static, timeline, rdtsc, total)

@@ -331,7 +331,8 @@ def to_markdown(result: SceneResult, png_name: str | None, findings: list[str]) 
     parts += [f"Workload: {result.width}x{result.height} pixels, {result.triangles:,} triangles, {result.spans:,} spans, "
               f"{result.pixels:,} pixels drawn per frame (depth complexity {result.depth_complexity:.2f}). "
               f"{s.frames} frame(s) are drawn in one machine state (clear the depth buffer, then every span); "
-              "the last frame is reported, with caches and predictors warm.", ""]
+              "the last frame is reported, with caches and predictors warm: the frames before it only warm the "
+              "machine (caches, TLB, DRAM pages, branch predictors) and the last is timed from an empty pipeline.", ""]
     if result.timings:
         parts += ["## Cycles per pixel", "", md_table(*cycles_table(result)), "",
                   "The same in nanoseconds per pixel at each preset's clock:", "", md_table(*ns_table(result)), ""]

@@ -86,12 +86,13 @@ def _claim_machines(scene: Scene, models: dict) -> dict[str, set]:
 
 
 def _time_task(shared, i: int, key: str, robust: bool, what: str) -> tuple[dict, dict | None]:
-    """Counters of the last call of the shared emulation on machine `i`, and the claims' robustness
+    """Counters of the last frame of the shared emulation on machine `i`, the frames before it a
+    warm-up (sim.timing.kernel time_emulation's `warm_start`), and the claims' robustness
     re-timings when `robust` (sim.scenes.claims.timed_with_robustness)."""
     from sim.scenes import claims as claim_checks
 
     emulation, models = shared
-    return claim_checks.timed_with_robustness(emulation, models[i], key, robust, what)
+    return claim_checks.timed_with_robustness(emulation, models[i], key, robust, what, warm_start=True)
 
 
 def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | None = None,
