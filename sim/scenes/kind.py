@@ -55,7 +55,8 @@ class SceneKind:
     summary_tables(result):    what `retrosim report` prints for one result (rich renderables);
     baseline_entries(result):  reports/baselines.json cases of a result: case -> {counter: integer};
     sweep_emulation(scene, variant):  (emulation, units of work) of one variant, as `run` times it:
-                               what a sweep times on each of its machines (sim.sweep).
+                               what a sweep times on each of its machines (sim.sweep), from a
+                               warm start where `warm_start` says `run` times so.
     """
 
     name: str
@@ -66,3 +67,5 @@ class SceneKind:
     baseline_entries: Callable
     sweep_emulation: Callable
     unit: str = "pixel"  # what the units of work are (Timing.pixels counts them): sweeps label by it
+    # the last call timed from a warm start (sim.timing.kernel time_emulation): a Z-buffer scene's frames
+    warm_start: bool = False

@@ -25,7 +25,8 @@ from sim.scenes.zbuffer import scene as zbuffer_scene
 
 KINDS: dict[str, SceneKind] = {k.name: k for k in (
     SceneKind("zbuffer", zbuffer_scene.load, zbuffer_runner.run_scene, zbuffer_report.write_reports,
-              zbuffer_report.summary_tables, zbuffer_report.baseline_entries, zbuffer_runner.sweep_emulation),
+              zbuffer_report.summary_tables, zbuffer_report.baseline_entries, zbuffer_runner.sweep_emulation,
+              warm_start=zbuffer_runner.WARM_START),
     SceneKind("texture", texture.load, texture.run_scene, texture.write_reports, texture.summary_tables,
               texture.baseline_entries, texture.sweep_emulation),
     SceneKind("snap", snap.load, snap.run_scene, snap.write_reports, snap.summary_tables, snap.baseline_entries,

@@ -85,6 +85,11 @@ def _claim_machines(scene: Scene, models: dict) -> dict[str, set]:
     return out
 
 
+# a frame's timing: the frames before the last only warm the machine, the last is timed from an
+# empty pipeline (sim.timing.kernel time_emulation's `warm_start`; sweeps read it: SceneKind.warm_start)
+WARM_START = True
+
+
 def _time_task(shared, i: int, key: str, robust: bool, what: str) -> tuple[dict, dict | None]:
     """Counters of the last frame of the shared emulation on machine `i`, the frames before it a
     warm-up (sim.timing.kernel time_emulation's `warm_start`), and the claims' robustness
@@ -92,7 +97,7 @@ def _time_task(shared, i: int, key: str, robust: bool, what: str) -> tuple[dict,
     from sim.scenes import claims as claim_checks
 
     emulation, models = shared
-    return claim_checks.timed_with_robustness(emulation, models[i], key, robust, what, warm_start=True)
+    return claim_checks.timed_with_robustness(emulation, models[i], key, robust, what, warm_start=WARM_START)
 
 
 def run_scene(scene: Scene, cpus: list[str] | None = None, progress: Progress | None = None,
