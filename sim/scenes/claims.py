@@ -197,7 +197,8 @@ def timed_with_robustness(emulation, model, key: str, robust: bool, what: str,
     re-timings (:func:`perturbed_timings`) when `robust`: a pool's task of the kinds whose claims are
     re-timed (a pure function of its arguments: the same in any process); reported as `what`.
     `warm_start`: the calls before the last only warm the machine (sim.timing.kernel
-    time_emulation); every re-timing then resumes from the nominal's start, exactly."""
+    time_emulation); a re-timing then resumes from the nominal's start and is exact (but for a page
+    geometry's: :func:`perturbed_timings`)."""
     from sim.memory.replay import AccessLogs
     from sim.scenes.progress import timed_run
 
