@@ -343,13 +343,13 @@ def load_spec(path: str | Path, max_points: int = MAX_POINTS) -> Spec:
 
 # -- one group's work (runs on a Dask worker or in this process) ----------------------------------
 
-def _emulation(group: dict, isa_cpu=None):
-    """(emulation, pixels or None) of a group: a scene variant's frames or a kernel's calls, the
-    kernel assembled and emulated for `isa_cpu`'s instruction set (a sim.guest.cpu.GuestCpu)."""
+def _emulation(group: dict, isa_cpu=None, scene=None):
+    """(emulation, pixels or None) of a group: a scene variant's frames (`scene`: the group's scene,
+    loaded) or a kernel's calls, the kernel assembled and emulated for `isa_cpu`'s instruction set
+    (a sim.guest.cpu.GuestCpu)."""
     if group["kind"] == "scene":
-        from sim.scenes.registry import kind_of, load_scene
+        from sim.scenes.registry import kind_of
 
-        scene = load_scene(group["what"])
         return kind_of(scene).sweep_emulation(scene, group["variant"])
     from sim.guest import kernels
     from sim.guest.args import parse_args
@@ -383,11 +383,13 @@ def run_group(group: dict) -> list[dict]:
     from sim.timing.kernel import time_emulation
 
     emulations: dict = {}  # instruction-set key (None for a scene) -> (emulation, pixels) or the error
+    scene = None
     warm_start = False  # a scene's variant is timed as its reports time it
     if group["kind"] == "scene":
         from sim.scenes.registry import kind_of, load_scene
 
-        warm_start = kind_of(load_scene(group["what"])).warm_start
+        scene = load_scene(group["what"])
+        warm_start = kind_of(scene).warm_start
 
     def emulation_for(p):
         key, guest = (None, None)
@@ -395,7 +397,7 @@ def run_group(group: dict) -> list[dict]:
             key, guest = _instruction_set(p["cpu"])
         if key not in emulations:
             try:
-                emulations[key] = _emulation(group, guest)
+                emulations[key] = _emulation(group, guest, scene)
             except Exception as e:  # every point of this instruction set fails the same way
                 emulations[key] = e
         if isinstance(emulations[key], Exception):

@@ -134,3 +134,18 @@ def test_an_estimated_page_figure_needs_a_range_holding_it(tmp_path, monkeypatch
     monkeypatch.setattr(dram, "MEMORY_PRESETS_DIR", tmp_path)
     with pytest.raises(ValueError, match=r"^edo.toml: " + message):
         dram.load_memory_preset("edo")
+
+
+def test_a_preset_edited_between_two_loads_is_read_again(tmp_path, monkeypatch):
+    # presets are parsed once and shared (sim.tomlfile read_toml's `shared`): an edit must still show
+    from sim.memory import dram
+
+    text = (dram.MEMORY_PRESETS_DIR / "edo.toml").read_text()
+    monkeypatch.setattr(dram, "MEMORY_PRESETS_DIR", tmp_path)
+    (tmp_path / "edo.toml").write_text(text)
+    first = dram.load_memory_preset("edo")
+    assert dram.load_memory_preset("edo") == first
+    (tmp_path / "edo.toml").write_text(text.replace("hit_saving_bus_clocks = { low = 2, high = 4,",
+                                                    "hit_saving_bus_clocks = { low = 2, high = 40,"))
+    again = dram.load_memory_preset("edo")
+    assert again.pages.ranges["hit_saving_bus_clocks"][1] == 40 != first.pages.ranges["hit_saving_bus_clocks"][1]

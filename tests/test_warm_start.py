@@ -168,3 +168,13 @@ def test_a_kernel_reading_rdtsc_is_refused_a_warm_start(tmp_path):
     from sim.errors import RetrosimError
     with pytest.raises(RetrosimError, match="RDTSC"):
         time_emulation(emulation, make_model("pentium2-233"), warm_start=True)
+
+
+def test_a_warm_start_with_a_timeline_is_refused(tmp_path):
+    # the timeline would have to come from frames the warm start does not time
+    src = tmp_path / "t.S"
+    src.write_text(".intel_syntax noprefix\n.text\n.globl k\nk:\n    mov ecx, 50\n1:\n    dec ecx\n    jnz 1b\n    ret\n")
+    emulation = emulate(src, "k", lambda m: [], repeat=2, budget=10000)
+    with pytest.raises(ValueError, match="warm start has no timeline"):
+        time_emulation(emulation, make_model("pentium2-233"), timeline_iterations=4, warm_start=True)
+    assert time_emulation(emulation, make_model("pentium2-233"), timeline_iterations=4).last["cycles"] > 0

@@ -215,6 +215,12 @@ class FamilyModel:
         entries, ways = data_tlb(self.machine, self.family)
         self.dside.set_tlb(entries, ways)
 
+    def lowering_key(self) -> tuple | None:
+        """Everything the family's ``lower`` reads besides the records and their precisions, as a
+        hashable value: two models with equal keys lower the same records to the same program, so
+        sessions share it (sim.cpus.session :func:`lowered`). None: never shared."""
+        return None
+
     def reset(self) -> None:
         """Cold caches: each run starts from reset."""
         self.dside.reset()

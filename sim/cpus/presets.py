@@ -159,7 +159,7 @@ def load(name: str) -> CpuPreset:
     # a name, never a path: `../../x` would read any .toml (a web request names CPUs too)
     if not path.is_file() or name != Path(name).name or name.startswith("."):
         raise UnknownPreset(f"unknown CPU preset '{name}' (choose one of: {', '.join(available())})")
-    _, raw = read_toml(path, "CPU preset")  # a package file edited by hand: one error naming it
+    _, raw = read_toml(path, "CPU preset", shared=True)  # a package file edited by hand: one error naming it
     return from_raw(raw, name, path)
 
 

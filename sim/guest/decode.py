@@ -987,6 +987,11 @@ def _index_by_first_appearance(pcs, lo, span):
     return firsts[:k], index
 
 
+# a resumable timing decodes the calls before the last and the last call apart (sim.timing.kernel
+# Emulation.parts), and every re-timing of the emulation asks for both again
+TRACES_KEPT = 2
+
+
 class Decoder:
     """Decodes each static PC once.
 
@@ -998,7 +1003,8 @@ class Decoder:
     def __init__(self, fetch: Callable[[int, int], bytes]):
         self._fetch = fetch
         self._cache: dict[int, InsnRecord] = {}
-        self._last_trace: tuple | None = None  # (pcs, records, index) of the last decode_trace
+        # (pcs, records, index) of the last TRACES_KEPT decode_trace calls, the most recent last
+        self._traces: list[tuple] = []
 
     def __len__(self) -> int:
         return len(self._cache)
@@ -1016,7 +1022,7 @@ class Decoder:
 
     def invalidate(self, start: int | None = None, end: int | None = None) -> None:
         """Forget records overlapping [start, end) (everything by default)."""
-        self._last_trace = None
+        self._traces = []
         if start is None:
             self._cache.clear()
             return
@@ -1031,14 +1037,15 @@ class Decoder:
         Returns ``(records, index)``: one record per distinct PC in order of
         first appearance, and an int32 array with ``records[index[i]].pc ==
         pcs[i]``.  Vectorised: Python only loops over the distinct PCs.
-        Asked again for the same array (a trace is never modified), it returns
-        the same index: callers must not write to it.
+        Asked again for one of the last :data:`TRACES_KEPT` arrays (a trace is
+        never modified), it returns the same index: callers must not write to it.
         """
-        last = self._last_trace
-        if last is not None and last[0] is pcs:
-            return list(last[1]), last[2]
+        for k, kept in enumerate(self._traces):
+            if kept[0] is pcs:
+                self._traces.append(self._traces.pop(k))
+                return list(kept[1]), kept[2]
         records, index = self._decode_trace(pcs)
-        self._last_trace = (pcs, records, index)
+        self._traces = self._traces[1 - TRACES_KEPT:] + [(pcs, records, index)]
         return list(records), index
 
     def _decode_trace(self, pcs) -> tuple[list[InsnRecord], np.ndarray]:

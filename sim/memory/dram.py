@@ -228,7 +228,7 @@ def load_memory_preset(name: str) -> DramTiming:
     # a name, never a path: `../../x` would read any .toml (a web request names presets too)
     if not path.is_file() or name != Path(name).name or name.startswith("."):
         raise ValueError(f"unknown memory preset {name!r} (available: {', '.join(available_memory_presets())})")
-    _, d = read_toml(path, "memory preset", ValueError)
+    _, d = read_toml(path, "memory preset", ValueError, shared=True)
     where = f"{path.name}"
 
     def need(field):

@@ -84,6 +84,7 @@ class Emulation:
     # machines (and claim re-timings) time the trace
     _decoder: Decoder | None = field(default=None, init=False, repr=False, compare=False)
     _parts: tuple[Trace, Trace] | None = field(default=None, init=False, repr=False, compare=False)
+    _records: list | None = field(default=None, init=False, repr=False, compare=False)
 
     @property
     def last_call(self) -> int:
@@ -93,6 +94,13 @@ class Emulation:
         if self._decoder is None:
             self._decoder = Decoder(self.machine.image.fetch)
         return self._decoder
+
+    def records(self) -> list:
+        """The trace's distinct static instructions (decoded records), in order of first appearance:
+        each machine's ISA check reads them (the trace's index is not kept for it)."""
+        if self._records is None:
+            self._records = self.decoder().decode_trace(self.trace.pc)[0]
+        return self._records
 
     def parts(self) -> tuple[Trace, Trace]:
         """(the calls before the last, the last call) as traces of their own; the same two objects
@@ -180,13 +188,16 @@ def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None
     and warm where the family walks them without timing them) and the last call is timed from an
     empty pipeline; their counters are then not timings (zero where walked). A scene's frames are
     timed so; with `resumable`, a re-timing that resumes then times exactly what a whole one does
-    (but for another DRAM page geometry: sim.scenes.claims). Neither with a timeline."""
+    (but for another DRAM page geometry: sim.scenes.claims). Neither with a timeline: `warm_start`
+    with one is refused (a ValueError), `resumable` is ignored."""
+    if warm_start and timeline_iterations:
+        raise ValueError("time_emulation: a warm start has no timeline (the calls before the last are not timed)")
     model = make_model(cpu, memory) if isinstance(cpu, str) else cpu
     cpu = model.preset.name
     check_model_memory(emu.trace.instructions)
     timeline = hot_loop_window(emu.trace.pc, emu.last_call, timeline_iterations)
     decoder = emu.decoder()
-    check_isa(emu, decoder, GuestCpu.from_preset(model.preset))
+    check_isa(emu, GuestCpu.from_preset(model.preset))
     if (resumable or warm_start) and timeline_iterations == 0 and emu.last_call > 0:
         session = model.session(decoder, emu.bounds, emu.last_call)
         head, last = emu.parts()
@@ -228,11 +239,10 @@ def resume_last_call(emu: Emulation, model, start: SessionStart, access_logs=Non
     return session.finish().segment(len(emu.bounds) - 1)
 
 
-def check_isa(emu: Emulation, decoder: Decoder, cpu: GuestCpu) -> None:
+def check_isa(emu: Emulation, cpu: GuestCpu) -> None:
     """Refuse (one IsaError) an executed instruction the CPU lacks, or a system instruction.
     Where the kernel assembles for that CPU, the error is the assembler's, with the source line."""
-    records, _ = decoder.decode_trace(emu.trace.pc)
-    check_records(records, cpu, emu.source, emu.machine, emu.assembler, emu.isa_cpu)
+    check_records(emu.records(), cpu, emu.source, emu.machine, emu.assembler, emu.isa_cpu)
 
 
 def check_records(records, cpu: GuestCpu, source: Path, machine: Machine, assembler: str | None,

@@ -347,6 +347,10 @@ class K6Model(FamilyModel):
         P[core.P_EXIT_ADDR] = EXIT_ADDR
         return P
 
+    def lowering_key(self) -> tuple:
+        # the rules read the model key and the machine table; the lock's cost those and the bus ratio
+        return (id(self.table), id(self.machine), self.key, self.ratio, self.l1_latency)
+
     def lower(self, records: list[InsnRecord], precisions: list[int | None] | None = None) -> StaticProgram:
         return lower(records, self.table, self.l1_latency, uops_for=self.rules.uops, decoder_for=self.rules.decoder,
                      precisions=precisions, adjust=self.locked,

@@ -284,6 +284,10 @@ class P5Model(FamilyModel):
         """A load that misses L1 and hits the board cache: clocks until its data."""
         return int(self.params[core.P_L2_LAT]) + int(self.preset.l1d.latency_cycles or 1)
 
+    def lowering_key(self) -> tuple:
+        # the lock's cost reads the machine table, the model key and the bus ratio
+        return (id(self.table), id(self.machine), self.key, self.ratio)
+
     def lower(self, records: list[InsnRecord], precisions: list[int | None] | None = None) -> StaticProgram:
         return lower(records, self.table, 1, uops_for=_one_op, decoder_for=lambda rec, match, uops: DEC_SIMPLE,
                      precisions=precisions, adjust=self.locked)

@@ -99,6 +99,11 @@ class P6Model(FamilyModel):
         `check(records)` sees each chunk's new static instructions before they are lowered."""
         return P6Session(self, decoder, segments, (0, 0), stat_first, check)
 
+    def lowering_key(self) -> tuple:
+        # the table and machine table are loaded once per family (the lock's cost is the machine's)
+        return (id(self.table), id(self.machine), self.l1_latency,
+                self.machine["decode"]["simple_decoder_max_length"]["value"], self.limits)
+
     def lower(self, records, precisions) -> StaticProgram:
         return lower(records, self.table, self.l1_latency, self.machine["decode"]["simple_decoder_max_length"]["value"],
                      uops_for=uops_rule(self.limits), precisions=precisions, adjust=self.locked,

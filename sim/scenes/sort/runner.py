@@ -121,7 +121,7 @@ def _refusal(emulation, model) -> str | None:
     from sim.timing.kernel import check_isa
 
     try:
-        check_isa(emulation, emulation.decoder(), GuestCpu.from_preset(model.preset))
+        check_isa(emulation, GuestCpu.from_preset(model.preset))
     except (IsaError, AssemblerError) as e:  # named from the repository's root: the same text on any machine
         return str(e).replace(f"{kernels_root().parent}/", "")
     return None
