@@ -96,8 +96,9 @@ class Emulation:
         return self._decoder
 
     def records(self) -> list:
-        """The trace's distinct static instructions (decoded records), in order of first appearance:
-        each machine's ISA check reads them (the trace's index is not kept for it)."""
+        """The trace's distinct static instructions (decoded records), in order of first appearance,
+        decoded once: each machine's ISA check reads them (the decoder itself keeps only the indexes
+        of its last two traces, the parts a resumable timing feeds)."""
         if self._records is None:
             self._records = self.decoder().decode_trace(self.trace.pc)[0]
         return self._records
