@@ -238,16 +238,30 @@ class CoreSession:
 
     def warm(self, chunk: Trace, next_pc: int) -> None:
         """The chunk's instructions as a warm-up: only what the machine learns from them is kept
-        (:meth:`drain` after timing them; a family whose core can walk them without timing them
-        overrides :meth:`warm_chunk`, which must leave the same)."""
+        (:meth:`drain` after timing them, or :meth:`warm_chunk`'s walk where the family's core has
+        one, which must leave the same)."""
         if not self.warm_chunk(chunk, next_pc):
             self.feed(chunk, next_pc)
         self.drain()
 
     def warm_chunk(self, chunk: Trace, next_pc: int) -> bool:
         """Walk the chunk through the caches, TLB, DRAM pages and predictors without timing it, as
-        the core would leave them; False when the family cannot (it is timed, then drained)."""
-        return False
+        the core would leave them: the core module's `warm`, which takes simulate's arguments but
+        the timeline and RDTSC ones. False when the family has none (it is timed, then drained)."""
+        walk = getattr(self.CORE, "warm", None)
+        if walk is None:
+            return False
+        index = self.indexed(chunk)
+        model = self.model
+        walk(self.base, next_pc, index, chunk.pc, chunk.mem_insn, chunk.mem_addr, chunk.mem_size, chunk.mem_write,
+             self.seg_end, *self.program.arrays(), *self.family_statics(), model.params, *model.dside.arrays(),
+             self.dstats, *model.iside.arrays(), self.istats, *self.state)
+        self.base += chunk.instructions
+        return True
+
+    def family_statics(self) -> tuple:
+        """The family's own per-static arrays, passed to its core after the program's (the K6's)."""
+        return ()
 
     def drain(self) -> None:
         """Empty the pipeline between two feeds: the core's queues, rings and times back to reset

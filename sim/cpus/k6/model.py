@@ -401,14 +401,8 @@ class K6Session(CoreSession):
             access_logs.finish(dlog)
         return total
 
-    def warm_chunk(self, chunk, next_pc) -> bool:
-        index = self.indexed(chunk)
-        model = self.model
-        core.warm(self.base, next_pc, index, chunk.pc, chunk.mem_insn, chunk.mem_addr, chunk.mem_size, chunk.mem_write,
-                  self.seg_end, *self.program.arrays(), *self.k6_static, model.params, *model.dside.arrays(),
-                  self.dstats, *model.iside.arrays(), self.istats, *self.state)
-        self.base += chunk.instructions
-        return True
+    def family_statics(self) -> tuple:
+        return self.k6_static
 
     def result(self, program, counters, per_static, timeline, rdtsc, total) -> K6CoreRun:
         return K6CoreRun(program, counters, per_static, timeline, rdtsc, total)

@@ -135,14 +135,5 @@ class P6Session(CoreSession):
             access_logs.finish(dlog)
         return total
 
-    def warm_chunk(self, chunk, next_pc) -> bool:
-        index = self.indexed(chunk)
-        model = self.model
-        core.warm(self.base, next_pc, index, chunk.pc, chunk.mem_insn, chunk.mem_addr, chunk.mem_size, chunk.mem_write,
-                  self.seg_end, *self.program.arrays(), model.params, *model.dside.arrays(), self.dstats,
-                  *model.iside.arrays(), self.istats, *self.state)
-        self.base += chunk.instructions
-        return True
-
     def result(self, program, counters, per_static, timeline, rdtsc, total) -> "CoreRun":
         return CoreRun(program, counters, per_static, timeline, rdtsc, total)
