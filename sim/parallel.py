@@ -56,13 +56,15 @@ def check_jobs(jobs: int | None) -> int:
 def warm(models) -> None:
     """Load each model's compiled core into this process (once per family) by timing an empty
     trace: the same argument types as a real run, so the same compiled function, and the same
-    entry in numba's on-disk cache."""
+    entry in numba's on-disk cache. Timed twice, the second time with a timeline: a core may be
+    compiled in two versions, one without its rare paths (the P6's: sim.cpus.p6.core simulate's `rare`)."""
     from sim.guest.decode import Decoder
     from sim.guest.trace import Trace
 
     for model in models:
         if model.family not in _WARM:
-            model.run(Trace.empty(), Decoder(lambda address, n: b""), [0], (0, 0), 0)
+            for timeline in ((0, 0), (0, 1)):
+                model.run(Trace.empty(), Decoder(lambda address, n: b""), [0], timeline, 0)
             _WARM.add(model.family)
 
 

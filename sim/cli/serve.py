@@ -402,9 +402,12 @@ def _stop_group(pid: int, grace: float = 1.0) -> int:
 
 
 def warm_up(say=lambda line: None) -> None:
-    """Time a small loop on one CPU of every family in this process, so that children start warm."""
+    """Time a small loop on one CPU of every family in this process, so that children start warm
+    (and load each compiled version of a core: sim.parallel.warm)."""
     from sim.cli.kernel_cmds import loop_document
     from sim.cpus import families, presets
+    from sim.cpus.build import make_model
+    from sim.parallel import warm
 
     seen = {}
     for name in presets.available():
@@ -413,6 +416,7 @@ def warm_up(say=lambda line: None) -> None:
         t = time.monotonic()
         say(f"warming the {family.upper()} model on {cpu} ...")
         loop_document(WARM_BODY, "<warm-up>", [cpu], None, (), None, 100, (), 64, 0, 3, None)
+        warm([make_model(cpu)])
         say(f"  ready in {time.monotonic() - t:.1f} s")
 
 

@@ -16,7 +16,7 @@ from sim.guest.trace import Trace
 from sim.cpus.p6 import core
 from sim.cpus.contract import CoreRun, FamilyModel
 from sim.cpus.locking import lock_cost, locked_match
-from sim.cpus.lowering import StaticProgram, lower
+from sim.cpus.lowering import R_KIND, REP_NONE, StaticProgram, lower
 from sim.cpus.p6.lowering import P6Limits, uops_rule
 from sim.cpus.presets import CpuPreset
 from sim.cpus.session import CoreSession, grown_state
@@ -121,6 +121,16 @@ class P6Session(CoreSession):
     def grown(self, program) -> None:
         self.state = grown_state(self.state, core.UNIT_FREE, int(program.u_unit.max(initial=0)) + 1)
 
+    def rare_paths(self, rdtsc_out: np.ndarray) -> bool | None:
+        """core.simulate's `rare` for the next chunk: True where its REP string, RDTSC or timeline
+        paths may run in it (the program has a REP string, a run of one is open, the chunk
+        executes an RDTSC or a timeline is recorded), else None: the version of the core compiled
+        without those paths."""
+        if (self.timeline.shape[0] > 0 or rdtsc_out.shape[0] > 0 or self.state[0][core.V_REP_SID] >= 0
+                or np.any(self.program.s_rep[:, R_KIND] != REP_NONE)):
+            return True
+        return None
+
     def time_chunk(self, chunk, index, next_pc, rdtsc_sid, rdtsc_out, access_logs) -> int:
         model, program = self.model, self.program
         dt, ds, dd, dc, dclk = model.dside.arrays()
@@ -130,7 +140,7 @@ class P6Session(CoreSession):
                               chunk.mem_write, self.seg_end, *program.arrays(), model.params,
                               dt, ds, dd, dc, dclk, self.dstats, it, is_, id_, ic, iclk, self.istats,
                               self.counters, self.per_static, self.stat_first, self.timeline, self.tl_first,
-                              rdtsc_sid, rdtsc_out, dlog, *self.state)
+                              rdtsc_sid, rdtsc_out, dlog, *self.state, self.rare_paths(rdtsc_out))
         if access_logs is not None:
             access_logs.finish(dlog)
         return total
