@@ -439,8 +439,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     `rare`: None where no REP string, RDTSC or timeline path can run in the chunk
     (sim.cpus.p6.model P6Session.rare_paths), else True. numba compiles one version per argument
     type, and the None version leaves the code of those paths out: on the speed check's trace it
-    ran 13-17 % faster, measured against the other in one process. The results are the same
-    either way (tests/test_p6_core_paths.py)."""
+    ran 1.13-1.22x as fast, the two alternated in one process. The results are the same either
+    way (tests/test_p6_core_paths.py)."""
     n = dyn_sid.shape[0]
     sink = (per_static.shape[0] - 1) & IDX  # per-static sums only from stat_first: earlier ones go to this row
     rob_n, rs_n, rename_w, retire_w = P[P_ROB], P[P_RS], P[P_RENAME], P[P_RETIRE]
