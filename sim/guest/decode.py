@@ -1045,7 +1045,7 @@ class Decoder:
                 self._traces.append(self._traces.pop(k))
                 return list(kept[1]), kept[2]
         records, index = self._decode_trace(pcs)
-        self._traces = self._traces[1 - TRACES_KEPT:] + [(pcs, records, index)]
+        self._traces = (self._traces + [(pcs, records, index)])[-TRACES_KEPT:]
         return list(records), index
 
     def _decode_trace(self, pcs) -> tuple[list[InsnRecord], np.ndarray]:
