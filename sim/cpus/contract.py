@@ -135,6 +135,8 @@ class CoreRun:
     timeline: np.ndarray     # [rows, NT]
     rdtsc: np.ndarray        # cycle of each dynamic RDTSC, in order
     total_cycles: int
+    # {parameter index: room} where the family's core keeps rooms (the P6's: FamilyModel.repeats)
+    rooms: dict | None = None
 
     def segment(self, k: int = -1) -> dict[str, int]:
         return {name: int(v) for name, v in zip(C_NAMES, self.counters[k])}
@@ -229,6 +231,21 @@ class FamilyModel:
     def session(self, decoder, segments: list[int], stat_first: int = 0, check=None):
         """A run fed in chunks (sim/timing/stream.py): every family's model has one."""
         raise NotImplementedError(f"{type(self).__name__}.session")
+
+    def same_but_data_caches(self, other: "FamilyModel") -> bool:
+        """Whether `other` is a model of this family that differs from this one in its data caches'
+        configuration at most: the same parameters (a family model's ``params``), lowering and
+        instruction caches."""
+        return (type(other) is type(self) and self.lowering_key() is not None
+                and other.lowering_key() == self.lowering_key() and np.array_equal(other.params, self.params)
+                and np.array_equal(other.iside.config, self.iside.config))
+
+    def repeats(self, run: CoreRun, other: "FamilyModel") -> bool:
+        """Whether `other` would time the trace of `run` (this model's timing of it) exactly as `run`:
+        a claims' re-timing that would repeat the nominal timing is not run (sim.scenes.claims).
+        Here only where `other` is the same machine (an estimate's other value can round to the
+        same parameters); a family whose core records more can tell more (the P6's rooms)."""
+        return self.same_but_data_caches(other) and np.array_equal(other.dside.config, self.dside.config)
 
     def board_cache_hit_clocks(self) -> int | None:
         """Clocks until a load that misses L1 and hits the level below has its data, where the model

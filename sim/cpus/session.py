@@ -236,6 +236,11 @@ class CoreSession:
         self.rdtsc.append(rdtsc_out)
         self.base += chunk.instructions
 
+    def keep_rooms(self) -> None:
+        """Record, from here on, what the core can tell of the parameters that could not have changed
+        this run (the run's `rooms`, for FamilyModel.repeats), at some cost in speed; a family whose
+        core records nothing of the kind ignores it."""
+
     def warm(self, chunk: Trace, next_pc: int) -> None:
         """The chunk's instructions as a warm-up: only what the machine learns from them is kept
         (:meth:`drain` after timing them, or :meth:`warm_chunk`'s walk where the family's core has

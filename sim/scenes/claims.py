@@ -139,9 +139,11 @@ def exercised(param: Param, counters: dict) -> bool:
 
 
 def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, logs=None, start=None, what: str = "",
-                      warm_start: bool = False) -> dict:
+                      warm_start: bool = False, timed=None) -> dict:
     """{(param key, value): counters of the last call} with each parameter at each end of its range;
-    parameters whose mechanism does not fire reuse the nominal counters (their timing cannot move).
+    parameters whose mechanism does not fire reuse the nominal counters (their timing cannot move),
+    and so do those the nominal timing `timed` (a sim.timing.kernel TimingResult, if given) shows
+    would time the same (its model's `repeats`: the same machine, or within the P6 core's rooms).
     `logs`: the sim.memory.replay.AccessLogs the nominal timing recorded into, if it did. `start`:
     the machine state the nominal timing left at the last call's start (sim.timing.kernel
     resume_last_call), if it kept it: a re-timing then times the last call only, where the
@@ -159,19 +161,23 @@ def perturbed_timings(emulation, cpu: str, memory: str, nominal: dict, logs=None
     # of them serves every other run; a geometry re-timing walks them without a log (its own
     # recording would only evict the nominal one, which the log store keys by the geometry anyway)
     logs = AccessLogs(keep=2) if logs is None else logs
-    ends = [(p, value, value != p.nominal and exercised(p, nominal))  # (parameter, value, re-timed?)
-            for p in parameters(cpu, memory) for value in (p.low, p.high)]
-    runs = sum(rerun for _, _, rerun in ends)
+    ends = []  # (parameter, value, its model or None: not re-timed)
+    for p in parameters(cpu, memory):
+        for value in (p.low, p.high):
+            model = make_model(cpu, memory, {p.key: value}) if value != p.nominal and exercised(p, nominal) else None
+            if model is not None and timed is not None and timed.model.repeats(timed.run, model):
+                model = None
+            ends.append((p, value, model))
+    runs = sum(model is not None for _, _, model in ends)
     # which re-timings run is known only now, from the nominal counters: the runs a progress display
     # counts grow by them
     report(more=runs)
     n = 0
-    for p, value, rerun in ends:
-        if not rerun:
+    for p, value, model in ends:
+        if model is None:
             out[(p.key, value)] = nominal
             continue
         n += 1
-        model = make_model(cpu, memory, {p.key: value})
         replay = None if p.key in PAGE_GEOMETRY_KEYS else logs
         with machine_run(f"{what}: re-timing {n} of {runs}"):
             counters = None if p.structural or start is None else resume_last_call(emulation, model, start, replay)
@@ -206,12 +212,13 @@ def timed_with_robustness(emulation, model, key: str, robust: bool, what: str,
     # the last and one for the last: sim.timing.kernel Emulation.parts)
     logs = AccessLogs(keep=2) if robust else None
     timed = timed_run(what, emulation, model, access_logs=logs, warm_start=warm_start,
-                      resumable=robust and (warm_start or resumes(emulation)))
+                      resumable=robust and (warm_start or resumes(emulation)), rooms=robust)
     if not robust:
         return timed.last, None
     machine = MachineKey.parse(key)
     return timed.last, perturbed_timings(emulation, machine.label, machine.memory, timed.last, logs=logs,
-                                         start=timed.last_call_start, what=what, warm_start=warm_start)
+                                         start=timed.last_call_start, what=what, warm_start=warm_start,
+                                         timed=timed)
 
 
 # -- what a claim names --------------------------------------------------------------------------

@@ -176,7 +176,7 @@ def check_model_memory(instructions: int) -> None:
 
 def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None,
                    timeline_iterations: int = 0, access_logs=None, resumable: bool = False,
-                   warm_start: bool = False) -> TimingResult:
+                   warm_start: bool = False, rooms: bool = False) -> TimingResult:
     """Time an emulation on one CPU preset (a name, or a model from make_model).
     `timeline_iterations`: record a per-instruction timeline of that many iterations of the hot
     loop (the last call's most executed PC), from the middle of the last call. `access_logs`
@@ -190,7 +190,9 @@ def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None
     empty pipeline; their counters are then not timings (zero where walked). A scene's frames are
     timed so; with `resumable`, a re-timing that resumes then times exactly what a whole one does
     (but for another DRAM page geometry: sim.scenes.claims). Neither with a timeline: `warm_start`
-    with one is refused (a ValueError), `resumable` is ignored."""
+    with one is refused (a ValueError), `resumable` is ignored. `rooms`: with `resumable` or
+    `warm_start`, the run (``run``) also tells which parameters could not have changed it, where
+    the family's core can (CoreSession.keep_rooms; FamilyModel.repeats)."""
     if warm_start and timeline_iterations:
         raise ValueError("time_emulation: a warm start has no timeline (the calls before the last are not timed)")
     model = make_model(cpu, memory) if isinstance(cpu, str) else cpu
@@ -201,6 +203,8 @@ def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None
     check_isa(emu, GuestCpu.from_preset(model.preset))
     if (resumable or warm_start) and timeline_iterations == 0 and emu.last_call > 0:
         session = model.session(decoder, emu.bounds, emu.last_call)
+        if rooms:
+            session.keep_rooms()
         head, last = emu.parts()
         if warm_start:
             session.warm(head, int(last.pc[0]))
@@ -223,6 +227,7 @@ def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None
             raise RetrosimError(f"{emu.source}: {emu.entry} branches on RDTSC values; its timing cannot be replayed")
         emu = replay
         run = model.run(emu.trace, emu.decoder(), emu.bounds, timeline, emu.last_call, access_logs=access_logs)
+        run.rooms = None  # they cover this run, not the first one, whose RDTSC values this trace holds
     calls = [run.segment(k) for k in range(len(emu.bounds))]
     return TimingResult(cpu, model.dram.name, emu.entry, emu.source, emu.repeat, calls, model, run, emu.trace)
 

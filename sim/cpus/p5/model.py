@@ -372,4 +372,4 @@ class P5Session(CoreSession):
     def result(self, program, counters, per_static, timeline, rdtsc, total) -> P5CoreRun:
         assert self.held is None, "the run's last chunk was fed with a next PC"
         static = self.static if program is self.program else self.model.rules.static(program)
-        return P5CoreRun(program, counters, per_static, timeline, rdtsc, total, static)
+        return P5CoreRun(program, counters, per_static, timeline, rdtsc, total, static=static)

@@ -91,11 +91,28 @@ NPARAMS = 36
  V_LAST_STA_DONE, V_BUS_FREE, V_L2BUS_FREE, V_FW_N, V_RSB_TOP, V_DEC_CYCLE, V_DEC_POS, V_DEC_LIMIT,
  V_FETCH_RESTART, V_FE_READY, V_LAST_ILINE, V_REN_CYCLE, V_REN_COUNT, V_RET_CYCLE, V_RET_COUNT, V_U_GLOBAL,
  V_ROB_POS, V_Q_POS, V_SEG, V_SEG_START_RETIRE, V_MAX_RETIRE, V_PREV_PC, V_REP_SID, V_REP_COUNT, V_REP_NEXT,
- V_REP_MODE, V_REP_ADDR, V_BOUND0, V_BOUND1, V_RR_MASK, V_RR_N, V_RR_GROUP) = range(40)
-NSTATE = 40
+ V_REP_MODE, V_REP_ADDR, V_BOUND0, V_BOUND1, V_RR_MASK, V_RR_N, V_RR_GROUP, V_ROOM_FORWARD,
+ V_ROOM_REDIRECT) = range(42)
+NSTATE = 42
+# Rooms: how far two parameters could rise without changing any decision of the run since its
+# state was new (a drain renews them), each the least over the events that read the parameter
+# (rooms() below; P6Model.repeats proves a re-timing equal to the run with them). The forwarding
+# latency and the static redirect bubble are each added to a time that sets another only where it
+# is the later: the room is how far short of that the sum came; where it never reached it (a room
+# >= 0), lowering the parameter changes nothing either.
+ROOM_SLOTS = (V_ROOM_FORWARD, V_ROOM_REDIRECT)
+ROOM_NONE = 1 << 40  # no event yet: any change
 # V_REP_MODE bits: fast strings possible (kind, alignment, distance), direction seen forward / backward
 REP_CAPABLE, REP_FORWARD, REP_BACKWARD = 1, 2, 4
 FAST_MIN_COUNT = 64  # fast strings need ECX >= 64 (Intel SDM vol. 3 sec. 8.2.4; Agner Fog sec. 26.3)
+
+
+def rooms(sv: np.ndarray) -> dict[int, tuple[int, int]]:
+    """{parameter index: (down, up)}: the parameter may be lowered by up to `down` or raised by up
+    to `up` without changing any decision the run made (the run's state vector `sv`)."""
+    forward, redirect = int(sv[V_ROOM_FORWARD]), int(sv[V_ROOM_REDIRECT])
+    return {P_FWD_LAT: (ROOM_NONE if forward >= 0 else -1, forward),
+            P_STATIC_REDIRECT: (ROOM_NONE if redirect >= 0 else -1, redirect)}
 
 
 def new_state(P: np.ndarray, units: int) -> tuple:
@@ -112,6 +129,8 @@ def new_state(P: np.ndarray, units: int) -> tuple:
     sv[V_RET_CYCLE] = -1
     sv[V_PREV_PC] = -1   # the PC of the instruction before the chunk (a REP string's later element)
     sv[V_REP_SID] = -1   # the REP string whose run is open (-1: none)
+    for slot in ROOM_SLOTS:
+        sv[slot] = ROOM_NONE
     btb_sets, btb_ways, hist_bits = int(P[P_BTB_SETS]), int(P[P_BTB_WAYS]), int(P[P_HIST_BITS])
     rsb = np.zeros(int(P[P_RSB]), np.int64)
     rsb[0] = P[P_EXIT_ADDR]  # the harness's call into the kernel: its return is predictable
@@ -436,11 +455,13 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     everything else counts instructions from the run's start. `next_pc`: the PC of the
     instruction after the chunk, -1 at the end of the run. Returns the latest retire cycle.
 
-    `rare`: None where no REP string, RDTSC or timeline path can run in the chunk
-    (sim.cpus.p6.model P6Session.rare_paths), else True. numba compiles one version per argument
-    type, and the None version leaves the code of those paths out: on the speed check's trace it
-    ran 1.13-1.22x as fast, the two alternated in one process. The results are the same either
-    way (tests/test_p6_core_paths.py)."""
+    `rare`: None where no REP string, RDTSC or timeline path can run in the chunk and no rooms are
+    kept (sim.cpus.p6.model P6Session.rare_paths), else True. numba compiles one version per
+    argument type, and the None version leaves the code of those paths out: on the speed check's
+    trace it ran 1.13-1.22x as fast, the two alternated in one process. The results are the same
+    either way (tests/test_p6_core_paths.py). Only the True version keeps the rooms (ROOM_SLOTS):
+    with the same two updates in both, the None version took 53-72 ms for the speed check's trace
+    in three processes, against 41-44 ms without them."""
     n = dyn_sid.shape[0]
     sink = (per_static.shape[0] - 1) & IDX  # per-static sums only from stat_first: earlier ones go to this row
     rob_n, rs_n, rename_w, retire_w = P[P_ROB], P[P_RS], P[P_RENAME], P[P_RETIRE]
@@ -888,6 +909,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                             counters[seg, C_STORE_FORWARDS] += 1
                             if fw_ready[fwd] + P[P_FWD_LAT] > disp + lat:
                                 fwd_wait = fw_ready[fwd] + P[P_FWD_LAT] - (disp + lat)
+                            if rare is not None and disp + lat - (fw_ready[fwd] + P[P_FWD_LAT]) < sv[V_ROOM_FORWARD]:
+                                sv[V_ROOM_FORWARD] = disp + lat - (fw_ready[fwd] + P[P_FWD_LAT])  # rooms kept
                         else:  # forwarding fails: wait until the store has written the cache
                             # forwarding fails: the load replays once the store has written L1, and
                             # its data arrives FWD_FAIL cycles after that (p6_machine.toml, estimated)
@@ -1101,6 +1124,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 fetch_restart = True
             elif taken:
                 bubble = P[P_STATIC_REDIRECT] if redirect else P[P_TAKEN_BUBBLE]
+                if rare is not None and redirect and fe_ready - (decode_time + 1 + bubble) < sv[V_ROOM_REDIRECT]:
+                    sv[V_ROOM_REDIRECT] = fe_ready - (decode_time + 1 + bubble)  # rooms kept
                 if decode_time + 1 + bubble > fe_ready:
                     fe_ready = decode_time + 1 + bubble
                 dec_pos = 3

@@ -37,6 +37,24 @@ class P6Model(FamilyModel):
         self.limits = P6Limits(width=int(min(P[core.P_RENAME], P[core.P_RETIRE])), msrom_rate=int(P[core.P_MSROM_RATE]),
                                taken_cycles=1 + int(P[core.P_TAKEN_BUBBLE]), lcp_cycles=1 + int(P[core.P_LCP]))
 
+    def repeats(self, run: CoreRun, other: FamilyModel) -> bool:
+        """Whether `other` times the trace of `run` (this model's timing of it) as `run`: it has the same
+        caches, memory and lowering, and its parameters differ only in those the core keeps rooms
+        for (core.rooms), each within its room. Then no event that reads one of them decides
+        otherwise than in `run`, and by induction over the run's events neither does any other."""
+        if run.rooms is None:
+            return super().repeats(run, other)
+        if (type(other) is not type(self) or other.lowering_key() != self.lowering_key()
+                or not np.array_equal(other.dside.config, self.dside.config)
+                or not np.array_equal(other.iside.config, self.iside.config)):
+            return False
+        for i in np.flatnonzero(other.params != self.params):
+            change = int(other.params[i] - self.params[i])
+            down, up = run.rooms.get(int(i), (-1, -1))
+            if change > up or -change > down:
+                return False
+        return True
+
     def locked(self, rec, match):
         """A locked instruction's row with the lock's cost (sim/cpus/locking.py)."""
         return locked_match(rec, match, self.lock)
@@ -121,13 +139,20 @@ class P6Session(CoreSession):
     def grown(self, program) -> None:
         self.state = grown_state(self.state, core.UNIT_FREE, int(program.u_unit.max(initial=0)) + 1)
 
+    rooms_kept = False  # keep_rooms
+
+    def keep_rooms(self) -> None:
+        """Time every chunk with the core's version that keeps the rooms (core.ROOM_SLOTS), and give them
+        with the run (CoreRun.rooms: core.rooms, for P6Model.repeats); without this call the run has none."""
+        self.rooms_kept = True
+
     def rare_paths(self, rdtsc_out: np.ndarray) -> bool | None:
         """core.simulate's `rare` for the next chunk: True where its REP string, RDTSC or timeline
         paths may run in it (the program has a REP string, a run of one is open, the chunk
-        executes an RDTSC or a timeline is recorded), else None: the version of the core compiled
-        without those paths."""
-        if (self.timeline.shape[0] > 0 or rdtsc_out.shape[0] > 0 or self.state[0][core.V_REP_SID] >= 0
-                or np.any(self.program.s_rep[:, R_KIND] != REP_NONE)):
+        executes an RDTSC or a timeline is recorded) or the rooms are kept, else None: the version
+        of the core compiled without those paths."""
+        if (self.rooms_kept or self.timeline.shape[0] > 0 or rdtsc_out.shape[0] > 0
+                or self.state[0][core.V_REP_SID] >= 0 or np.any(self.program.s_rep[:, R_KIND] != REP_NONE)):
             return True
         return None
 
@@ -146,4 +171,6 @@ class P6Session(CoreSession):
         return total
 
     def result(self, program, counters, per_static, timeline, rdtsc, total) -> "CoreRun":
-        return CoreRun(program, counters, per_static, timeline, rdtsc, total)
+        sv = self.state[0]
+        rooms = core.rooms(sv) if self.rooms_kept else None
+        return CoreRun(program, counters, per_static, timeline, rdtsc, total, rooms=rooms)
