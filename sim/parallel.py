@@ -6,7 +6,8 @@ model, so the workers must not each get a copy: they are forked after the trace 
 through the parent's pages (copy-on-write; numpy arrays that are only read are never copied). The
 parent times one machine of each family first, so the numba-compiled cores are loaded before any
 fork and the children inherit them instead of compiling or reading the on-disk cache all at once
-(which has been seen to stall on a cold cache). A Dask sweep (sim.sweep) warms the same way before
+(which has been seen to stall on a cold cache); with more than one job it compiles the cores side
+by side first (:func:`warm`). A Dask sweep (sim.sweep) warms the same way before
 its workers start, so they find the on-disk cache filled.
 
 Results do not depend on the number of workers: each task is a pure function of the shared

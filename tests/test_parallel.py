@@ -1,6 +1,8 @@
 """report/check --jobs: a scene's timings in forked workers that share its emulation; the same
 results for any number of workers."""
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -75,3 +77,20 @@ def test_jobs_must_be_positive():
     r = CliRunner().invoke(main, ["report", "zbuffer-small", "--jobs", "0", "--out", "/nonexistent/x"],
                            catch_exceptions=False)
     assert r.exit_code == 2
+
+
+def test_warm_compiles_the_largest_core_here_and_the_others_in_children():
+    # in a fresh process, so that no family is warm yet; the children's work reaches this process
+    # only through numba's on-disk cache, so each family must end warm here too
+    code = """
+from sim import parallel
+from sim.cpus.build import make_model
+models = [make_model(c) for c in ("pentium-mmx-233", "k6-233", "pentium2-233", "pentium2-300")]
+forks = []
+real = parallel._fork
+parallel._fork = lambda task, *args: forks.append([m.family for m in args[0]]) or real(task, *args)
+parallel.warm(models, jobs=2)
+print(sorted(parallel._WARM), forks, max(models, key=parallel._core_bytes).family)
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split("\n")[0]
+    assert out == "['k6', 'p5', 'p6'] [['k6', 'p5']] p6"
