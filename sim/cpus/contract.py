@@ -135,7 +135,7 @@ class CoreRun:
     timeline: np.ndarray     # [rows, NT]
     rdtsc: np.ndarray        # cycle of each dynamic RDTSC, in order
     total_cycles: int
-    # {parameter index: room} where the family's core keeps rooms (the P6's: FamilyModel.repeats)
+    # {parameter index: (down, up)} where the family's core keeps rooms (the P6's), for FamilyModel.repeats
     rooms: dict | None = None
 
     def segment(self, k: int = -1) -> dict[str, int]:

@@ -192,7 +192,8 @@ def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None
     (but for another DRAM page geometry: sim.scenes.claims). Neither with a timeline: `warm_start`
     with one is refused (a ValueError), `resumable` is ignored. `rooms`: with `resumable` or
     `warm_start`, the run (``run``) also tells which parameters could not have changed it, where
-    the family's core can (CoreSession.keep_rooms; FamilyModel.repeats)."""
+    the family's core can (CoreSession.keep_rooms; FamilyModel.repeats); a run replayed for its
+    RDTSC values has none."""
     if warm_start and timeline_iterations:
         raise ValueError("time_emulation: a warm start has no timeline (the calls before the last are not timed)")
     model = make_model(cpu, memory) if isinstance(cpu, str) else cpu
@@ -227,7 +228,6 @@ def time_emulation(emu: Emulation, cpu="pentium2-233", memory: str | None = None
             raise RetrosimError(f"{emu.source}: {emu.entry} branches on RDTSC values; its timing cannot be replayed")
         emu = replay
         run = model.run(emu.trace, emu.decoder(), emu.bounds, timeline, emu.last_call, access_logs=access_logs)
-        run.rooms = None  # they cover this run, not the first one, whose RDTSC values this trace holds
     calls = [run.segment(k) for k in range(len(emu.bounds))]
     return TimingResult(cpu, model.dram.name, emu.entry, emu.source, emu.repeat, calls, model, run, emu.trace)
 
