@@ -8,10 +8,10 @@ import pytest
 
 import sim.cpus.p6.core as core
 from sim.cpus.build import make_model
+from sim.guest.kernels import kernels_root
 from sim.scenes import claims
 from sim.timing.bench import SPAN_KERNEL, span_workload
 from sim.timing.kernel import emulate, time_emulation
-from sim.guest.kernels import kernels_root
 
 CPU = "pentium2-233"
 TRACKED = {"estimates.forward_latency": core.P_FWD_LAT, "estimates.static_redirect": core.P_STATIC_REDIRECT}
@@ -33,6 +33,7 @@ k:
     add esp, 4
     ret
 """
+
 
 def _span(pixels=2048):
     zinit, (z, dz, colour) = span_workload(pixels)
@@ -66,7 +67,7 @@ def test_a_change_within_its_room_times_the_trace_as_the_nominal_run(warm_start)
         if nominal.model.repeats(nominal.run, other):
             repeated += 1
             assert _timed(emu, {key: value}, warm_start=warm_start).calls == nominal.calls, (key, value)
-    assert repeated > 0  # the span loop has a taken branch the BTB missed only in its first call at most
+    assert repeated > 0  # the span loop forwards no store: any forwarding latency times it the same
 
 
 def test_a_forward_on_the_critical_path_has_no_room_and_its_latency_moves_the_run(tmp_path):
