@@ -232,12 +232,12 @@ class FamilyModel:
         """A run fed in chunks (sim/timing/stream.py): every family's model has one."""
         raise NotImplementedError(f"{type(self).__name__}.session")
 
-    def same_but_data_caches(self, other: "FamilyModel") -> bool:
-        """Whether `other` is a model of this family that differs from this one in its data caches'
-        configuration at most: the same parameters (a family model's ``params``), lowering and
-        instruction caches."""
+    def same_but_params(self, other: "FamilyModel") -> bool:
+        """Whether `other` is a model of this family that differs from this one in its parameters
+        (a family model's ``params``) at most: the same lowering and caches."""
         return (type(other) is type(self) and self.lowering_key() is not None
-                and other.lowering_key() == self.lowering_key() and np.array_equal(other.params, self.params)
+                and other.lowering_key() == self.lowering_key()
+                and np.array_equal(other.dside.config, self.dside.config)
                 and np.array_equal(other.iside.config, self.iside.config))
 
     def repeats(self, run: CoreRun, other: "FamilyModel") -> bool:
@@ -245,7 +245,7 @@ class FamilyModel:
         a claims' re-timing that would repeat the nominal timing is not run (sim.scenes.claims).
         Here only where `other` is the same machine (an estimate's other value can round to the
         same parameters); a family whose core records more can tell more (the P6's rooms)."""
-        return self.same_but_data_caches(other) and np.array_equal(other.dside.config, self.dside.config)
+        return self.same_but_params(other) and np.array_equal(other.params, self.params)
 
     def board_cache_hit_clocks(self) -> int | None:
         """Clocks until a load that misses L1 and hits the level below has its data, where the model

@@ -44,9 +44,7 @@ class P6Model(FamilyModel):
         otherwise than in `run`, and by induction over the run's events neither does any other."""
         if run.rooms is None:
             return super().repeats(run, other)
-        if (type(other) is not type(self) or other.lowering_key() != self.lowering_key()
-                or not np.array_equal(other.dside.config, self.dside.config)
-                or not np.array_equal(other.iside.config, self.iside.config)):
+        if not self.same_but_params(other):
             return False
         for i in np.flatnonzero(other.params != self.params):
             change = int(other.params[i] - self.params[i])
