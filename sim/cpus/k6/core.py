@@ -70,6 +70,7 @@ from sim.cpus.contract import (
 )
 from sim.cpus.shared_core import (
     FW, IDX, WINDOW, access_end, btb_alloc, dram_busy, dram_lead_off, queued_store, remember_store, segments_ended,
+    uncounted,
 )
 from sim.cpus.shared_core import book_port as _shared_book_port
 from sim.memory.cache import HOT
@@ -168,7 +169,7 @@ def _slot_of(rid, top, rel):
     return REG_ST0 + ((top + rel) & 7) if rid == REG_ST0 else rid
 
 
-@njit(cache=True, nogil=True, inline="always")
+@uncounted
 def _k6_miss(r, lvl, start, P, bus, wb1, wb2, counters, cs):
     """Extra cycles beyond an L1 hit for an L1 miss served by level `lvl` (service() levels:
     1 = L2, ..., the last = memory). `bus[0]`: the front-side bus (board cache and DRAM), free from
@@ -211,7 +212,7 @@ def _k6_miss(r, lvl, start, P, bus, wb1, wb2, counters, cs):
     return max(0, done - start)
 
 
-@njit(cache=True, nogil=True, inline="always")
+@uncounted
 def _k6_walk(r, levels, start, P, bus, counters, cs):
     """Extra cycles of a data-TLB miss's page walk, before the access itself: the walk's fixed
     cycles, then its page-directory and page-table reads, each charged as a load served at its
@@ -272,7 +273,7 @@ SQ_RING = 6  # position of sq_ring
 LEARNED = tuple(range(12, 19))  # wb_seen, bht, btc_tag, btc_stamp, btc_target, rsb, known
 
 
-@njit(cache=True, nogil=True, inline="always")
+@uncounted
 def _predict(br, pc, nxt, fall, i, target, ghist, bht, bht_mask, hist_mask, rsb, rsb_top, rsb_n, btc_tag, btc_stamp,
              btc_target, btc_ways):
     """The branch predictors on a branch (kind `br`) at `pc` going to `nxt` (`fall`: the next
@@ -876,7 +877,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     return last_retire
 
 
-@njit(cache=True, nogil=True, inline="always")
+@uncounted
 def _warm_access(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, w, wb_seen, l1_fill_seen):
     """One access of :func:`warm`: service, and the bookkeeping simulate keeps of the fills and
     writebacks it has charged (the same at every access site). Returns the new l1_fill_seen."""

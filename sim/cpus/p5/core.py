@@ -54,7 +54,7 @@ from sim.memory.hierarchy import (
     walk_pte_level, walk_read_result,
 )
 from sim.cpus.lowering import BR_COND, BR_NONE, BR_RET, REG_ST0
-from sim.cpus.shared_core import IDX, dram_busy, dram_lead_off
+from sim.cpus.shared_core import IDX, dram_busy, dram_lead_off, uncounted
 from sim.cpus.shared_core import btb_alloc  # shared BTB victim choice (LRU by last use)
 
 # parameter vector indices
@@ -115,7 +115,7 @@ T_NAMES = ("insn", "static", "decode", "alloc", "dispatch", "complete", "retire"
 NT = len(T_NAMES)
 
 
-@njit(cache=True, nogil=True)
+@uncounted
 def _pair_reason(a, b, s_cls, s_len, s_rmask, s_wmask, s_rflags, s_wflags, s_jcc, s_stack, s_immdisp, s_pfxv,
                  s_mmx, s_mmx_u, immdisp_mode, pfx_v, first_pass_ok):
     """(reason code, register) why static a cannot take static b into the V pipe; R_PAIRED if it can."""

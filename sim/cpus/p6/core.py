@@ -74,7 +74,7 @@ from sim.cpus.contract import (
     S_STALL_WINDOW, S_L1D_MISSES, S_L2_MISSES, T_NAMES, NT, CAUSES,
 )
 from sim.cpus.shared_core import (
-    FW, IDX, WINDOW, access_end, book_port, btb_alloc, queued_store, remember_store, segments_ended,
+    FW, IDX, WINDOW, access_end, book_port, btb_alloc, queued_store, remember_store, segments_ended, uncounted,
 )
 
 # parameter vector indices (the counter, per-instruction and timeline schemas are the contract's)
@@ -199,42 +199,40 @@ def _bind_port(ports, bound0, bound1, tie):
     return 2
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _l1_way(tags, addr, size, ob, row0, set_mask, ways):
-    """(row, way) of the first-level line holding [addr, addr + size), or (-1, -1) if it is not
-    there or the access crosses a line (the lookup of sim.memory.cache.lookup, without updates).
-    The caller takes this path only for a page that is its TLB set's most recent entry (see
-    tlb_mru in simulate)."""
-    line = addr >> ob
-    if (addr + size - 1) >> ob == line:
-        s = row0 + (line & set_mask)
-        for w in range(ways):
-            if tags[s, w] == line:
-                return s, w
-    return -1, -1
+REPLAYED_HIT = -2  # _plain_hit: a plain L1 hit read back from an access log (the caches are not touched)
 
 
-REPLAYED_HIT = -2  # _logged_hit: a plain L1 hit read back from an access log (the caches are not touched)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _logged_hit(dlog, tags, addr, size, ob, row0, set_mask, ways):
-    """_l1_way with an access log on (sim/memory/replay.py): (row, way) of a plain L1 hit (the
-    caller makes service's updates; a log being recorded gets the entry service would have given
-    it), (REPLAYED_HIT, 0) when a replayed log says the access was one (the caches are not
-    touched in replay), or (-1, -1): the caller calls service through _access_slow."""
-    if dlog[0] == LOG_REPLAY:
-        return (REPLAYED_HIT, 0) if replayed_hit(dlog) else (-1, -1)
-    row, way = _l1_way(tags, addr, size, ob, row0, set_mask, ways)
-    if row >= 0 and dlog[0] == LOG_RECORD:
-        record_hit(dlog)
+@uncounted  # (shared_core): LLVM inlines it into the loop
+def _plain_hit(dlog, log_off, tags, addr, size, ob, row0, set_mask, ways, eligible):
+    """(row, way) of the first-level line holding [addr, addr + size) when the access is a plain L1
+    hit (the lookup of sim.memory.cache.lookup, without updates: the caller makes service's), or
+    (-1, -1): not `eligible` (the caller takes this path only for a page that is its TLB set's most
+    recent entry, see tlb_mru in simulate), not there, or crossing a line; the caller then calls
+    service through _access_slow. With an access log on (sim/memory/replay.py, `log_off` False): a
+    log being recorded gets the entry service would have given the hit; a replayed log says itself
+    whether the access was one, (REPLAYED_HIT, 0), and the caches are not touched."""
+    row, way = -1, -1
+    if eligible:
+        if not log_off and dlog[0] == LOG_REPLAY:
+            if replayed_hit(dlog):
+                row, way = REPLAYED_HIT, 0
+        else:
+            line = addr >> ob
+            if (addr + size - 1) >> ob == line:
+                s = row0 + (line & set_mask)
+                for w in range(ways):
+                    if tags[s, w] == line:
+                        row, way = s, w
+                        break
+            if row >= 0 and not log_off and dlog[0] == LOG_RECORD:
+                record_hit(dlog)
     return row, way
 
 
-@njit(cache=True, nogil=True)
+@uncounted
 def _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, is_write, start, P, mshr, bus_free,
                  l2bus_free, counters, per_static, seg, psid):
-    """A data access that is not a plain L1 hit (see _l1_way), out of the cycle loop (which runs
+    """A data access that is not a plain L1 hit (see _plain_hit), out of the cycle loop (which runs
     faster without this code inline): the hierarchy walk, the miss counts and the miss's extra
     cycles from `start`. Returns (extra, bus_free, l2bus_free)."""
     r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, is_write) if dlog[0] == LOG_OFF
@@ -381,7 +379,7 @@ def _register_reads(u, u_nsrc, u_src, top, reg_ready, t, old_group, mask, n):
     return mask, n
 
 
-@njit(cache=True, nogil=True, inline="always")
+@uncounted
 def _predict(br, pc, length, nxt, i, bset, target, btb_tag, btb_stamp, btb_hist, btb_target, pht, rsb, rsb_top,
              btb_ways, hist_bits):
     """The branch predictors on a branch (kind `br`) at `pc` going to `nxt` (instruction `i`; BTB set
@@ -535,7 +533,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     # within a set, can differ. Any other access goes through service, which translates it (a
     # lookup, or a page walk on a miss) and leaves each page it translated its set's most recent
     # entry. At the start only the page translated last is known. A replayed log says itself which
-    # accesses were plain hits (_logged_hit): no TLB state then.
+    # accesses were plain hits (_plain_hit): no TLB state then.
     has_tlb = dconfig[0, CFG_TLB_WAYS] > 0 and dlog[0] != LOG_REPLAY
     tlb_set_mask = max(dconfig[0, CFG_TLB_SETS], 1) - 1
     tlb_mru = np.full(tlb_set_mask + 1, -1, np.int64)
@@ -608,10 +606,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                             n_stores += 1
                         else:
                             n_loads += 1
-                        hit_row, hit_way = ((-1, -1) if (w_ and not l1_write_back) or (tlb_mru[(a >> TLB_PAGE_BITS) & tlb_set_mask] != a >> TLB_PAGE_BITS
-                                                                                       and has_tlb) else
-                                            _l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
-                                            _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
+                        hit_row, hit_way = _plain_hit(
+                            dlog, log_off, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways,
+                            (l1_write_back or not w_) and (not has_tlb or tlb_mru[(a >> TLB_PAGE_BITS) & tlb_set_mask] == a >> TLB_PAGE_BITS))
                         if hit_row >= 0:
                             if w_:
                                 l1_store_hits += 1
@@ -887,9 +884,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     # store forwarding: newest older store still in the store buffer that overlaps
                     fwd = queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
                     n_loads += 1
-                    hit_row, hit_way = ((-1, -1) if tlb_mru[(a >> TLB_PAGE_BITS) & tlb_set_mask] != a >> TLB_PAGE_BITS and has_tlb else
-                                        _l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
-                                        _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
+                    hit_row, hit_way = _plain_hit(
+                        dlog, log_off, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways,
+                        not has_tlb or tlb_mru[(a >> TLB_PAGE_BITS) & tlb_set_mask] == a >> TLB_PAGE_BITS)
                     if hit_row >= 0:
                         l1_load_hits += 1
                         if l1_lru:
@@ -1040,9 +1037,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 a = np.int64(mem_addr[acc & IDX])
                 sz = np.int64(mem_size[acc & IDX])
                 n_stores += 1
-                hit_row, hit_way = ((-1, -1) if not l1_write_back or (tlb_mru[(a >> TLB_PAGE_BITS) & tlb_set_mask] != a >> TLB_PAGE_BITS and has_tlb) else
-                                    _l1_way(dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways) if log_off else
-                                    _logged_hit(dlog, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways))
+                hit_row, hit_way = _plain_hit(
+                    dlog, log_off, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways,
+                    l1_write_back and (not has_tlb or tlb_mru[(a >> TLB_PAGE_BITS) & tlb_set_mask] == a >> TLB_PAGE_BITS))
                 if hit_row >= 0:
                     l1_store_hits += 1
                     if l1_lru:
@@ -1215,7 +1212,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     return max_retire
 
 
-@njit(cache=True, nogil=True, inline="always")
+@uncounted
 def _rep_settle(s_rep, sid, count, rep_next, mode):
     """A REP string run of `count` elements has ended: a run that was charged the fast rate
     while ECX might still reach 64 and ended shorter takes the rest of the loop's rate."""
