@@ -17,12 +17,14 @@ WINDOW = 8192  # port reservation ring: no in-flight uop dispatches more than th
 FW = 16  # recent stores remembered for forwarding (more than either family's store queue holds)
 FW_MASK = FW - 1  # FW is a power of two: a ring position is fw_n & FW_MASK (no signed remainder)
 
-# A core's helper that takes arrays and returns from more than one place is compiled without
-# numba's reference counts (_nrt=False: it allocates nothing) and left to LLVM to inline, not
-# inlined by numba (inline="always"). Inlined by numba, its array arguments are counted up before
-# and down after each call (atomic instructions), and numba's pruning of those pairs failed in the
-# cores' loops: 12 % of the main job's CPU samples (perf), the P6 L1-hit path and miss path and
-# both families' warm-up walks. The cycles are the same either way.
+# A helper of the cores' loops whose array arguments numba's reference counting left counted is
+# compiled without counts (_nrt=False: none of them allocates); LLVM inlines the small ones. With
+# counts, numba counts a helper's array arguments up and down around each call (an inlined one's
+# at the call, another's at its entry and exits) and drops the pairs it can prove redundant; in
+# the cores' loops it could not (a helper returning from several places, a conditional call), and
+# the atomic counts left there took 12 % of the main job's CPU samples (perf): the P6's L1-hit,
+# replay and miss paths, the K6's miss path, both warm-up walks. The cycles are the same either
+# way (tests/test_core_refcounts.py checks the compiled loops).
 uncounted = njit(cache=True, nogil=True, _nrt=False)
 
 
