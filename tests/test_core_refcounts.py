@@ -3,8 +3,8 @@
 numba counts an array up and down around every call of a helper it inlines (inline="always") and
 prunes the pairs it can prove redundant; in the cores' loops it could not prune all of them, and
 each left pair is two atomic instructions per access or branch (12 % of the main job's CPU
-samples, under perf). The helpers that take arrays are now compiled without counts
-(sim.cpus.shared_core.uncounted). This test compiles the cores afresh (numba shows the LLVM IR only
+samples, under perf). Those helpers are compiled without counts (sim.cpus.shared_core.uncounted).
+This test compiles the cores afresh (numba shows the LLVM IR only
 of code it compiled, not of code it loaded from its cache) and checks the IR: the top function
 counts its arguments up in its entry block and nowhere else, and nothing it calls counts at all
 (but the per-call set-up that builds the P6's operand lists)."""
