@@ -1,12 +1,18 @@
 """Compiled helpers the family cores share (numba): the port/issue-slot calendar, the BTB victim
-choice and the queue of recent stores for store-to-load forwarding. Family-neutral: each core
+choice, the queue of recent stores for store-to-load forwarding and the inline L1-hit path. Family-neutral: each core
 imports them from here, never from another family's core."""
 
 from __future__ import annotations
 
 from numba import njit
 
-from sim.memory.hierarchy import memory_fill_page_hits, memory_fills, memory_writeback_page_hits, memory_writebacks
+from sim.memory.cache import LOAD as CACHE_LOAD
+from sim.memory.cache import STORE as CACHE_STORE
+from sim.memory.hierarchy import (
+    TLB_PAGE_BITS, memory_fill_page_hits, memory_fills, memory_writeback_page_hits,
+    memory_writebacks,
+)
+from sim.memory.replay import LOG_RECORD, LOG_REPLAY, record_hit, replayed_hit
 
 # Masks a table index read from an array (a static id, uop id, register id, ring position): the
 # value is the same (every such index is below 2**31), but the compiled code then knows it is not
@@ -120,3 +126,77 @@ def segments_ended(seg_end, seg, count):
     while seg < seg_end.shape[0] and seg_end[seg] <= count:
         seg += 1
     return seg
+
+
+# ---- the inline L1-hit path ---------------------------------------------------------------------
+# A core does a plain first-level hit itself, with the updates service would make (the line's LRU
+# stamp from the hierarchy's clock, kept in a local; the dirty bit; the request and hit counts,
+# kept in locals and added by add_l1_hits), and calls service for every other access, out of its
+# loop: service inline at each access site made the loops long. The data TLB: an access to a page
+# known to be its TLB set's most recent entry (tlb_mru, per set) may take the inline path. service
+# would only re-stamp that entry with a newer clock, and it already holds its set's newest stamp:
+# no later victim choice, which compares stamps within a set, can differ. Any other access goes
+# through service, which translates it (a lookup, or a page walk on a miss) and leaves each page it
+# translated its set's most recent entry (translated). At the start only the page translated last
+# is known.
+
+@uncounted  # LLVM inlines it into the loops
+def l1_way(tags, addr, size, ob, row0, set_mask, ways):
+    """(row, way) of the first-level line holding [addr, addr + size) (the lookup of
+    sim.memory.cache.lookup, without updates), or (-1, -1): not there, or crossing a line."""
+    line = addr >> ob
+    if (addr + size - 1) >> ob == line:
+        s = row0 + (line & set_mask)
+        for w in range(ways):
+            if tags[s, w] == line:
+                return s, w
+    return -1, -1
+
+
+REPLAYED_HIT = -2  # plain_hit: a plain L1 hit read back from an access log (the caches are not touched)
+
+
+@uncounted  # LLVM inlines it into the loops
+def plain_hit(dlog, log_off, tags, addr, size, ob, row0, set_mask, ways, eligible):
+    """l1_way for an access that may take the inline path, with an access log (sim/memory/replay.py,
+    `log_off` False): (-1, -1) when not `eligible` (the caller takes this path only for a page that
+    is its TLB set's most recent entry, and a store only to a write-back L1); a log being recorded
+    gets the entry service would have given the hit; a replayed log says itself whether the access
+    was one, (REPLAYED_HIT, 0), and the caches are not touched. Any other access goes through
+    service (logged_service with a log)."""
+    row, way = -1, -1
+    if eligible:
+        if not log_off and dlog[0] == LOG_REPLAY:
+            if replayed_hit(dlog):
+                row, way = REPLAYED_HIT, 0
+        else:
+            row, way = l1_way(tags, addr, size, ob, row0, set_mask, ways)
+            if row >= 0 and not log_off and dlog[0] == LOG_RECORD:
+                record_hit(dlog)
+    return row, way
+
+
+@uncounted
+def tlb_known(has_tlb, tlb_mru, set_mask, a):
+    """Whether the page of `a` is known to be its data-TLB set's most recent entry (or there is no
+    TLB): an access to it may take the inline path."""
+    page = a >> TLB_PAGE_BITS
+    return not has_tlb or tlb_mru[page & set_mask] == page
+
+
+@uncounted
+def translated(tlb_mru, set_mask, a, size):
+    """service translated [a, a + size): each page it touched is now its TLB set's most recent entry
+    (the last one translated wins a set both fall in)."""
+    first, last = a >> TLB_PAGE_BITS, (a + size - 1) >> TLB_PAGE_BITS
+    tlb_mru[first & set_mask] = first
+    tlb_mru[last & set_mask] = last
+
+
+@njit(cache=True, nogil=True, inline="always")
+def add_l1_hits(dstats, load_hits, store_hits):
+    """Add the plain L1 hits a core counted in locals to the first level's requests and hits."""
+    dstats[0, 2 * CACHE_LOAD] += load_hits
+    dstats[0, 2 * CACHE_LOAD + 1] += load_hits
+    dstats[0, 2 * CACHE_STORE] += store_hits
+    dstats[0, 2 * CACHE_STORE + 1] += store_hits

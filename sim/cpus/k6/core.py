@@ -47,11 +47,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sim.memory.cache import LRU
 from sim.memory.hierarchy import (
-    S_FILLS, S_WRITEBACKS, memory_fill_page_hits, memory_fills, memory_writebacks, served_level, service,
-    tlb_missed, walk_l1_fills, walk_pde_level, walk_pte_level, walk_read_result,
+    CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_TLB_SETS, CFG_TLB_WAYS, CFG_WAYS, CFG_WRITE_BACK,
+    S_FILLS, S_WRITEBACKS, TLB_LAST, memory_fill_page_hits, memory_fills, memory_writebacks,
+    served_level, service, tlb_missed, walk_l1_fills, walk_pde_level, walk_pte_level, walk_read_result,
 )
-from sim.memory.replay import LOG_OFF, LOGGED_HIT, logged_service, replayed_hit
+from sim.memory.replay import LOG_OFF, LOG_REPLAY, LOGGED_HIT, logged_service
 from sim.cpus.lowering import (
     BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, LOAD, NREGS, OCC_SCALE, R_ELEMENT, R_KIND,
     R_START, REG_ST0, REP_NONE, STA,
@@ -69,8 +71,8 @@ from sim.cpus.contract import (
     S_STALL_STORE_FORWARD, S_STALL_WINDOW, S_UOPS, T_NAMES,
 )
 from sim.cpus.shared_core import (
-    FW, IDX, WINDOW, access_end, btb_alloc, dram_busy, dram_lead_off, queued_store, remember_store, segments_ended,
-    uncounted,
+    FW, IDX, REPLAYED_HIT, WINDOW, access_end, add_l1_hits, btb_alloc, dram_busy, dram_lead_off, plain_hit,
+    queued_store, remember_store, segments_ended, tlb_known, translated, uncounted,
 )
 from sim.cpus.shared_core import book_port as _shared_book_port
 from sim.memory.cache import HOT
@@ -324,6 +326,15 @@ def _predict(br, pc, nxt, fall, i, target, ghist, bht, bht_mask, hist_mask, rsb,
     return mispredicted, predict_taken, hit, ghist, rsb_top
 
 
+@uncounted
+def _data_service(dlog, log_off, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, is_write):
+    """A data access that is not a plain L1 hit (shared_core.plain_hit): service, or logged_service
+    with an access log, called out of the cycle loop."""
+    if log_off:
+        return service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, is_write)
+    return logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, is_write)
+
+
 @njit(cache=True, nogil=True)
 def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
@@ -418,6 +429,21 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     cs = min(seg, last_seg)  # the counters row: the segment's, the last row once every segment has ended
     nrdtsc = 0
     log_off = dlog[0] == LOG_OFF  # no access log (a log, once on, stays on: replay.logged_service)
+    # plain L1 data hits are done inline (shared_core's L1-hit path), with the hierarchy's LRU clock
+    # and the hit counts in locals (written back around each service call and at the end); a
+    # replayed log says itself which accesses were plain hits: no TLB state then
+    l1_ob, l1_row0 = dconfig[0, CFG_OFFSET_BITS], dconfig[0, CFG_ROW0]
+    l1_set_mask, l1_ways = dconfig[0, CFG_SETS] - 1, dconfig[0, CFG_WAYS]
+    l1_lru = dconfig[0, CFG_REPLACEMENT] == LRU
+    l1_write_back = dconfig[0, CFG_WRITE_BACK] != 0
+    d_now = dclock[0]
+    has_tlb = dconfig[0, CFG_TLB_WAYS] > 0 and dlog[0] != LOG_REPLAY
+    tlb_set_mask = max(dconfig[0, CFG_TLB_SETS], 1) - 1
+    tlb_mru = np.full(tlb_set_mask + 1, -1, np.int64)  # per set, the page known most recent (-1: none)
+    if dclock[TLB_LAST] >= 0:  # at the start, only the page translated last
+        tlb_mru[dclock[TLB_LAST] & tlb_set_mask] = dclock[TLB_LAST]
+    l1_load_hits = 0
+    l1_store_hits = 0
     acc_next = 0  # the chunk's first access of instruction li (accesses are in program order: mem_insn sorted)
 
     for li in range(n):
@@ -453,9 +479,25 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 for j in range(acc, acc_end):
                     a, sz = np.int64(mem_addr[j]), np.int64(mem_size[j])
                     w_ = mem_write[j] != 0
-                    r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, w_) if log_off else
-                         LOGGED_HIT if replayed_hit(dlog) else
-                         logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, w_))
+                    row, way = plain_hit(dlog, log_off, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways,
+                                         (l1_write_back or not w_) and tlb_known(has_tlb, tlb_mru, tlb_set_mask, a))
+                    if row >= 0:  # a plain L1 hit: service's updates here (shared_core)
+                        if w_:
+                            l1_store_hits += 1
+                            ddirty[row, way] = 1
+                        else:
+                            l1_load_hits += 1
+                        if l1_lru:
+                            dstamps[row, way] = d_now
+                        d_now += 1
+                        r = LOGGED_HIT
+                    elif row == REPLAYED_HIT:
+                        r = LOGGED_HIT
+                    else:
+                        dclock[0] = d_now
+                        r = _data_service(dlog, log_off, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, w_)
+                        d_now = dclock[0]
+                        translated(tlb_mru, tlb_set_mask, a, sz)
                     lvl = served_level(r)
                     counters[cs, C_L1D_STORES if w_ else C_L1D_LOADS] += 1
                     walk = 0
@@ -656,9 +698,21 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                         fwd_wait = max(0, fw_ready[e] - disp)
                         counters[cs, C_STALL_STORE_FORWARD] += fwd_wait
                         per_static[psid, S_STALL_STORE_FORWARD] += fwd_wait
-                    r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False) if log_off else
-                         LOGGED_HIT if replayed_hit(dlog) else
-                         logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False))
+                    row, way = plain_hit(dlog, log_off, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways,
+                                         tlb_known(has_tlb, tlb_mru, tlb_set_mask, a))
+                    if row >= 0:  # a plain L1 hit: service's updates here (shared_core)
+                        l1_load_hits += 1
+                        if l1_lru:
+                            dstamps[row, way] = d_now
+                        d_now += 1
+                        r = LOGGED_HIT
+                    elif row == REPLAYED_HIT:
+                        r = LOGGED_HIT
+                    else:
+                        dclock[0] = d_now
+                        r = _data_service(dlog, log_off, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False)
+                        d_now = dclock[0]
+                        translated(tlb_mru, tlb_set_mask, a, sz)
                     lvl = served_level(r)
                     counters[cs, C_L1D_LOADS] += 1
                     walk = 0
@@ -734,9 +788,22 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             j = _access_of(mem_write, acc, acc_end, True)
             if j >= 0:
                 a, sz = np.int64(mem_addr[j]), np.int64(mem_size[j])
-                r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True) if log_off else
-                     LOGGED_HIT if replayed_hit(dlog) else
-                     logged_service(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True))
+                row, way = plain_hit(dlog, log_off, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways,
+                                     l1_write_back and tlb_known(has_tlb, tlb_mru, tlb_set_mask, a))
+                if row >= 0:  # a plain L1 hit: service's updates here (shared_core)
+                    l1_store_hits += 1
+                    ddirty[row, way] = 1
+                    if l1_lru:
+                        dstamps[row, way] = d_now
+                    d_now += 1
+                    r = LOGGED_HIT
+                elif row == REPLAYED_HIT:
+                    r = LOGGED_HIT
+                else:
+                    dclock[0] = d_now
+                    r = _data_service(dlog, log_off, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True)
+                    d_now = dclock[0]
+                    translated(tlb_mru, tlb_set_mask, a, sz)
                 lvl = served_level(r)
                 counters[cs, C_L1D_STORES] += 1
                 if tlb_missed(r):  # translated at commit (a simplification); the walk's L1 fills are not the store's
@@ -848,6 +915,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             seg += 1
             cs = min(seg, last_seg)
 
+    dclock[0] = d_now
+    add_l1_hits(dstats, l1_load_hits, l1_store_hits)
     sv[V_FP_TOP] = fp_top
     sv[V_NQ] = nq
     sv[V_Q_SLOT] = q_slot
@@ -904,8 +973,10 @@ def warm(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write
     does to the caches, TLB, DRAM pages, L1I, BHT, global history, BTC, return stack, x87 top and
     its count of the fills and writebacks charged, in its order (a REP string's later elements'
     accesses in turn; an instruction's loads, one per load op, then its store; the fetch line
-    before them), and nothing it times. The session drains the timing state after it
-    (tests/test_warm_start.py: the same learned state as timing the chunk)."""
+    before them), and nothing it times. The hierarchy is walked through service for every access,
+    which leaves what simulate's inline L1-hit path leaves (its TLB stamps can be newer, in the same
+    order within each set). The session drains the timing state after it (tests/test_warm_start.py:
+    the same learned state as timing the chunk)."""
     n = dyn_sid.shape[0]
     bht_mask = P[P_BHT] - 1
     hist_mask = (1 << P[P_HIST_BITS]) - 1

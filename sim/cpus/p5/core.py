@@ -49,12 +49,16 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from sim.memory.cache import LRU
 from sim.memory.hierarchy import (
-    memory_fill_page_hits, memory_fills, memory_writebacks, served_level, service, tlb_missed, walk_pde_level,
-    walk_pte_level, walk_read_result,
+    CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_TLB_SETS, CFG_TLB_WAYS, CFG_WAYS, CFG_WRITE_BACK,
+    TLB_LAST, memory_fill_page_hits, memory_fills, memory_writebacks, served_level, service, tlb_missed,
+    walk_pde_level, walk_pte_level, walk_read_result,
 )
 from sim.cpus.lowering import BR_COND, BR_NONE, BR_RET, REG_ST0
-from sim.cpus.shared_core import IDX, dram_busy, dram_lead_off, uncounted
+from sim.cpus.shared_core import (
+    IDX, add_l1_hits, dram_busy, dram_lead_off, l1_way, tlb_known, translated, uncounted,
+)
 from sim.cpus.shared_core import btb_alloc  # shared BTB victim choice (LRU by last use)
 
 # parameter vector indices
@@ -280,6 +284,20 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
     tl_first_l = tl_first - base
     seg_end_l = seg_end - base
     nrdtsc = 0
+    # plain L1 data hits are done inline (shared_core's L1-hit path), with the hierarchy's LRU clock
+    # and the hit counts in locals (written back around each service call and at the end)
+    l1_ob, l1_row0 = dconfig[0, CFG_OFFSET_BITS], dconfig[0, CFG_ROW0]
+    l1_set_mask, l1_ways = dconfig[0, CFG_SETS] - 1, dconfig[0, CFG_WAYS]
+    l1_lru = dconfig[0, CFG_REPLACEMENT] == LRU
+    l1_write_back = dconfig[0, CFG_WRITE_BACK] != 0
+    d_now = dclock[0]
+    has_tlb = dconfig[0, CFG_TLB_WAYS] > 0
+    tlb_set_mask = max(dconfig[0, CFG_TLB_SETS], 1) - 1
+    tlb_mru = np.full(tlb_set_mask + 1, -1, np.int64)  # per set, the page known most recent (-1: none)
+    if dclock[TLB_LAST] >= 0:  # at the start, only the page translated last
+        tlb_mru[dclock[TLB_LAST] & tlb_set_mask] = dclock[TLB_LAST]
+    l1_load_hits = 0
+    l1_store_hits = 0
     li = 0  # (from a constant: indexing with it needs no check for negative indices)
     while li < n:
         a = dyn_sid[li] & IDX
@@ -452,15 +470,32 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
                     else:
                         rep_load = addr
                 now = start + mem + mis
-                if mem_write[q]:
-                    r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, addr, sz, True)
-                    counters[seg, C_L1D_STORES] += 1
+                w_ = mem_write[q] != 0
+                counters[seg, C_L1D_STORES if w_ else C_L1D_LOADS] += 1
+                row, way = -1, -1
+                if (l1_write_back or not w_) and tlb_known(has_tlb, tlb_mru, tlb_set_mask, addr):
+                    row, way = l1_way(dtags, addr, sz, l1_ob, l1_row0, l1_set_mask, l1_ways)
+                if row >= 0:  # a plain L1 hit, inline (shared_core)
+                    if w_:
+                        l1_store_hits += 1
+                        ddirty[row, way] = 1
+                    else:
+                        l1_load_hits += 1
+                    if l1_lru:
+                        dstamps[row, way] = d_now
+                    d_now += 1
+                else:
+                    dclock[0] = d_now
+                    r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, addr, sz, w_)
+                    d_now = dclock[0]
+                    translated(tlb_mru, tlb_set_mask, addr, sz)
                     if tlb_missed(r):  # the pipe waits for the translation
                         extra, bus_free = _page_walk(r, dconfig.shape[0], now, P, bus_free, counters[seg])
                         mem += extra
                         per_static[ps, S_MEMORY] += extra
                         now += extra
-                    if served_level(r) > 0:
+                    lvl = served_level(r)
+                    if lvl > 0 and w_:
                         counters[seg, C_L1D_STORE_MISSES] += 1
                         counters[seg, C_BUS_WRITES] += 1
                         per_static[ps, S_L1D_MISSES] += 1
@@ -472,16 +507,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
                         bus_free = d0 + P[P_WRITE_BUS]
                         wb_free[wb_pos] = bus_free
                         wb_pos = (wb_pos + 1) % wb_free.shape[0]
-                else:
-                    r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, addr, sz, False)
-                    counters[seg, C_L1D_LOADS] += 1
-                    lvl = served_level(r)
-                    if tlb_missed(r):
-                        extra, bus_free = _page_walk(r, dconfig.shape[0], now, P, bus_free, counters[seg])
-                        mem += extra
-                        per_static[ps, S_MEMORY] += extra
-                        now += extra
-                    if lvl > 0:
+                    elif lvl > 0:
                         counters[seg, C_L1D_LOAD_MISSES] += 1
                         per_static[ps, S_L1D_MISSES] += 1
                         extra, bus_free = _load_miss(r, lvl, now, P, bus_free, counters[seg])
@@ -652,6 +678,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
     if li > 0:
         sv[V_PREV_PC] = np.int64(dyn_pc[li - 1])
     sv[V_STOPPED] = li
+    dclock[0] = d_now
+    add_l1_hits(dstats, l1_load_hits, l1_store_hits)
     sv[V_NRDTSC] = nrdtsc  # RDTSC values written (outputs, not state)
     sv[V_ESP_AGI] = esp_agi
     sv[V_FP_TOP] = fp_top

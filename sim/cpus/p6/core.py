@@ -47,14 +47,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.memory.cache import LOAD as CACHE_LOAD
-from sim.memory.cache import LRU, STORE as CACHE_STORE
+from sim.memory.cache import LRU
 from sim.memory.hierarchy import (
     CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS, CFG_WRITE_BACK, memory_fill_page_hits,
     memory_fills, memory_writeback_page_hits, memory_writebacks, served_level, service, CFG_TLB_SETS, CFG_TLB_WAYS,
-    TLB_LAST, TLB_PAGE_BITS, tlb_missed, walk_pde_level, walk_pte_level, walk_read_result,
+    TLB_LAST, tlb_missed, walk_pde_level, walk_pte_level, walk_read_result,
 )
-from sim.memory.replay import LOG_OFF, LOG_RECORD, LOG_REPLAY, logged_service, record_hit, replayed_hit
+from sim.memory.replay import LOG_OFF, LOG_REPLAY, logged_service
 from sim.cpus.lowering import (
     BR_CALL, BR_COND, BR_INDIRECT, BR_NONE, BR_RET, BRANCH, DEC_MSROM, DEC_SIMPLE, LOAD, NREGS, OCC_SCALE,
     R_ELEMENT, R_FAST, R_FAST_START, R_KIND, R_START, REG_FLAGS, REG_ST0, REP_FAST, REP_NONE, SIDE, STA, STD,
@@ -74,7 +73,8 @@ from sim.cpus.contract import (
     S_STALL_WINDOW, S_L1D_MISSES, S_L2_MISSES, T_NAMES, NT, CAUSES,
 )
 from sim.cpus.shared_core import (
-    FW, IDX, WINDOW, access_end, book_port, btb_alloc, queued_store, remember_store, segments_ended, uncounted,
+    FW, IDX, WINDOW, access_end, add_l1_hits, book_port, btb_alloc, queued_store, remember_store,
+    plain_hit, REPLAYED_HIT, segments_ended, tlb_known, translated, uncounted,
 )
 
 # parameter vector indices (the counter, per-instruction and timeline schemas are the contract's)
@@ -199,40 +199,10 @@ def _bind_port(ports, bound0, bound1, tie):
     return 2
 
 
-REPLAYED_HIT = -2  # _plain_hit: a plain L1 hit read back from an access log (the caches are not touched)
-
-
-@uncounted  # (shared_core): LLVM inlines it into the loop
-def _plain_hit(dlog, log_off, tags, addr, size, ob, row0, set_mask, ways, eligible):
-    """(row, way) of the first-level line holding [addr, addr + size) when the access is a plain L1
-    hit (the lookup of sim.memory.cache.lookup, without updates: the caller makes service's), or
-    (-1, -1): not `eligible` (the caller takes this path only for a page that is its TLB set's most
-    recent entry, see tlb_mru in simulate), not there, or crossing a line; the caller then calls
-    service through _access_slow. With an access log on (sim/memory/replay.py, `log_off` False): a
-    log being recorded gets the entry service would have given the hit; a replayed log says itself
-    whether the access was one, (REPLAYED_HIT, 0), and the caches are not touched."""
-    row, way = -1, -1
-    if eligible:
-        if not log_off and dlog[0] == LOG_REPLAY:
-            if replayed_hit(dlog):
-                row, way = REPLAYED_HIT, 0
-        else:
-            line = addr >> ob
-            if (addr + size - 1) >> ob == line:
-                s = row0 + (line & set_mask)
-                for w in range(ways):
-                    if tags[s, w] == line:
-                        row, way = s, w
-                        break
-            if row >= 0 and not log_off and dlog[0] == LOG_RECORD:
-                record_hit(dlog)
-    return row, way
-
-
 @uncounted
 def _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, is_write, start, P, mshr, bus_free,
                  l2bus_free, counters, per_static, seg, psid):
-    """A data access that is not a plain L1 hit (see _plain_hit), out of the cycle loop (which runs
+    """A data access that is not a plain L1 hit (see shared_core.plain_hit), out of the cycle loop (which runs
     faster without this code inline): the hierarchy walk, the miss counts and the miss's extra
     cycles from `start`. Returns (extra, bus_free, l2bus_free)."""
     r = (service(dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size, is_write) if dlog[0] == LOG_OFF
@@ -263,15 +233,6 @@ def _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, size,
         counters[seg, C_STALL_MEMORY] += wait
         per_static[psid, S_STALL_MEMORY] += wait
     return wait, bus_free, l2bus_free
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _translated(tlb_mru, set_mask, a, size):
-    """service translated [a, a + size): each page it touched is now its TLB set's most recent entry
-    (the last one translated wins a set both fall in)."""
-    first, last = a >> TLB_PAGE_BITS, (a + size - 1) >> TLB_PAGE_BITS
-    tlb_mru[first & set_mask] = first
-    tlb_mru[last & set_mask] = last
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -527,17 +488,13 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     l1_lru = dconfig[0, CFG_REPLACEMENT] == LRU
     l1_write_back = dconfig[0, CFG_WRITE_BACK] != 0
     d_now = dclock[0]
-    # The data TLB: an access to a page known to be its TLB set's most recent entry (tlb_mru, per
-    # set) takes the inline L1-hit path. service would only re-stamp that entry with a newer clock,
-    # and it already holds its set's newest stamp: no later victim choice, which compares stamps
-    # within a set, can differ. Any other access goes through service, which translates it (a
-    # lookup, or a page walk on a miss) and leaves each page it translated its set's most recent
-    # entry. At the start only the page translated last is known. A replayed log says itself which
-    # accesses were plain hits (_plain_hit): no TLB state then.
+    # The data TLB: an access to a page known to be its TLB set's most recent entry takes the inline
+    # L1-hit path (shared_core, tlb_known). A replayed log says itself which accesses were plain hits
+    # (plain_hit): no TLB state then.
     has_tlb = dconfig[0, CFG_TLB_WAYS] > 0 and dlog[0] != LOG_REPLAY
     tlb_set_mask = max(dconfig[0, CFG_TLB_SETS], 1) - 1
-    tlb_mru = np.full(tlb_set_mask + 1, -1, np.int64)
-    if dclock[TLB_LAST] >= 0:
+    tlb_mru = np.full(tlb_set_mask + 1, -1, np.int64)  # per set, the page known most recent (-1: none)
+    if dclock[TLB_LAST] >= 0:  # at the start, only the page translated last
         tlb_mru[dclock[TLB_LAST] & tlb_set_mask] = dclock[TLB_LAST]
     log_off = dlog[0] == LOG_OFF  # a log, once on, stays on (it may only overflow: replay.logged_service)
     # GPRs whose last writer was partial (reg_pmask != 15), as bits, plus ALWAYS_SCAN
@@ -606,9 +563,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                             n_stores += 1
                         else:
                             n_loads += 1
-                        hit_row, hit_way = _plain_hit(
+                        hit_row, hit_way = plain_hit(
                             dlog, log_off, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways,
-                            (l1_write_back or not w_) and (not has_tlb or tlb_mru[(a >> TLB_PAGE_BITS) & tlb_set_mask] == a >> TLB_PAGE_BITS))
+                            (l1_write_back or not w_) and tlb_known(has_tlb, tlb_mru, tlb_set_mask, a))
                         if hit_row >= 0:
                             if w_:
                                 l1_store_hits += 1
@@ -624,7 +581,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                                                                    a, sz, w_, t, P, mshr, bus_free, l2bus_free, counters,
                                                                    per_static, seg, psid)
                             d_now = dclock[0]
-                            _translated(tlb_mru, tlb_set_mask, a, sz)
+                            translated(tlb_mru, tlb_set_mask, a, sz)
                             if w > wait:
                                 wait = w  # the loop waits for its memory
                     sv[V_REP_NEXT] += wait * OCC_SCALE
@@ -884,9 +841,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     # store forwarding: newest older store still in the store buffer that overlaps
                     fwd = queued_store(fw_addr, fw_size, fw_commit, fw_n, a, sz, disp)
                     n_loads += 1
-                    hit_row, hit_way = _plain_hit(
+                    hit_row, hit_way = plain_hit(
                         dlog, log_off, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways,
-                        not has_tlb or tlb_mru[(a >> TLB_PAGE_BITS) & tlb_set_mask] == a >> TLB_PAGE_BITS)
+                        tlb_known(has_tlb, tlb_mru, tlb_set_mask, a))
                     if hit_row >= 0:
                         l1_load_hits += 1
                         if l1_lru:
@@ -900,7 +857,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                                                                       a, sz, False, disp, P, mshr, bus_free, l2bus_free,
                                                                       counters, per_static, seg, psid)
                         d_now = dclock[0]
-                        _translated(tlb_mru, tlb_set_mask, a, sz)
+                        translated(tlb_mru, tlb_set_mask, a, sz)
                     if fwd >= 0:
                         if fw_addr[fwd] == a and sz <= fw_size[fwd]:
                             counters[seg, C_STORE_FORWARDS] += 1
@@ -1037,9 +994,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 a = np.int64(mem_addr[acc & IDX])
                 sz = np.int64(mem_size[acc & IDX])
                 n_stores += 1
-                hit_row, hit_way = _plain_hit(
+                hit_row, hit_way = plain_hit(
                     dlog, log_off, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways,
-                    l1_write_back and (not has_tlb or tlb_mru[(a >> TLB_PAGE_BITS) & tlb_set_mask] == a >> TLB_PAGE_BITS))
+                    l1_write_back and tlb_known(has_tlb, tlb_mru, tlb_set_mask, a))
                 if hit_row >= 0:
                     l1_store_hits += 1
                     if l1_lru:
@@ -1054,7 +1011,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                                                            True, commit, P, mshr, bus_free, l2bus_free, counters,
                                                            per_static, seg, psid)
                     d_now = dclock[0]
-                    _translated(tlb_mru, tlb_set_mask, a, sz)
+                    translated(tlb_mru, tlb_set_mask, a, sz)
                     commit += w
                 fw_n = remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_std, commit)
             sb_ring[sb_pos & IDX] = commit
@@ -1169,10 +1126,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         _add_counts(counters, seg, n_insns, n_uops, n_groups, n_stall_decode, n_stall_dep, n_stall_port, n_loads,
                     n_stores, n_branches, n_dec0, n_dec1, n_dec2, n_port0, n_port1, n_port2, n_port3, n_port4)
     dclock[0] = d_now
-    dstats[0, 2 * CACHE_LOAD] += l1_load_hits  # requests
-    dstats[0, 2 * CACHE_LOAD + 1] += l1_load_hits  # hits
-    dstats[0, 2 * CACHE_STORE] += l1_store_hits
-    dstats[0, 2 * CACHE_STORE + 1] += l1_store_hits
+    add_l1_hits(dstats, l1_load_hits, l1_store_hits)
     sv[V_FLAGS_MASK] = flags_mask
     sv[V_FLAGS_RETIRE] = flags_retire
     sv[V_FP_TOP] = fp_top
