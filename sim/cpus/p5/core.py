@@ -265,6 +265,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
     n = dyn_sid.shape[0]
     sink = per_static.shape[0] - 1  # per-static sums only from stat_first: earlier ones go to this row
     btb_sets, btb_ways, hist_bits = P[P_BTB_SETS], P[P_BTB_WAYS], P[P_HIST_BITS]
+    btb_set_mask = btb_sets - 1 if btb_sets & (btb_sets - 1) == 0 else -1  # sets a power of two: a mask
     esp_agi = sv[V_ESP_AGI]          # cycle ESP written by a non-stack instruction reaches execute
     fp_top = sv[V_FP_TOP]
     fp_free = sv[V_FP_FREE]
@@ -448,7 +449,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
                 addr = np.int64(mem_addr[q])
                 sz = np.int64(mem_size[q])
                 span = 8 if sz > 4 else 4
-                if (addr % span) + sz > span:
+                if (addr & (span - 1)) + sz > span:  # (span is 4 or 8: a mask)
                     mis += P[P_MISALIGNED]
                     per_static[ps, S_MISALIGNED] += P[P_MISALIGNED]
                 lo = addr >> 2
@@ -592,7 +593,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
             else:
                 nxt = next_pc if next_pc >= 0 else pc + s_len[sb]
             taken = nxt != pc + s_len[sb]
-            bset = pc % btb_sets
+            bset = pc & btb_set_mask if btb_set_mask >= 0 else pc % btb_sets
             way = -1
             for w in range(btb_ways):
                 if btb_tag[bset, w] == pc:
