@@ -449,7 +449,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     for li in range(n):
         i = base + li
         sid = dyn_sid[li] & IDX
-        pc = dyn_pc[li]
+        pc = np.int64(dyn_pc[li])  # (uint32: pc >> 5 would be uint64, compared with int64 through floats)
         nu = sf[sid, F_NUOPS]
         u0 = sf[sid, F_UOP0] & IDX
         cyc = sf[sid, F_CYC]
