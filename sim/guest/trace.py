@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import ctypes
 import os
-import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -331,38 +330,6 @@ def _non_decreasing(a) -> bool:
         if a[k] < a[k - 1]:
             return False
     return True
-
-
-@njit(cache=True, nogil=True)
-def _fill_access_spans(mem_insn, start, count):
-    """start[i], count[i] = first access and number of accesses of instruction i, from a trace's
-    sorted mem_insn: one pass and no temporaries (np.bincount + np.cumsum made four arrays of n)."""
-    j = 0
-    for i in range(start.shape[0]):
-        start[i] = j
-        while j < mem_insn.shape[0] and mem_insn[j] == i:
-            j += 1
-        count[i] = j - start[i]
-
-
-_SPANS = threading.local()  # per thread: the buffer access_spans fills
-SPANS_KEEP = 1 << 22  # instructions: a kept buffer holds at most 64 MB per thread
-
-
-def access_spans(mem_insn, n) -> tuple[np.ndarray, np.ndarray]:
-    """(first access, number of accesses) of each of `n` instructions, int64 views of one buffer
-    per thread that the thread's next call overwrites: a new pair per timing was 16 bytes per
-    instruction of fresh pages (the P5's speed-check trace: 9,200 page faults, 10-20 ms of system
-    time per timing of 84 ms). The buffer grows to the largest chunk the thread has seen, up to
-    SPANS_KEEP instructions; a longer chunk gets a pair of its own."""
-    buf = getattr(_SPANS, "buf", None)
-    if buf is None or buf.shape[1] < n:
-        buf = np.empty((2, n), np.int64)
-        if n <= SPANS_KEEP:
-            _SPANS.buf = buf
-    start, count = buf[0, :n], buf[1, :n]
-    _fill_access_spans(mem_insn, start, count)
-    return start, count
 
 
 class NativeTracer:

@@ -241,7 +241,7 @@ LEARNED = tuple(range(4, 12))  # seen, pair_cache, btb_tag, btb_stamp, btb_hist,
 
 
 @njit(cache=True, nogil=True)
-def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem_size, mem_write, seg_end,
+def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_cls, s_cyc, s_pfx, s_pfxv, s_immdisp, s_addr, s_stack, s_esp_agi, s_rmask, s_wmask, s_rflags,
              s_wflags, s_jcc, s_branch, s_fp, s_fplat, s_fpnext, s_fmul, s_waitfpu, s_mmx, s_mmx_u, s_mmxlat,
              s_rep, s_repstart, s_rep0, s_nsrc, s_src, s_ndst, s_dst, s_fpdelta, s_memkind, s_fstore, P,
@@ -251,11 +251,13 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
              btb_target, pht, iline_seen):
     """Time the chunk's instructions (run instructions base, base + 1, ...), continuing from the
     state (`sv` and the arrays after it, from :func:`new_state`) and leaving it for the next call.
-    The chunk's arrays are its own (``acc_start`` indexes its accesses); everything else counts
-    instructions from the run's start. `next_pc`: the PC of the instruction after the chunk, -1 at
-    the end of the run. (The loop index starts at the constant 0 and the caller passes views for a
-    later start: from an argument, every array index would need a check for negative values, a
-    few per cent slower.)
+    The chunk's arrays are its own; everything else counts instructions from the run's start.
+    `next_pc`: the PC of the instruction after the chunk, -1 at the end of the run. (The loop index
+    starts at the constant 0 and the caller passes views for a later start, the chunk's instruction
+    `first`: from an argument, every array index would need a check for negative values, a few per
+    cent slower.) The accesses are walked in order: ``mem_insn`` (sorted, counting from the chunk's
+    instruction 0) from `acc`, the first access of instruction `first` or later (per-instruction
+    start and count arrays were 16 bytes per instruction written by every timing).
 
     Pairing looks one instruction ahead: the chunk's last instruction may need the next chunk's
     first as its V partner (or, its pairing not yet known, that instruction's static). Then the
@@ -263,6 +265,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
     caller times it with its successor first (p5.P5Session). Such an instruction is never NP, so
     never an RDTSC. Returns the cycle the last group ended."""
     n = dyn_sid.shape[0]
+    n_acc = mem_insn.shape[0]
     sink = per_static.shape[0] - 1  # per-static sums only from stat_first: earlier ones go to this row
     btb_sets, btb_ways, hist_bits = P[P_BTB_SETS], P[P_BTB_WAYS], P[P_HIST_BITS]
     btb_set_mask = btb_sets - 1 if btb_sets & (btb_sets - 1) == 0 else -1  # sets a power of two: a mask
@@ -429,7 +432,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
             if pc2 > dur:
                 dur = pc2
         if s_rep[a] != REP_NONE:
-            if acc_count[li] == 0:
+            if not (acc < n_acc and mem_insn[acc] == li + first):
                 dur = 0 if rep_later else s_rep0[a]  # closing count check / ECX = 0 on entry
             elif not rep_later:
                 dur += s_repstart[a]
@@ -445,7 +448,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, acc_start, acc_count, mem_addr, mem
         for k in range(group):
             s = dyn_sid[li + k] & IDX
             ps = s if li + k >= first_l else sink
-            for q in range(acc_start[li + k], acc_start[li + k] + acc_count[li + k]):
+            while acc < n_acc and mem_insn[acc] == li + k + first:
+                q = acc
+                acc += 1
                 addr = np.int64(mem_addr[q])
                 sz = np.int64(mem_size[q])
                 span = 8 if sz > 4 else 4

@@ -27,7 +27,7 @@ import numpy as np
 from sim.guest.decode import Decoder, InsnRecord
 from sim.errors import RetrosimError
 from sim.memory.dram import DramTiming, bus_ratio, core_clocks
-from sim.guest.trace import Trace, access_spans
+from sim.guest.trace import Trace
 from sim.cpus.p5 import core
 from sim.cpus.contract import CoreRun, FamilyModel
 from sim.cpus.record import machine_table
@@ -338,11 +338,13 @@ class P5Session(CoreSession):
         assert self.held is None, "drained between two instructions that may pair"
         super().drain()
 
-    def _simulate(self, base, next_pc, index, pc, acc_start, acc_count, chunk, rdtsc_sid, rdtsc_out) -> int:
+    def _simulate(self, base, next_pc, first, index, chunk, rdtsc_sid, rdtsc_out) -> int:
+        """Time `chunk` from its instruction `first` (run instruction `base`)."""
         model = self.model
-        return core.simulate(base, next_pc, index, pc, acc_start, acc_count, chunk.mem_addr, chunk.mem_size,
-                             chunk.mem_write, self.seg_end, *self.static.arrays, model.params,
-                             *model.dside.arrays(), self.dstats, *model.iside.arrays(), self.istats, self.counters,
+        acc = int(np.searchsorted(chunk.mem_insn, first)) if first else 0  # its first access
+        return core.simulate(base, next_pc, index[first:], chunk.pc[first:], first, acc, chunk.mem_insn,
+                             chunk.mem_addr, chunk.mem_size, chunk.mem_write, self.seg_end, *self.static.arrays,
+                             model.params, *model.dside.arrays(), self.dstats, *model.iside.arrays(), self.istats, self.counters,
                              self.per_static, self.stat_first, self.timeline, self.tl_first, rdtsc_sid, rdtsc_out,
                              *self.state)
 
@@ -354,15 +356,12 @@ class P5Session(CoreSession):
             held, sid = self.held
             self.held = None
             two = Trace.concatenate([held, chunk.part(0, 1)])
-            self._simulate(self.base - 1, int(chunk.pc[1]) if n > 1 else next_pc,
-                           np.array([sid, index[0]], index.dtype), two.pc, *access_spans(two.mem_insn, 2), two,
-                           rdtsc_sid, rdtsc_out)
+            self._simulate(self.base - 1, int(chunk.pc[1]) if n > 1 else next_pc, 0,
+                           np.array([sid, index[0]], index.dtype), two, rdtsc_sid, rdtsc_out)
             first = int(sv[core.V_STOPPED]) - 1  # 1: the chunk's first instruction was timed too
             rdtsc_out = rdtsc_out[int(sv[core.V_NRDTSC]):]
-        acc_start, acc_count = access_spans(chunk.mem_insn, n)
-        # the rest as views from `first` (the core's loop index starts at 0: see p5_core.simulate)
-        total = self._simulate(self.base + first, next_pc, index[first:], chunk.pc[first:],
-                               acc_start[first:], acc_count[first:], chunk, rdtsc_sid, rdtsc_out)
+        # the rest from `first` (the core's loop index starts at 0: see p5_core.simulate)
+        total = self._simulate(self.base + first, next_pc, first, index, chunk, rdtsc_sid, rdtsc_out)
         stopped = first + int(sv[core.V_STOPPED])
         if stopped < n:  # held back: only ever the last instruction, never an RDTSC (NP)
             self.held = (chunk.part(stopped, n), int(index[stopped]))
