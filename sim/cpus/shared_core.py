@@ -9,8 +9,7 @@ from numba import njit
 from sim.memory.cache import LOAD as CACHE_LOAD
 from sim.memory.cache import STORE as CACHE_STORE
 from sim.memory.hierarchy import (
-    TLB_PAGE_BITS, memory_fill_page_hits, memory_fills, memory_writeback_page_hits,
-    memory_writebacks,
+    memory_fill_page_hits, memory_fills, memory_writeback_page_hits, memory_writebacks, tlb_probe,
 )
 from sim.memory.replay import LOG_RECORD, LOG_REPLAY, record_hit, replayed_hit
 
@@ -129,16 +128,13 @@ def segments_ended(seg_end, seg, count):
 
 
 # ---- the inline L1-hit path ---------------------------------------------------------------------
-# A core does a plain first-level hit itself, with the updates service would make (the line's LRU
-# stamp from the hierarchy's clock, kept in a local; the dirty bit; the request and hit counts,
-# kept in locals and added by add_l1_hits), and calls service for every other access, out of its
-# loop: service inline at each access site made the loops long. The data TLB: an access to a page
-# known to be its TLB set's most recent entry (tlb_mru, per set) may take the inline path. service
-# would only re-stamp that entry with a newer clock, and it already holds its set's newest stamp:
-# no later victim choice, which compares stamps within a set, can differ. Any other access goes
-# through service, which translates it (a lookup, or a page walk on a miss) and leaves each page it
-# translated its set's most recent entry (translated). At the start only the page translated last
-# is known.
+# A core does a plain first-level hit itself, with the updates service would make (the data TLB's
+# probe, tlb_hit; the line's LRU stamp from the hierarchy's clock, kept in a local; the dirty bit;
+# the request and hit counts, kept in locals and added by add_l1_hits), and calls service for every
+# other access, out of its loop: service inline at each access site made the loops long. The TLB
+# is probed first, as service does: a page it holds is re-stamped and becomes the page translated
+# last, so when the line then misses, service's own probe of that access changes nothing; a page it
+# lacks changes nothing, and service walks it.
 
 @uncounted  # LLVM inlines it into the loops
 def l1_way(tags, addr, size, ob, row0, set_mask, ways):
@@ -159,8 +155,8 @@ REPLAYED_HIT = -2  # plain_hit: a plain L1 hit read back from an access log (the
 @uncounted  # LLVM inlines it into the loops
 def plain_hit(dlog, log_off, tags, addr, size, ob, row0, set_mask, ways, eligible):
     """l1_way for an access that may take the inline path, with an access log (sim/memory/replay.py,
-    `log_off` False): (-1, -1) when not `eligible` (the caller takes this path only for a page that
-    is its TLB set's most recent entry, and a store only to a write-back L1); a log being recorded
+    `log_off` False): (-1, -1) when not `eligible` (the caller takes this path only for a page the
+    TLB holds, tlb_hit, and a store only to a write-back L1); a log being recorded
     gets the entry service would have given the hit; a replayed log says itself whether the access
     was one, (REPLAYED_HIT, 0), and the caches are not touched. Any other access goes through
     service (logged_service with a log)."""
@@ -176,21 +172,12 @@ def plain_hit(dlog, log_off, tags, addr, size, ob, row0, set_mask, ways, eligibl
     return row, way
 
 
-@uncounted
-def tlb_known(has_tlb, tlb_mru, set_mask, a):
-    """Whether the page of `a` is known to be its data-TLB set's most recent entry (or there is no
-    TLB): an access to it may take the inline path."""
-    page = a >> TLB_PAGE_BITS
-    return not has_tlb or tlb_mru[page & set_mask] == page
-
-
-@uncounted
-def translated(tlb_mru, set_mask, a, size):
-    """service translated [a, a + size): each page it touched is now its TLB set's most recent entry
-    (the last one translated wins a set both fall in)."""
-    first, last = a >> TLB_PAGE_BITS, (a + size - 1) >> TLB_PAGE_BITS
-    tlb_mru[first & set_mask] = first
-    tlb_mru[last & set_mask] = last
+@uncounted  # LLVM inlines it into the loops
+def tlb_hit(has_tlb, dconfig, dwork, a):
+    """Whether the data TLB holds the page of `a` (True with no TLB to model: `has_tlb` False), as
+    service's probe (sim.memory.hierarchy.tlb_probe: a hit is re-stamped, a miss changes nothing).
+    `dwork`: the data hierarchy's work array (the cores' dclock)."""
+    return not has_tlb or tlb_probe(dconfig, dwork, a)
 
 
 @njit(cache=True, nogil=True, inline="always")

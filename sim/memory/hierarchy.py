@@ -164,12 +164,13 @@ def walk_read_result(level, nlevels):
 def tlb_probe(config, work, addr):
     """Whether the data TLB holds ``addr``'s page (True with no TLB); a hit becomes the set's most
     recently used entry, a miss changes nothing. Set = page mod sets; LRU within the set. The page
-    translated last needs no lookup (TLB_LAST); the set lookup is out of line. A core's inline
-    L1-hit path may skip the probe for that page alone (the P6's: sim/cpus/p6/core.py tlb_page)."""
+    translated last needs no lookup (TLB_LAST); the set lookup is out of line. The cores' inline
+    L1-hit path probes too (sim.cpus.shared_core.tlb_hit), before its own lookup: a hit leaves
+    that page TLB_LAST, so service's probe of the same access changes nothing."""
     return work[TLB_LAST] == addr >> TLB_PAGE_BITS or _tlb_lookup(config, work, addr >> TLB_PAGE_BITS)
 
 
-@njit(cache=True, nogil=True)
+@njit(**HOT)  # (no reference counts: the cores' inline L1-hit path reaches it, shared_core.tlb_hit)
 def _tlb_lookup(config, work, page):
     ways = config[0, CFG_TLB_WAYS]
     if ways == 0:

@@ -49,8 +49,8 @@ from numba import njit
 
 from sim.memory.cache import LRU
 from sim.memory.hierarchy import (
-    CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_TLB_SETS, CFG_TLB_WAYS, CFG_WAYS, CFG_WRITE_BACK,
-    S_FILLS, S_WRITEBACKS, TLB_LAST, memory_fill_page_hits, memory_fills, memory_writebacks,
+    CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_TLB_WAYS, CFG_WAYS, CFG_WRITE_BACK,
+    S_FILLS, S_WRITEBACKS, memory_fill_page_hits, memory_fills, memory_writebacks,
     served_level, service, tlb_missed, walk_l1_fills, walk_pde_level, walk_pte_level, walk_read_result,
 )
 from sim.memory.replay import LOG_OFF, LOG_REPLAY, LOGGED_HIT, logged_service
@@ -72,7 +72,7 @@ from sim.cpus.contract import (
 )
 from sim.cpus.shared_core import (
     FW, IDX, REPLAYED_HIT, WINDOW, access_end, add_l1_hits, btb_alloc, dram_busy, dram_lead_off, plain_hit,
-    queued_store, remember_store, segments_ended, tlb_known, translated, uncounted,
+    queued_store, remember_store, segments_ended, tlb_hit, uncounted,
 )
 from sim.cpus.shared_core import book_port as _shared_book_port
 from sim.memory.cache import HOT
@@ -438,10 +438,6 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     l1_write_back = dconfig[0, CFG_WRITE_BACK] != 0
     d_now = dclock[0]
     has_tlb = dconfig[0, CFG_TLB_WAYS] > 0 and dlog[0] != LOG_REPLAY
-    tlb_set_mask = max(dconfig[0, CFG_TLB_SETS], 1) - 1
-    tlb_mru = np.full(tlb_set_mask + 1, -1, np.int64)  # per set, the page known most recent (-1: none)
-    if dclock[TLB_LAST] >= 0:  # at the start, only the page translated last
-        tlb_mru[dclock[TLB_LAST] & tlb_set_mask] = dclock[TLB_LAST]
     l1_load_hits = 0
     l1_store_hits = 0
     acc_next = 0  # the chunk's first access of instruction li (accesses are in program order: mem_insn sorted)
@@ -480,7 +476,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     a, sz = np.int64(mem_addr[j]), np.int64(mem_size[j])
                     w_ = mem_write[j] != 0
                     row, way = plain_hit(dlog, log_off, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways,
-                                         (l1_write_back or not w_) and tlb_known(has_tlb, tlb_mru, tlb_set_mask, a))
+                                         (l1_write_back or not w_) and tlb_hit(has_tlb, dconfig, dclock, a))
                     if row >= 0:  # a plain L1 hit: service's updates here (shared_core)
                         if w_:
                             l1_store_hits += 1
@@ -497,7 +493,6 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                         dclock[0] = d_now
                         r = _data_service(dlog, log_off, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, w_)
                         d_now = dclock[0]
-                        translated(tlb_mru, tlb_set_mask, a, sz)
                     lvl = served_level(r)
                     counters[cs, C_L1D_STORES if w_ else C_L1D_LOADS] += 1
                     walk = 0
@@ -699,7 +694,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                         counters[cs, C_STALL_STORE_FORWARD] += fwd_wait
                         per_static[psid, S_STALL_STORE_FORWARD] += fwd_wait
                     row, way = plain_hit(dlog, log_off, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways,
-                                         tlb_known(has_tlb, tlb_mru, tlb_set_mask, a))
+                                         tlb_hit(has_tlb, dconfig, dclock, a))
                     if row >= 0:  # a plain L1 hit: service's updates here (shared_core)
                         l1_load_hits += 1
                         if l1_lru:
@@ -712,7 +707,6 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                         dclock[0] = d_now
                         r = _data_service(dlog, log_off, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, False)
                         d_now = dclock[0]
-                        translated(tlb_mru, tlb_set_mask, a, sz)
                     lvl = served_level(r)
                     counters[cs, C_L1D_LOADS] += 1
                     walk = 0
@@ -789,7 +783,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if j >= 0:
                 a, sz = np.int64(mem_addr[j]), np.int64(mem_size[j])
                 row, way = plain_hit(dlog, log_off, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways,
-                                     l1_write_back and tlb_known(has_tlb, tlb_mru, tlb_set_mask, a))
+                                     l1_write_back and tlb_hit(has_tlb, dconfig, dclock, a))
                 if row >= 0:  # a plain L1 hit: service's updates here (shared_core)
                     l1_store_hits += 1
                     ddirty[row, way] = 1
@@ -803,7 +797,6 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     dclock[0] = d_now
                     r = _data_service(dlog, log_off, dtags, dstamps, ddirty, dconfig, dclock, dstats, a, sz, True)
                     d_now = dclock[0]
-                    translated(tlb_mru, tlb_set_mask, a, sz)
                 lvl = served_level(r)
                 counters[cs, C_L1D_STORES] += 1
                 if tlb_missed(r):  # translated at commit (a simplification); the walk's L1 fills are not the store's
@@ -974,8 +967,7 @@ def warm(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write
     its count of the fills and writebacks charged, in its order (a REP string's later elements'
     accesses in turn; an instruction's loads, one per load op, then its store; the fetch line
     before them), and nothing it times. The hierarchy is walked through service for every access,
-    which leaves what simulate's inline L1-hit path leaves (its TLB stamps can be newer, in the same
-    order within each set). The session drains the timing state after it (tests/test_warm_start.py:
+    which leaves what simulate's inline L1-hit path leaves. The session drains the timing state after it (tests/test_warm_start.py:
     the same learned state as timing the chunk)."""
     n = dyn_sid.shape[0]
     bht_mask = P[P_BHT] - 1

@@ -51,13 +51,13 @@ from numba import njit
 
 from sim.memory.cache import LRU
 from sim.memory.hierarchy import (
-    CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_TLB_SETS, CFG_TLB_WAYS, CFG_WAYS, CFG_WRITE_BACK,
-    TLB_LAST, memory_fill_page_hits, memory_fills, memory_writebacks, served_level, service, tlb_missed,
+    CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_TLB_WAYS, CFG_WAYS, CFG_WRITE_BACK,
+    memory_fill_page_hits, memory_fills, memory_writebacks, served_level, service, tlb_missed,
     walk_pde_level, walk_pte_level, walk_read_result,
 )
 from sim.cpus.lowering import BR_COND, BR_NONE, BR_RET, REG_ST0
 from sim.cpus.shared_core import (
-    IDX, add_l1_hits, dram_busy, dram_lead_off, l1_way, tlb_known, translated, uncounted,
+    IDX, add_l1_hits, dram_busy, dram_lead_off, l1_way, tlb_hit, uncounted,
 )
 from sim.cpus.shared_core import btb_alloc  # shared BTB victim choice (LRU by last use)
 
@@ -296,10 +296,6 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem
     l1_write_back = dconfig[0, CFG_WRITE_BACK] != 0
     d_now = dclock[0]
     has_tlb = dconfig[0, CFG_TLB_WAYS] > 0
-    tlb_set_mask = max(dconfig[0, CFG_TLB_SETS], 1) - 1
-    tlb_mru = np.full(tlb_set_mask + 1, -1, np.int64)  # per set, the page known most recent (-1: none)
-    if dclock[TLB_LAST] >= 0:  # at the start, only the page translated last
-        tlb_mru[dclock[TLB_LAST] & tlb_set_mask] = dclock[TLB_LAST]
     l1_load_hits = 0
     l1_store_hits = 0
     li = 0  # (from a constant: indexing with it needs no check for negative indices)
@@ -479,7 +475,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem
                 w_ = mem_write[q] != 0
                 counters[seg, C_L1D_STORES if w_ else C_L1D_LOADS] += 1
                 row, way = -1, -1
-                if (l1_write_back or not w_) and tlb_known(has_tlb, tlb_mru, tlb_set_mask, addr):
+                if (l1_write_back or not w_) and tlb_hit(has_tlb, dconfig, dclock, addr):
                     row, way = l1_way(dtags, addr, sz, l1_ob, l1_row0, l1_set_mask, l1_ways)
                 if row >= 0:  # a plain L1 hit, inline (shared_core)
                     if w_:
@@ -494,7 +490,6 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem
                     dclock[0] = d_now
                     r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, addr, sz, w_)
                     d_now = dclock[0]
-                    translated(tlb_mru, tlb_set_mask, addr, sz)
                     if tlb_missed(r):  # the pipe waits for the translation
                         extra, bus_free = _page_walk(r, dconfig.shape[0], now, P, bus_free, counters[seg])
                         mem += extra

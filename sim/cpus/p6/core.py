@@ -24,8 +24,8 @@ store buffer of SB entries.
 Memory: the data hierarchy of sim.memory (L1D, L2 when present), a fill-buffer limit of MSHR
 outstanding misses, a backside-bus occupancy per L2 line and a front-side-bus occupancy per DRAM
 line fill and writeback; a data-TLB miss runs its page walk before the access (TLB_WALK cycles, then
-each walk read that missed L1 charged as a load, in _access_slow; the inline L1-hit path takes only
-a page that is its TLB set's most recent entry; a store's walk at commit; walks are not serialised). Instruction fetch goes through its own
+each walk read that missed L1 charged as a load, in _access_slow; the inline L1-hit path probes the
+TLB as service does; a store's walk at commit; walks are not serialised). Instruction fetch goes through its own
 L1I, which misses to the L2 (no instruction TLB).
 Branches: BTB of BTB_SETS x BTB_WAYS entries with HIST_BITS of local history and a table of 2-bit
 counters per entry (two-level adaptive); static prediction on a BTB miss (backward taken); a
@@ -50,8 +50,8 @@ from numba import njit
 from sim.memory.cache import LRU
 from sim.memory.hierarchy import (
     CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS, CFG_WRITE_BACK, memory_fill_page_hits,
-    memory_fills, memory_writeback_page_hits, memory_writebacks, served_level, service, CFG_TLB_SETS, CFG_TLB_WAYS,
-    TLB_LAST, tlb_missed, walk_pde_level, walk_pte_level, walk_read_result,
+    memory_fills, memory_writeback_page_hits, memory_writebacks, served_level, service, CFG_TLB_WAYS,
+    tlb_missed, walk_pde_level, walk_pte_level, walk_read_result,
 )
 from sim.memory.replay import LOG_OFF, LOG_REPLAY, logged_service
 from sim.cpus.lowering import (
@@ -74,7 +74,7 @@ from sim.cpus.contract import (
 )
 from sim.cpus.shared_core import (
     FW, IDX, WINDOW, access_end, add_l1_hits, book_port, btb_alloc, queued_store, remember_store,
-    plain_hit, REPLAYED_HIT, segments_ended, tlb_known, translated, uncounted,
+    plain_hit, REPLAYED_HIT, segments_ended, tlb_hit, uncounted,
 )
 
 # parameter vector indices (the counter, per-instruction and timeline schemas are the contract's)
@@ -488,14 +488,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     l1_lru = dconfig[0, CFG_REPLACEMENT] == LRU
     l1_write_back = dconfig[0, CFG_WRITE_BACK] != 0
     d_now = dclock[0]
-    # The data TLB: an access to a page known to be its TLB set's most recent entry takes the inline
-    # L1-hit path (shared_core, tlb_known). A replayed log says itself which accesses were plain hits
-    # (plain_hit): no TLB state then.
+    # The data TLB is probed on the inline L1-hit path (shared_core, tlb_hit). A replayed log says
+    # itself which accesses were plain hits (plain_hit): no TLB state then.
     has_tlb = dconfig[0, CFG_TLB_WAYS] > 0 and dlog[0] != LOG_REPLAY
-    tlb_set_mask = max(dconfig[0, CFG_TLB_SETS], 1) - 1
-    tlb_mru = np.full(tlb_set_mask + 1, -1, np.int64)  # per set, the page known most recent (-1: none)
-    if dclock[TLB_LAST] >= 0:  # at the start, only the page translated last
-        tlb_mru[dclock[TLB_LAST] & tlb_set_mask] = dclock[TLB_LAST]
     log_off = dlog[0] == LOG_OFF  # a log, once on, stays on (it may only overflow: replay.logged_service)
     # GPRs whose last writer was partial (reg_pmask != 15), as bits, plus ALWAYS_SCAN
     partial_live = ALWAYS_SCAN
@@ -565,7 +560,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                             n_loads += 1
                         hit_row, hit_way = plain_hit(
                             dlog, log_off, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways,
-                            (l1_write_back or not w_) and tlb_known(has_tlb, tlb_mru, tlb_set_mask, a))
+                            (l1_write_back or not w_) and tlb_hit(has_tlb, dconfig, dclock, a))
                         if hit_row >= 0:
                             if w_:
                                 l1_store_hits += 1
@@ -581,7 +576,6 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                                                                    a, sz, w_, t, P, mshr, bus_free, l2bus_free, counters,
                                                                    per_static, seg, psid)
                             d_now = dclock[0]
-                            translated(tlb_mru, tlb_set_mask, a, sz)
                             if w > wait:
                                 wait = w  # the loop waits for its memory
                     sv[V_REP_NEXT] += wait * OCC_SCALE
@@ -843,7 +837,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     n_loads += 1
                     hit_row, hit_way = plain_hit(
                         dlog, log_off, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways,
-                        tlb_known(has_tlb, tlb_mru, tlb_set_mask, a))
+                        tlb_hit(has_tlb, dconfig, dclock, a))
                     if hit_row >= 0:
                         l1_load_hits += 1
                         if l1_lru:
@@ -857,7 +851,6 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                                                                       a, sz, False, disp, P, mshr, bus_free, l2bus_free,
                                                                       counters, per_static, seg, psid)
                         d_now = dclock[0]
-                        translated(tlb_mru, tlb_set_mask, a, sz)
                     if fwd >= 0:
                         if fw_addr[fwd] == a and sz <= fw_size[fwd]:
                             counters[seg, C_STORE_FORWARDS] += 1
@@ -996,7 +989,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 n_stores += 1
                 hit_row, hit_way = plain_hit(
                     dlog, log_off, dtags, a, sz, l1_ob, l1_row0, l1_set_mask, l1_ways,
-                    l1_write_back and tlb_known(has_tlb, tlb_mru, tlb_set_mask, a))
+                    l1_write_back and tlb_hit(has_tlb, dconfig, dclock, a))
                 if hit_row >= 0:
                     l1_store_hits += 1
                     if l1_lru:
@@ -1011,7 +1004,6 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                                                            True, commit, P, mshr, bus_free, l2bus_free, counters,
                                                            per_static, seg, psid)
                     d_now = dclock[0]
-                    translated(tlb_mru, tlb_set_mask, a, sz)
                     commit += w
                 fw_n = remember_store(fw_addr, fw_size, fw_ready, fw_commit, fw_n, a, sz, store_std, commit)
             sb_ring[sb_pos & IDX] = commit
@@ -1231,8 +1223,7 @@ def warm(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write
     does to the caches, TLB, DRAM pages, L1I, BTB, pattern tables, return stack and x87 top, in its
     order (a REP string's later elements' accesses in turn; an instruction's loads, one per load
     uop, then its store; the fetch line before them), and nothing it times. The hierarchy is walked
-    through service for every access, which leaves what simulate's inline L1-hit path leaves
-    (its TLB stamps can be newer, in the same order within each set). The session drains the
+    through service for every access, which leaves what simulate's inline L1-hit path leaves. The session drains the
     timing state after it (tests/test_warm_start.py: the same learned state as timing the chunk)."""
     n = dyn_sid.shape[0]
     btb_sets, btb_ways, hist_bits = P[P_BTB_SETS], P[P_BTB_WAYS], P[P_HIST_BITS]
