@@ -1,6 +1,6 @@
 """Compiled helpers the family cores share (numba): the port/issue-slot calendar, the BTB victim
-choice, the queue of recent stores for store-to-load forwarding and the inline L1-hit path. Family-neutral: each core
-imports them from here, never from another family's core."""
+choice, the queue of recent stores for store-to-load forwarding and the inline L1-hit path.
+Family-neutral: each core imports them from here, never from another family's core."""
 
 from __future__ import annotations
 
@@ -156,10 +156,10 @@ REPLAYED_HIT = -2  # plain_hit: a plain L1 hit read back from an access log (the
 def plain_hit(dlog, log_off, tags, addr, size, ob, row0, set_mask, ways, eligible):
     """l1_way for an access that may take the inline path, with an access log (sim/memory/replay.py,
     `log_off` False): (-1, -1) when not `eligible` (the caller takes this path only for a page the
-    TLB holds, tlb_hit, and a store only to a write-back L1); a log being recorded
-    gets the entry service would have given the hit; a replayed log says itself whether the access
-    was one, (REPLAYED_HIT, 0), and the caches are not touched. Any other access goes through
-    service (logged_service with a log)."""
+    TLB holds, tlb_hit, and a store only to a write-back L1); a log being recorded gets the entry
+    service would have given the hit; a replayed log says itself whether the access was one,
+    (REPLAYED_HIT, 0), and the caches are not touched. Any other access goes through service
+    (logged_service with a log)."""
     row, way = -1, -1
     if eligible:
         if not log_off and dlog[0] == LOG_REPLAY:

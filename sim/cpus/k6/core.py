@@ -967,8 +967,8 @@ def warm(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write
     its count of the fills and writebacks charged, in its order (a REP string's later elements'
     accesses in turn; an instruction's loads, one per load op, then its store; the fetch line
     before them), and nothing it times. The hierarchy is walked through service for every access,
-    which leaves what simulate's inline L1-hit path leaves. The session drains the timing state after it (tests/test_warm_start.py:
-    the same learned state as timing the chunk)."""
+    which leaves what simulate's inline L1-hit path leaves. The session drains the timing state
+    after it (tests/test_warm_start.py: the same learned state as timing the chunk)."""
     n = dyn_sid.shape[0]
     bht_mask = P[P_BHT] - 1
     hist_mask = (1 << P[P_HIST_BITS]) - 1

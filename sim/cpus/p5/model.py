@@ -344,9 +344,9 @@ class P5Session(CoreSession):
         acc = int(np.searchsorted(chunk.mem_insn, first)) if first else 0  # its first access
         return core.simulate(base, next_pc, index[first:], chunk.pc[first:], first, acc, chunk.mem_insn,
                              chunk.mem_addr, chunk.mem_size, chunk.mem_write, self.seg_end, *self.static.arrays,
-                             model.params, *model.dside.arrays(), self.dstats, *model.iside.arrays(), self.istats, self.counters,
-                             self.per_static, self.stat_first, self.timeline, self.tl_first, rdtsc_sid, rdtsc_out,
-                             *self.state)
+                             model.params, *model.dside.arrays(), self.dstats, *model.iside.arrays(), self.istats,
+                             self.counters, self.per_static, self.stat_first, self.timeline, self.tl_first,
+                             rdtsc_sid, rdtsc_out, *self.state)
 
     def time_chunk(self, chunk, index, next_pc, rdtsc_sid, rdtsc_out, access_logs) -> int:
         n = chunk.instructions
