@@ -399,6 +399,13 @@ def _predict(br, pc, length, nxt, i, bset, target, btb_tag, btb_stamp, btb_hist,
 
 # error_model="numpy": no zero-divisor checks on the loop's divisions (every divisor is a machine
 # size that lowering or new_state has already divided by or indexed with); measurably faster
+(F_S_LEN, F_S_NUOPS, F_S_UOP0, F_S_DEC, F_S_LCP, F_P_GPR_BITS, F_P_FLAGS_READ, F_P_NSRC, F_S_FPDELTA, F_P_NDST,
+ F_S_ZERO, F_S_BRANCH, F_S_BSET, F_S_TARGET) = range(14)
+NF = 16  # simulate's per-static rows (sf)
+UF_U_KIND, UF_U_PORTS, UF_U_LAT, UF_U_UNIT, UF_U_OCC, UF_U_NSRC, UF_U_NDST, UF_U_SWAP = range(8)
+NUF = 8  # simulate's per-uop rows (uf)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
@@ -436,6 +443,19 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     btb_ways, hist_bits = P[P_BTB_WAYS], P[P_HIST_BITS]
     u_nsrc, u_src, u_ndst, u_dst, u_swap, p_nsrc, p_src, p_ndst, p_dst, p_gpr_bits, p_flags_read = _operand_lists(
         s_nuops, s_uop0, s_nsrc, s_src, s_ndst, s_dst, u_ports, u_kind.shape[0])
+
+    # the facts the loop reads per instruction and per uop, one row each (as the K6 core's): one
+    # array instead of two dozen keeps fewer values live in the loop
+    sf = np.zeros((nstatic, NF), np.int64)
+    for s in range(nstatic):
+        sf[s, F_S_LEN], sf[s, F_S_NUOPS], sf[s, F_S_UOP0], sf[s, F_S_DEC] = s_len[s], s_nuops[s], s_uop0[s], s_dec[s]
+        sf[s, F_S_LCP], sf[s, F_P_GPR_BITS], sf[s, F_P_FLAGS_READ] = s_lcp[s], p_gpr_bits[s], p_flags_read[s]
+        sf[s, F_P_NSRC], sf[s, F_S_FPDELTA], sf[s, F_P_NDST], sf[s, F_S_ZERO] = p_nsrc[s], s_fpdelta[s], p_ndst[s], s_zero[s]
+        sf[s, F_S_BRANCH], sf[s, F_S_BSET], sf[s, F_S_TARGET] = s_branch[s], s_bset[s], s_target[s]
+    uf = np.zeros((u_kind.shape[0], NUF), np.int64)
+    for u in range(u_kind.shape[0]):
+        uf[u, UF_U_KIND], uf[u, UF_U_PORTS], uf[u, UF_U_LAT], uf[u, UF_U_UNIT] = u_kind[u], u_ports[u], u_lat[u], u_unit[u]
+        uf[u, UF_U_OCC], uf[u, UF_U_NSRC], uf[u, UF_U_NDST], uf[u, UF_U_SWAP] = u_occ[u], u_nsrc[u], u_ndst[u], u_swap[u]
 
     flags_mask = sv[V_FLAGS_MASK]
     flags_retire = sv[V_FLAGS_RETIRE]
@@ -509,10 +529,10 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         i = base + li
         sid = dyn_sid[li] & IDX
         pc = dyn_pc[li]
-        length = s_len[sid]
-        nu = s_nuops[sid]
-        u0 = s_uop0[sid] & IDX
-        dec = s_dec[sid]
+        length = sf[sid, F_S_LEN]
+        nu = sf[sid, F_S_NUOPS]
+        u0 = sf[sid, F_S_UOP0] & IDX
+        dec = sf[sid, F_S_DEC]
         psid = sid if i >= stat_first else sink
         rep_later = rep_sid == sid and prev_pc == pc
         prev_pc = pc
@@ -641,7 +661,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             iline_seen[iline & 15] = iline
         last_iline = iline
         d = dec_cycle
-        new_group = dec_pos >= 3 or (dec != DEC_SIMPLE and dec_pos > 0) or s_lcp[sid] == 1
+        new_group = dec_pos >= 3 or (dec != DEC_SIMPLE and dec_pos > 0) or sf[sid, F_S_LCP] == 1
         if block > 0 and pc + length > dec_limit:
             new_group = True  # the instruction does not end inside the current IFETCH block
         if new_group:
@@ -656,7 +676,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             counters[seg, C_STALL_MISPREDICT if stall_fetch == 0 else C_STALL_FETCH] += fe_ready - d
             d = fe_ready
             new_group = True
-        if s_lcp[sid] == 1:
+        if sf[sid, F_S_LCP] == 1:
             d += P[P_LCP]  # the length decoder restarts for a length-changing prefix
             counters[seg, C_LCP_STALLS] += P[P_LCP]
         if new_group:
@@ -698,8 +718,8 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         cause_alloc = 0
         partial_wait = 0
         # the scan finds nothing unless a GPR read is partially written or a flag read is stale
-        scan = (p_gpr_bits[sid] & partial_live) != 0 or (p_flags_read[sid] & ~flags_mask) != 0
-        for k in range(p_nsrc[sid] if scan else 0):
+        scan = (sf[sid, F_P_GPR_BITS] & partial_live) != 0 or (sf[sid, F_P_FLAGS_READ] & ~flags_mask) != 0
+        for k in range(sf[sid, F_P_NSRC] if scan else 0):
             rid = p_src[sid, k, 0] & IDX
             mask = p_src[sid, k, 1]
             if rid < 8:
@@ -719,7 +739,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
 
         # x87 register names are relative to TOP: map to physical slots
         top_before = fp_top
-        top_after = (fp_top - s_fpdelta[sid]) & 7
+        top_after = (fp_top - sf[sid, F_S_FPDELTA]) & 7
 
         # ---- per uop ----------------------------------------------------------------------------
         acc_first = acc_next
@@ -739,7 +759,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
         intra = 0  # latest result of this instruction's loads and compute uops (the uop chain)
         for k in range(nu):
             u = (u0 + k) & IDX
-            kind = u_kind[u]
+            kind = uf[u, UF_U_KIND]
             t = inst_ready if k == 0 else max(inst_ready, decode_time + 1 + k // 3)
             # rename bandwidth
             if t == ren_cycle and ren_count >= rename_w:
@@ -771,7 +791,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 counters[seg, C_STALL_STORE_BUFFER] += sb_ring[sb_pos & IDX] - t
                 t = sb_ring[sb_pos & IDX]
                 cause_alloc = max(cause_alloc, 2)
-            if rrf_reads > 0 and u_swap[u] == 0:
+            if rrf_reads > 0 and uf[u, UF_U_SWAP] == 0:
                 # register read stall (p6_machine.toml [rob.register_read]): a rename group reads at
                 # most rrf_reads completed registers per clock, so the next group waits for the rest
                 if t > ren_cycle:
@@ -795,7 +815,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 first_alloc = alloc
             # sources
             ready = alloc + 1
-            for j in range(u_nsrc[u]):
+            for j in range(uf[u, UF_U_NSRC]):
                 rid = u_src[u, j, 0] & IDX
                 if rid == REG_ST0:
                     rid = REG_ST0 + ((top_before + u_src[u, j, 1]) & 7)
@@ -807,21 +827,21 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                 ready = intra  # the instruction's own earlier uops: load -> compute -> ... -> store data
             dep_wait = ready - (alloc + 1)
             ready_unit = ready
-            if u_unit[u] != 0:
-                free = -(-unit_free[u_unit[u] & IDX] // OCC_SCALE)  # held through part of a cycle: the next one
+            if uf[u, UF_U_UNIT] != 0:
+                free = -(-unit_free[uf[u, UF_U_UNIT] & IDX] // OCC_SCALE)  # held through part of a cycle: the next one
                 if free > ready:
                     ready_unit = free
-            if u_ports[u] == 0:
+            if uf[u, UF_U_PORTS] == 0:
                 disp, port = ready_unit, -1
             else:
                 # a uop that may use port 0 or 1 was bound to one of them when it entered the RS
-                disp, port = book_port(book, _bind_port(u_ports[u], bound0, bound1, bind_tie), ready_unit)
+                disp, port = book_port(book, _bind_port(uf[u, UF_U_PORTS], bound0, bound1, bind_tie), ready_unit)
             port_wait = disp - ready  # includes waiting for a busy non-pipelined unit
-            if u_unit[u] != 0:
+            if uf[u, UF_U_UNIT] != 0:
                 # a resource held for a fractional throughput (EMMS 5.67) averages it: the hold
                 # runs from when it was due, not from the whole cycle the uop waited for
-                unit_free[u_unit[u] & IDX] = max(unit_free[u_unit[u] & IDX], disp * OCC_SCALE - OCC_SCALE + 1) + u_occ[u]
-            lat = u_lat[u]
+                unit_free[uf[u, UF_U_UNIT] & IDX] = max(unit_free[uf[u, UF_U_UNIT] & IDX], disp * OCC_SCALE - OCC_SCALE + 1) + uf[u, UF_U_OCC]
+            lat = uf[u, UF_U_LAT]
             mem_wait = 0
             fwd_wait = 0
             if kind == LOAD and acc < acc_end:
@@ -876,7 +896,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             if kind == BRANCH:
                 branch_done = complete
             # destinations
-            for j in range(u_ndst[u]):
+            for j in range(uf[u, UF_U_NDST]):
                 rid = u_dst[u, j, 0] & IDX
                 if rid == REG_ST0:
                     rid = REG_ST0 + ((top_after + u_dst[u, j, 1]) & 7)
@@ -884,7 +904,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     continue  # the order token: ready when every x87 writer is (lowering.py)
                 reg_ready[rid] = complete
                 reg_ready[NREGS + rid] = rr_group
-            if u_swap[u] != 0:
+            if uf[u, UF_U_SWAP] != 0:
                 # FXCH: done in the register renamer (AF29n note f), it swaps which stack slot holds
                 # which value without waiting for either: each value keeps its own ready time
                 ra = REG_ST0 + ((top_after + s_dst[sid, 0, 3]) & 7)
@@ -905,7 +925,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             rob_ring[rob_pos & IDX] = rt
             rob_pos = rob_pos + 1 if rob_pos + 1 < rob_n else 0
             # enter the RS (left at dispatch)
-            if u_ports[u] != 0:
+            if uf[u, UF_U_PORTS] != 0:
                 slot = disp & (WINDOW - 1)
                 rs_by_cycle[slot, 0] += 1
                 rs_pending += 1
@@ -941,13 +961,13 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             u_global += 1
 
         # ---- after the instruction: register state, stores, branches --------------------------
-        for j in range(p_ndst[sid]):
+        for j in range(sf[sid, F_P_NDST]):
             rid = p_dst[sid, j, 0] & IDX
             mask = p_dst[sid, j, 1]
             if rid < 8:
                 if mask == 15:
                     reg_pmask[rid] = 15
-                    reg_zeroed[rid] = s_zero[sid]
+                    reg_zeroed[rid] = sf[sid, F_S_ZERO]
                     partial_live &= ~(1 << rid)
                 else:
                     reg_pmask[rid] = mask
@@ -1010,14 +1030,14 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
             sb_pos = sb_pos + 1 if sb_pos + 1 < sb_n else 0
             nstores += 1
             last_commit = commit
-        br = s_branch[sid]
+        br = sf[sid, F_S_BRANCH]
         if br != BR_NONE:
             n_branches += 1
             nxt = dyn_pc[li + 1] if li + 1 < n else (next_pc if next_pc >= 0 else pc + length)
             taken = nxt != pc + length
             mispredicted = False
             redirect = False
-            bset = s_bset[sid] & IDX
+            bset = sf[sid, F_S_BSET] & IDX
             way = -1
             for w in range(btb_ways):
                 if btb_tag[bset, w] == pc:
@@ -1031,7 +1051,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     btb_hist[bset, way] = ((h << 1) | (1 if taken else 0)) & ((1 << hist_bits) - 1)
                     btb_stamp[bset, way] = i
                 else:
-                    target = s_target[sid]
+                    target = sf[sid, F_S_TARGET]
                     predict = target >= 0 and target < pc  # static: backward taken, forward not taken
                     redirect = predict  # a static taken prediction redirects fetch at decode
                     if taken:
