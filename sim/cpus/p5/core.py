@@ -240,6 +240,11 @@ SEEN, PAIR_CACHE = 4, 5  # positions in new_state's tuple of the arrays with a r
 LEARNED = tuple(range(4, 12))  # seen, pair_cache, btb_tag, btb_stamp, btb_hist, btb_target, pht, iline_seen
 
 
+(F_LEN, F_CLS, F_CYC, F_PFX, F_ADDR, F_ESP_AGI, F_WMASK, F_BRANCH, F_FP, F_FPLAT, F_FPNEXT, F_FMUL, F_WAITFPU,
+ F_MMX, F_MMXLAT, F_REP, F_REPSTART, F_REP0, F_NSRC, F_NDST, F_FPDELTA, F_MEMKIND, F_FSTORE) = range(23)
+NF = 23  # simulate's per-static rows (sf)
+
+
 @njit(cache=True, nogil=True)
 def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_cls, s_cyc, s_pfx, s_pfxv, s_immdisp, s_addr, s_stack, s_esp_agi, s_rmask, s_wmask, s_rflags,
@@ -298,13 +303,24 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem
     has_tlb = dconfig[0, CFG_TLB_WAYS] > 0
     l1_load_hits = 0
     l1_store_hits = 0
+    # the facts the loop reads per instruction, one row each: one array instead of two dozen keeps
+    # fewer values live in the loop (as the P6 and K6 cores)
+    sf = np.zeros((s_len.shape[0], NF), np.int64)
+    for s in range(s_len.shape[0]):
+        sf[s, F_LEN], sf[s, F_CLS], sf[s, F_CYC], sf[s, F_PFX] = s_len[s], s_cls[s], s_cyc[s], s_pfx[s]
+        sf[s, F_ADDR], sf[s, F_ESP_AGI] = s_addr[s], s_esp_agi[s]
+        sf[s, F_WMASK], sf[s, F_BRANCH] = s_wmask[s], s_branch[s]
+        sf[s, F_FP], sf[s, F_FPLAT], sf[s, F_FPNEXT], sf[s, F_FMUL] = s_fp[s], s_fplat[s], s_fpnext[s], s_fmul[s]
+        sf[s, F_WAITFPU], sf[s, F_MMX], sf[s, F_MMXLAT], sf[s, F_REP] = s_waitfpu[s], s_mmx[s], s_mmxlat[s], s_rep[s]
+        sf[s, F_REPSTART], sf[s, F_REP0], sf[s, F_NSRC], sf[s, F_NDST] = s_repstart[s], s_rep0[s], s_nsrc[s], s_ndst[s]
+        sf[s, F_FPDELTA], sf[s, F_MEMKIND], sf[s, F_FSTORE] = s_fpdelta[s], s_memkind[s], s_fstore[s]
     li = 0  # (from a constant: indexing with it needs no check for negative indices)
     while li < n:
         a = dyn_sid[li] & IDX
         pa = a if li >= first_l else sink
         pc_a = np.int64(dyn_pc[li])
         # a later element of a REP string instruction: the same PC again
-        if s_rep[a] != REP_NONE:
+        if sf[a, F_REP] != REP_NONE:
             rep_later = (np.int64(dyn_pc[li - 1]) if li > 0 else sv[V_PREV_PC]) == pc_a
         else:
             rep_later = False
@@ -313,14 +329,15 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem
         rreg = -1
         group = 1
         # (next_pc -1, the run's end, is no instruction's successor)
-        if s_branch[a] == BR_NONE and (np.int64(dyn_pc[li + 1]) if li + 1 < n else next_pc) == pc_a + s_len[a] and \
+        if sf[a, F_BRANCH] == BR_NONE and \
+                (np.int64(dyn_pc[li + 1]) if li + 1 < n else next_pc) == pc_a + sf[a, F_LEN] and \
                 not (seg < seg_end_l.shape[0] and li + 1 == seg_end_l[seg]):
-            first_ok = 1 if (P[P_FIRST_PASS] == 1 or seen[a] > 0 or s_len[a] == 1) else 0
+            first_ok = 1 if (P[P_FIRST_PASS] == 1 or seen[a] > 0 or sf[a, F_LEN] == 1) else 0
             code = pair_cache[a, first_ok]
             if code < 0:
                 if li + 1 < n:
                     b = dyn_sid[li + 1] & IDX
-                elif s_cls[a] == NP or s_cls[a] == PV or s_cls[a] == FXCH:
+                elif sf[a, F_CLS] == NP or sf[a, F_CLS] == PV or sf[a, F_CLS] == FXCH:
                     b = a  # the answer does not depend on the next instruction (_pair_reason)
                 else:
                     break  # the next instruction's static is in the next chunk: hold this one back
@@ -335,9 +352,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem
                 if li + 1 >= n:
                     break  # its V partner is in the next chunk: hold this one back
                 group = 2
-        elif s_cls[a] == NP:
+        elif sf[a, F_CLS] == NP:
             reason = R_NP
-        elif s_cls[a] == PV:
+        elif sf[a, F_CLS] == PV:
             reason = R_PV_IN_U
         start = t
         # ---- code fetch (L1I) ------------------------------------------------------------
@@ -345,7 +362,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem
         for k in range(group):
             pc = np.int64(dyn_pc[li + k])
             for half in range(2):
-                line = (pc >> 5) if half == 0 else ((pc + s_len[dyn_sid[li + k]] - 1) >> 5)
+                line = (pc >> 5) if half == 0 else ((pc + sf[dyn_sid[li + k], F_LEN] - 1) >> 5)
                 if line != last_iline and iline_seen[line & 15] != line:
                     # (a line fetched since the last miss is still resident: its lookup is a hit, and
                     # only its LRU refresh is lost, which matters only for code larger than the L1I)
@@ -359,9 +376,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem
         start += stall_fetch
         counters[seg, C_FETCH] += stall_fetch
         # ---- decode: prefixes --------------------------------------------------------------
-        pfx = 0 if rep_later else s_pfx[a]
+        pfx = 0 if rep_later else sf[a, F_PFX]
         if group == 2:
-            pfx += s_pfx[dyn_sid[li + 1]]
+            pfx += sf[dyn_sid[li + 1], F_PFX]
         if pfx > 0 and shadow_groups > 0:
             # AF97 sec. 13: each extra execute clock of a recent instruction decodes one prefix of
             # the next two instructions or pairs (the P54C; the P55C's FIFO is modelled as full)
@@ -376,7 +393,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem
         agi = 0
         for k in range(0 if rep_later else group):
             s = dyn_sid[li + k] & IDX
-            m = s_addr[s]
+            m = sf[s, F_ADDR]
             r = 0
             while m != 0:
                 if m & 1:
@@ -395,43 +412,43 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem
         fp_wait = 0
         for k in range(group):
             s = dyn_sid[li + k] & IDX
-            if s_fp[s] == 0 and s_mmx[s] == 0:
+            if sf[s, F_FP] == 0 and sf[s, F_MMX] == 0:
                 continue
             ready = start
-            if s_fp[s] == 1:
+            if sf[s, F_FP] == 1:
                 ready = max(ready, fp_free)
-                if s_fmul[s] == 1:
+                if sf[s, F_FMUL] == 1:
                     ready = max(ready, fmul_free)
-                if s_waitfpu[s] == 1:
+                if sf[s, F_WAITFPU] == 1:
                     ready = max(ready, fp_done)
-            for j in range(s_nsrc[s]):
+            for j in range(sf[s, F_NSRC]):
                 rid = s_src[s, j, 0]
                 if rid == REG_ST0:
                     rid = REG_ST0 + ((fp_top + s_src[s, j, 3]) & 7)
                 if rid >= REG_ST0 and rid < 40:
                     # FST(P) m takes its operand a clock before its execute stage (AF97-FP)
-                    ready = max(ready, ext_ready[rid] + (P[P_FST_EARLY] if s_fstore[s] == 1 else 0))
+                    ready = max(ready, ext_ready[rid] + (P[P_FST_EARLY] if sf[s, F_FSTORE] == 1 else 0))
             if ready - start > fp_wait:
                 fp_wait = ready - start
         start += fp_wait
         counters[seg, C_FPU] += fp_wait
         per_static[pa, S_FPU] += fp_wait
         # ---- execute: duration, memory --------------------------------------------------------
-        dur = s_cyc[a]
+        dur = sf[a, F_CYC]
         if group == 2:
             b = dyn_sid[li + 1] & IDX
-            if s_cyc[b] > dur:
-                dur = s_cyc[b]
+            if sf[b, F_CYC] > dur:
+                dur = sf[b, F_CYC]
             # a read/modify/write in U with a read/modify or read/modify/write in V overlaps it
             # only in part (AF97-PAIR sec. 10.4's table of the pair's clocks)
-            pc2 = P[P_PAIR_CLOCKS + 3 * s_memkind[a] + s_memkind[b]]
+            pc2 = P[P_PAIR_CLOCKS + 3 * sf[a, F_MEMKIND] + sf[b, F_MEMKIND]]
             if pc2 > dur:
                 dur = pc2
-        if s_rep[a] != REP_NONE:
+        if sf[a, F_REP] != REP_NONE:
             if not (acc < n_acc and mem_insn[acc] == li + first):
-                dur = 0 if rep_later else s_rep0[a]  # closing count check / ECX = 0 on entry
+                dur = 0 if rep_later else sf[a, F_REP0]  # closing count check / ECX = 0 on entry
             elif not rep_later:
-                dur += s_repstart[a]
+                dur += sf[a, F_REPSTART]
         rep_load = np.int64(-1)
         rep_store = np.int64(-1)
         mem = 0
@@ -466,7 +483,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem
                         bank = max(bank, P[P_SAME_DWORD])
                     elif P[P_BANK] == 1 and (lo & 7) == (u_lo & 7):
                         bank = 1  # different dwords, one cache bank (P54C)
-                if s_rep[s] == REP_MOVS:
+                if sf[s, F_REP] == REP_MOVS:
                     if mem_write[q]:
                         rep_store = addr
                     else:
@@ -516,7 +533,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem
                         per_static[ps, S_MEMORY] += extra
             if k == 0:
                 wbw_u = wbw
-        if s_rep[a] == REP_MOVS:
+        if sf[a, F_REP] == REP_MOVS:
             if P[P_BANK] == 1 and rep_later and rep_load >= 0 and rep_prev_store >= 0 and \
                     ((rep_load >> 2) & 7) == ((rep_prev_store >> 2) & 7) and (rep_load >> 2) != (rep_prev_store >> 2):
                 bank = 1  # AF 26.3: this element's read meets the previous element's write in one bank
@@ -544,20 +561,20 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem
         # ---- results --------------------------------------------------------------------------
         for k in range(group):
             s = dyn_sid[li + k] & IDX
-            done = start + (dur if group == 1 else s_cyc[s]) + mem + mis
-            w = s_wmask[s]
+            done = start + (dur if group == 1 else sf[s, F_CYC]) + mem + mis
+            w = sf[s, F_WMASK]
             r = 0
             while w != 0:
                 if w & 15:
                     reg_avail[r] = done
                 w >>= 4
                 r += 1
-            if s_esp_agi[s] == 1:
+            if sf[s, F_ESP_AGI] == 1:
                 esp_agi = done
-            if s_fp[s] == 0 and s_mmx[s] == 0 and s_cls[s] != FXCH:
+            if sf[s, F_FP] == 0 and sf[s, F_MMX] == 0 and sf[s, F_CLS] != FXCH:
                 continue
-            top_after = (fp_top - s_fpdelta[s]) & 7
-            if s_cls[s] == FXCH and s_nsrc[s] >= 2:  # FXCH swaps the two slots' readiness
+            top_after = (fp_top - sf[s, F_FPDELTA]) & 7
+            if sf[s, F_CLS] == FXCH and sf[s, F_NSRC] >= 2:  # FXCH swaps the two slots' readiness
                 r0 = REG_ST0 + ((fp_top + s_src[s, 0, 3]) & 7) if s_src[s, 0, 0] == REG_ST0 else -1
                 r1 = REG_ST0 + ((fp_top + s_src[s, 1, 3]) & 7) if s_src[s, 1, 0] == REG_ST0 else -1
                 if r0 >= 0 and r1 >= 0:
@@ -566,40 +583,40 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem
                     ext_ready[r1] = tmp
                 fp_top = top_after
                 continue
-            fplat = s_fplat[s]
-            fpnext = s_fpnext[s]
-            if s_fp[s] == 1:
+            fplat = sf[s, F_FPLAT]
+            fpnext = sf[s, F_FPNEXT]
+            if sf[s, F_FP] == 1:
                 fp_free = start + fpnext
-                if s_fmul[s] == 1:
+                if sf[s, F_FMUL] == 1:
                     fmul_free = start + P[P_FMUL_SPACING]
                 if start + fplat > fp_done:
                     fp_done = start + fplat
-            for j in range(s_ndst[s]):
+            for j in range(sf[s, F_NDST]):
                 rid = s_dst[s, j, 0]
                 if rid == REG_ST0:
                     rid = REG_ST0 + ((top_after + s_dst[s, j, 3]) & 7)
                 if rid >= REG_ST0 and rid < 40:
-                    ext_ready[rid] = start + (fplat if s_fp[s] == 1 else s_mmxlat[s])
+                    ext_ready[rid] = start + (fplat if sf[s, F_FP] == 1 else sf[s, F_MMXLAT])
             fp_top = top_after
         # ---- branches -----------------------------------------------------------------------
         last = li + group - 1
         sb = dyn_sid[last] & IDX
         psb = sb if last >= first_l else sink
-        if s_branch[sb] != BR_NONE:
+        if sf[sb, F_BRANCH] != BR_NONE:
             counters[seg, C_BRANCHES] += 1
             pc = np.int64(dyn_pc[last])
             if last + 1 < n:
                 nxt = np.int64(dyn_pc[last + 1])
             else:
-                nxt = next_pc if next_pc >= 0 else pc + s_len[sb]
-            taken = nxt != pc + s_len[sb]
+                nxt = next_pc if next_pc >= 0 else pc + sf[sb, F_LEN]
+            taken = nxt != pc + sf[sb, F_LEN]
             bset = pc & btb_set_mask if btb_set_mask >= 0 else pc % btb_sets
             way = -1
             for w in range(btb_ways):
                 if btb_tag[bset, w] == pc:
                     way = w
             mispredicted = False
-            if s_branch[sb] == BR_COND:
+            if sf[sb, F_BRANCH] == BR_COND:
                 if way >= 0:
                     h = btb_hist[bset, way]
                     cnt = pht[bset, way, h]
@@ -620,7 +637,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem
                 mispredicted = way < 0 or btb_target[bset, way] != nxt
                 if way < 0:
                     way = btb_alloc(btb_tag, btb_stamp, bset, btb_ways, pc, base + li)
-                if s_branch[sb] == BR_RET and last + 1 >= n and next_pc < 0:
+                if sf[sb, F_BRANCH] == BR_RET and last + 1 >= n and next_pc < 0:
                     mispredicted = False  # the return to the harness ends the stream
             if way >= 0 and taken:
                 btb_target[bset, way] = nxt

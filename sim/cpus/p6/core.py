@@ -450,12 +450,14 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     for s in range(nstatic):
         sf[s, F_S_LEN], sf[s, F_S_NUOPS], sf[s, F_S_UOP0], sf[s, F_S_DEC] = s_len[s], s_nuops[s], s_uop0[s], s_dec[s]
         sf[s, F_S_LCP], sf[s, F_P_GPR_BITS], sf[s, F_P_FLAGS_READ] = s_lcp[s], p_gpr_bits[s], p_flags_read[s]
-        sf[s, F_P_NSRC], sf[s, F_S_FPDELTA], sf[s, F_P_NDST], sf[s, F_S_ZERO] = p_nsrc[s], s_fpdelta[s], p_ndst[s], s_zero[s]
+        sf[s, F_P_NSRC], sf[s, F_S_FPDELTA] = p_nsrc[s], s_fpdelta[s]
+        sf[s, F_P_NDST], sf[s, F_S_ZERO] = p_ndst[s], s_zero[s]
         sf[s, F_S_BRANCH], sf[s, F_S_BSET], sf[s, F_S_TARGET] = s_branch[s], s_bset[s], s_target[s]
     uf = np.zeros((u_kind.shape[0], NUF), np.int64)
     for u in range(u_kind.shape[0]):
-        uf[u, UF_U_KIND], uf[u, UF_U_PORTS], uf[u, UF_U_LAT], uf[u, UF_U_UNIT] = u_kind[u], u_ports[u], u_lat[u], u_unit[u]
-        uf[u, UF_U_OCC], uf[u, UF_U_NSRC], uf[u, UF_U_NDST], uf[u, UF_U_SWAP] = u_occ[u], u_nsrc[u], u_ndst[u], u_swap[u]
+        uf[u, UF_U_KIND], uf[u, UF_U_PORTS], uf[u, UF_U_LAT] = u_kind[u], u_ports[u], u_lat[u]
+        uf[u, UF_U_UNIT], uf[u, UF_U_OCC], uf[u, UF_U_SWAP] = u_unit[u], u_occ[u], u_swap[u]
+        uf[u, UF_U_NSRC], uf[u, UF_U_NDST] = u_nsrc[u], u_ndst[u]
 
     flags_mask = sv[V_FLAGS_MASK]
     flags_retire = sv[V_FLAGS_RETIRE]
