@@ -242,7 +242,7 @@ LEARNED = tuple(range(4, 12))  # seen, pair_cache, btb_tag, btb_stamp, btb_hist,
 
 (F_LEN, F_CLS, F_CYC, F_PFX, F_ADDR, F_ESP_AGI, F_WMASK, F_BRANCH, F_FP, F_FPLAT, F_FPNEXT, F_FMUL, F_WAITFPU,
  F_MMX, F_MMXLAT, F_REP, F_REPSTART, F_REP0, F_NSRC, F_NDST, F_FPDELTA, F_MEMKIND, F_FSTORE) = range(23)
-NF = 23  # simulate's per-static rows (sf)
+NF = 23  # the columns of simulate's per-static rows (sf)
 
 
 @njit(cache=True, nogil=True)

@@ -397,15 +397,16 @@ def _predict(br, pc, length, nxt, i, bset, target, btb_tag, btb_stamp, btb_hist,
     return mispredicted, redirect, rsb_top
 
 
-# error_model="numpy": no zero-divisor checks on the loop's divisions (every divisor is a machine
-# size that lowering or new_state has already divided by or indexed with); measurably faster
+# columns of simulate's per-static rows (sf) and per-uop rows (uf); a row's width is a power of two
 (F_S_LEN, F_S_NUOPS, F_S_UOP0, F_S_DEC, F_S_LCP, F_P_GPR_BITS, F_P_FLAGS_READ, F_P_NSRC, F_S_FPDELTA, F_P_NDST,
  F_S_ZERO, F_S_BRANCH, F_S_BSET, F_S_TARGET) = range(14)
-NF = 16  # simulate's per-static rows (sf)
+NF = 16
 UF_U_KIND, UF_U_PORTS, UF_U_LAT, UF_U_UNIT, UF_U_OCC, UF_U_NSRC, UF_U_NDST, UF_U_SWAP = range(8)
-NUF = 8  # simulate's per-uop rows (uf)
+NUF = 8
 
 
+# error_model="numpy": no zero-divisor checks on the loop's divisions (every divisor is a machine
+# size that lowering or new_state has already divided by or indexed with); measurably faster
 @njit(cache=True, nogil=True, error_model="numpy")
 def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_write, seg_end,
              s_len, s_pc, s_dec, s_lcp, s_branch, s_target, s_fpdelta, s_zero, s_nuops, s_uop0, s_nsrc, s_src,
