@@ -7,9 +7,11 @@ from __future__ import annotations
 from numba import njit
 
 from sim.memory.cache import LOAD as CACHE_LOAD
+from sim.memory.cache import LRU
 from sim.memory.cache import STORE as CACHE_STORE
 from sim.memory.hierarchy import (
-    memory_fill_page_hits, memory_fills, memory_writeback_page_hits, memory_writebacks, tlb_probe,
+    CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS, CFG_WRITE_BACK, memory_fill_page_hits,
+    memory_fills, memory_writeback_page_hits, memory_writebacks, tlb_probe,
 )
 from sim.memory.replay import LOG_RECORD, LOG_REPLAY, record_hit, replayed_hit
 
@@ -135,6 +137,14 @@ def segments_ended(seg_end, seg, count):
 # is probed first, as service does: a page it holds is re-stamped and becomes the page translated
 # last, so when the line then misses, service's own probe of that access changes nothing; a page it
 # lacks changes nothing, and service walks it.
+
+@uncounted  # LLVM inlines it
+def l1_geometry(dconfig):
+    """What the inline path reads of the first data level, once before a core's loop: (offset
+    bits, first row, set mask, ways, LRU replacement, write-back)."""
+    return (dconfig[0, CFG_OFFSET_BITS], dconfig[0, CFG_ROW0], dconfig[0, CFG_SETS] - 1, dconfig[0, CFG_WAYS],
+            dconfig[0, CFG_REPLACEMENT] == LRU, dconfig[0, CFG_WRITE_BACK] != 0)
+
 
 @uncounted  # LLVM inlines it into the loops
 def l1_way(tags, addr, size, ob, row0, set_mask, ways):

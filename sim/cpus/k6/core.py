@@ -47,11 +47,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.memory.cache import LRU
 from sim.memory.hierarchy import (
-    CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_TLB_WAYS, CFG_WAYS, CFG_WRITE_BACK,
-    S_FILLS, S_WRITEBACKS, memory_fill_page_hits, memory_fills, memory_writebacks,
-    served_level, service, tlb_missed, walk_l1_fills, walk_pde_level, walk_pte_level, walk_read_result,
+    CFG_TLB_WAYS, S_FILLS, S_WRITEBACKS, memory_fill_page_hits, memory_fills, memory_writebacks, served_level,
+    service, tlb_missed, walk_l1_fills, walk_pde_level, walk_pte_level, walk_read_result,
 )
 from sim.memory.replay import LOG_OFF, LOG_REPLAY, LOGGED_HIT, logged_service
 from sim.cpus.lowering import (
@@ -71,8 +69,8 @@ from sim.cpus.contract import (
     S_STALL_STORE_FORWARD, S_STALL_WINDOW, S_UOPS, T_NAMES,
 )
 from sim.cpus.shared_core import (
-    FW, IDX, REPLAYED_HIT, WINDOW, access_end, add_l1_hits, btb_alloc, dram_busy, dram_lead_off, plain_hit,
-    queued_store, remember_store, segments_ended, tlb_hit, uncounted,
+    FW, IDX, REPLAYED_HIT, WINDOW, access_end, add_l1_hits, btb_alloc, dram_busy, dram_lead_off, l1_geometry,
+    plain_hit, queued_store, remember_store, segments_ended, tlb_hit, uncounted,
 )
 from sim.cpus.shared_core import book_port as _shared_book_port
 from sim.memory.cache import HOT
@@ -432,10 +430,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     # plain L1 data hits are done inline (shared_core's L1-hit path), with the hierarchy's LRU clock
     # and the hit counts in locals (written back around each service call and at the end); a
     # replayed log says itself which accesses were plain hits: no TLB state then
-    l1_ob, l1_row0 = dconfig[0, CFG_OFFSET_BITS], dconfig[0, CFG_ROW0]
-    l1_set_mask, l1_ways = dconfig[0, CFG_SETS] - 1, dconfig[0, CFG_WAYS]
-    l1_lru = dconfig[0, CFG_REPLACEMENT] == LRU
-    l1_write_back = dconfig[0, CFG_WRITE_BACK] != 0
+    l1_ob, l1_row0, l1_set_mask, l1_ways, l1_lru, l1_write_back = l1_geometry(dconfig)
     d_now = dclock[0]
     has_tlb = dconfig[0, CFG_TLB_WAYS] > 0 and dlog[0] != LOG_REPLAY
     l1_load_hits = 0

@@ -49,15 +49,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.memory.cache import LRU
 from sim.memory.hierarchy import (
-    CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_TLB_WAYS, CFG_WAYS, CFG_WRITE_BACK,
-    memory_fill_page_hits, memory_fills, memory_writebacks, served_level, service, tlb_missed,
+    CFG_TLB_WAYS, memory_fill_page_hits, memory_fills, memory_writebacks, served_level, service, tlb_missed,
     walk_pde_level, walk_pte_level, walk_read_result,
 )
 from sim.cpus.lowering import BR_COND, BR_NONE, BR_RET, REG_ST0
 from sim.cpus.shared_core import (
-    IDX, add_l1_hits, dram_busy, dram_lead_off, l1_way, tlb_hit, uncounted,
+    IDX, add_l1_hits, dram_busy, dram_lead_off, l1_geometry, l1_way, tlb_hit, uncounted,
 )
 from sim.cpus.shared_core import btb_alloc  # shared BTB victim choice (LRU by last use)
 
@@ -295,10 +293,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem
     nrdtsc = 0
     # plain L1 data hits are done inline (shared_core's L1-hit path), with the hierarchy's LRU clock
     # and the hit counts in locals (written back around each service call and at the end)
-    l1_ob, l1_row0 = dconfig[0, CFG_OFFSET_BITS], dconfig[0, CFG_ROW0]
-    l1_set_mask, l1_ways = dconfig[0, CFG_SETS] - 1, dconfig[0, CFG_WAYS]
-    l1_lru = dconfig[0, CFG_REPLACEMENT] == LRU
-    l1_write_back = dconfig[0, CFG_WRITE_BACK] != 0
+    l1_ob, l1_row0, l1_set_mask, l1_ways, l1_lru, l1_write_back = l1_geometry(dconfig)
     d_now = dclock[0]
     has_tlb = dconfig[0, CFG_TLB_WAYS] > 0
     l1_load_hits = 0

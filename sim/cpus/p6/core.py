@@ -47,11 +47,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from sim.memory.cache import LRU
 from sim.memory.hierarchy import (
-    CFG_OFFSET_BITS, CFG_REPLACEMENT, CFG_ROW0, CFG_SETS, CFG_WAYS, CFG_WRITE_BACK, memory_fill_page_hits,
-    memory_fills, memory_writeback_page_hits, memory_writebacks, served_level, service, CFG_TLB_WAYS,
-    tlb_missed, walk_pde_level, walk_pte_level, walk_read_result,
+    memory_fill_page_hits, memory_fills, memory_writeback_page_hits, memory_writebacks, served_level, service,
+    CFG_TLB_WAYS, tlb_missed, walk_pde_level, walk_pte_level, walk_read_result,
 )
 from sim.memory.replay import LOG_OFF, LOG_REPLAY, logged_service
 from sim.cpus.lowering import (
@@ -73,8 +71,8 @@ from sim.cpus.contract import (
     S_STALL_WINDOW, S_L1D_MISSES, S_L2_MISSES, T_NAMES, NT, CAUSES,
 )
 from sim.cpus.shared_core import (
-    FW, IDX, WINDOW, access_end, add_l1_hits, book_port, btb_alloc, queued_store, remember_store,
-    plain_hit, REPLAYED_HIT, segments_ended, tlb_hit, uncounted,
+    FW, IDX, REPLAYED_HIT, WINDOW, access_end, add_l1_hits, book_port, btb_alloc, l1_geometry, plain_hit,
+    queued_store, remember_store, segments_ended, tlb_hit, uncounted,
 )
 
 # parameter vector indices (the counter, per-instruction and timeline schemas are the contract's)
@@ -506,10 +504,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
     # Plain L1 hits (the common case) are done here, not by sim.memory.hierarchy.service: the same
     # updates (LRU clock and stamp, dirty bit, request and hit counts), with the clock and the
     # counts kept in locals (written back around each service call and at the end)
-    l1_ob, l1_row0 = dconfig[0, CFG_OFFSET_BITS], dconfig[0, CFG_ROW0]
-    l1_set_mask, l1_ways = dconfig[0, CFG_SETS] - 1, dconfig[0, CFG_WAYS]
-    l1_lru = dconfig[0, CFG_REPLACEMENT] == LRU
-    l1_write_back = dconfig[0, CFG_WRITE_BACK] != 0
+    l1_ob, l1_row0, l1_set_mask, l1_ways, l1_lru, l1_write_back = l1_geometry(dconfig)
     d_now = dclock[0]
     # The data TLB is probed on the inline L1-hit path (shared_core, tlb_hit). A replayed log says
     # itself which accesses were plain hits (plain_hit): no TLB state then.
