@@ -183,6 +183,18 @@ def plain_hit(dlog, log_off, tags, addr, size, ob, row0, set_mask, ways, eligibl
 
 
 @uncounted  # LLVM inlines it into the loops
+def l1_hit(stamps, dirty, row, way, is_write, lru, now):
+    """service's updates of a plain first-level hit at (row, way) found by plain_hit: the line's LRU
+    stamp (`now`, the hierarchy's clock, when `lru`), its dirty bit for a store. Returns the clock
+    after the access."""
+    if is_write:
+        dirty[row, way] = 1
+    if lru:
+        stamps[row, way] = now
+    return now + 1
+
+
+@uncounted  # LLVM inlines it into the loops
 def tlb_hit(has_tlb, dconfig, dwork, a):
     """Whether the data TLB holds the page of `a` (True with no TLB to model: `has_tlb` False), as
     service's probe (sim.memory.hierarchy.tlb_probe: a hit is re-stamped, a miss changes nothing).

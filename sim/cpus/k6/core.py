@@ -69,7 +69,7 @@ from sim.cpus.contract import (
     S_STALL_STORE_FORWARD, S_STALL_WINDOW, S_UOPS, T_NAMES,
 )
 from sim.cpus.shared_core import (
-    FW, IDX, REPLAYED_HIT, WINDOW, access_end, add_l1_hits, btb_alloc, dram_busy, dram_lead_off, l1_geometry,
+    FW, IDX, REPLAYED_HIT, WINDOW, access_end, add_l1_hits, btb_alloc, dram_busy, dram_lead_off, l1_geometry, l1_hit,
     plain_hit, queued_store, remember_store, segments_ended, tlb_hit, uncounted,
 )
 from sim.cpus.shared_core import book_port as _shared_book_port
@@ -475,12 +475,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     if row >= 0:  # a plain L1 hit: service's updates here (shared_core)
                         if w_:
                             l1_store_hits += 1
-                            ddirty[row, way] = 1
                         else:
                             l1_load_hits += 1
-                        if l1_lru:
-                            dstamps[row, way] = d_now
-                        d_now += 1
+                        d_now = l1_hit(dstamps, ddirty, row, way, w_, l1_lru, d_now)
                         r = LOGGED_HIT
                     elif row == REPLAYED_HIT:
                         r = LOGGED_HIT
@@ -692,9 +689,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                                          tlb_hit(has_tlb, dconfig, dclock, a))
                     if row >= 0:  # a plain L1 hit: service's updates here (shared_core)
                         l1_load_hits += 1
-                        if l1_lru:
-                            dstamps[row, way] = d_now
-                        d_now += 1
+                        d_now = l1_hit(dstamps, ddirty, row, way, False, l1_lru, d_now)
                         r = LOGGED_HIT
                     elif row == REPLAYED_HIT:
                         r = LOGGED_HIT
@@ -781,10 +776,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                                      l1_write_back and tlb_hit(has_tlb, dconfig, dclock, a))
                 if row >= 0:  # a plain L1 hit: service's updates here (shared_core)
                     l1_store_hits += 1
-                    ddirty[row, way] = 1
-                    if l1_lru:
-                        dstamps[row, way] = d_now
-                    d_now += 1
+                    d_now = l1_hit(dstamps, ddirty, row, way, True, l1_lru, d_now)
                     r = LOGGED_HIT
                 elif row == REPLAYED_HIT:
                     r = LOGGED_HIT

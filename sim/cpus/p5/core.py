@@ -55,7 +55,7 @@ from sim.memory.hierarchy import (
 )
 from sim.cpus.lowering import BR_COND, BR_NONE, BR_RET, REG_ST0
 from sim.cpus.shared_core import (
-    IDX, add_l1_hits, dram_busy, dram_lead_off, l1_geometry, l1_way, tlb_hit, uncounted,
+    IDX, add_l1_hits, dram_busy, dram_lead_off, l1_geometry, l1_hit, l1_way, tlb_hit, uncounted,
 )
 from sim.cpus.shared_core import btb_alloc  # shared BTB victim choice (LRU by last use)
 
@@ -492,12 +492,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, first, acc, mem_insn, mem_addr, mem
                 if row >= 0:  # a plain L1 hit, inline (shared_core)
                     if w_:
                         l1_store_hits += 1
-                        ddirty[row, way] = 1
                     else:
                         l1_load_hits += 1
-                    if l1_lru:
-                        dstamps[row, way] = d_now
-                    d_now += 1
+                    d_now = l1_hit(dstamps, ddirty, row, way, w_, l1_lru, d_now)
                 else:
                     dclock[0] = d_now
                     r = service(dtags, dstamps, ddirty, dconfig, dclock, dstats, addr, sz, w_)

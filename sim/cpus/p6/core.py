@@ -71,7 +71,7 @@ from sim.cpus.contract import (
     S_STALL_WINDOW, S_L1D_MISSES, S_L2_MISSES, T_NAMES, NT, CAUSES,
 )
 from sim.cpus.shared_core import (
-    FW, IDX, REPLAYED_HIT, WINDOW, access_end, add_l1_hits, book_port, btb_alloc, l1_geometry, plain_hit,
+    FW, IDX, REPLAYED_HIT, WINDOW, access_end, add_l1_hits, book_port, btb_alloc, l1_geometry, l1_hit, plain_hit,
     queued_store, remember_store, segments_ended, tlb_hit, uncounted,
 )
 
@@ -582,12 +582,9 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                         if hit_row >= 0:
                             if w_:
                                 l1_store_hits += 1
-                                ddirty[hit_row, hit_way] = 1
                             else:
                                 l1_load_hits += 1
-                            if l1_lru:
-                                dstamps[hit_row, hit_way] = d_now
-                            d_now += 1
+                            d_now = l1_hit(dstamps, ddirty, hit_row, hit_way, w_, l1_lru, d_now)
                         elif hit_row != REPLAYED_HIT:
                             dclock[0] = d_now
                             w, bus_free, l2bus_free = _access_slow(dlog, dtags, dstamps, ddirty, dconfig, dclock, dstats,
@@ -858,9 +855,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                         tlb_hit(has_tlb, dconfig, dclock, a))
                     if hit_row >= 0:
                         l1_load_hits += 1
-                        if l1_lru:
-                            dstamps[hit_row, hit_way] = d_now
-                        d_now += 1
+                        d_now = l1_hit(dstamps, ddirty, hit_row, hit_way, False, l1_lru, d_now)
                     elif hit_row == REPLAYED_HIT:
                         pass
                     else:
@@ -1010,10 +1005,7 @@ def simulate(base, next_pc, dyn_sid, dyn_pc, mem_insn, mem_addr, mem_size, mem_w
                     l1_write_back and tlb_hit(has_tlb, dconfig, dclock, a))
                 if hit_row >= 0:
                     l1_store_hits += 1
-                    if l1_lru:
-                        dstamps[hit_row, hit_way] = d_now
-                    d_now += 1
-                    ddirty[hit_row, hit_way] = 1
+                    d_now = l1_hit(dstamps, ddirty, hit_row, hit_way, True, l1_lru, d_now)
                 elif hit_row == REPLAYED_HIT:
                     pass
                 else:
